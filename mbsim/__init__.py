@@ -1,0 +1,21 @@
+"""mbsim: spatial multibody dynamics in Cartesian coordinates with Euler parameters.
+
+Formulation and notation follow E. J. Haug, *Computer-Aided Kinematics and Dynamics of
+Mechanical Systems* (1989), Chapters 9-12.
+
+Glossary (used throughout the code, written once here):
+
+- ``nb``: number of bodies (ground included when the deck has one); ``nq = 7 nb``.
+- ``q``: (nq,) generalized coordinates, per body ``[r (3), p (4)]``: centroid position in
+  the global frame and Euler parameters ``p = (e0, e1, e2, e3)``.
+- ``qd``, ``qdd``: first and second time derivatives of ``q``.
+- ``A(p)``: (3, 3) rotation matrix, body frame -> global (Haug eq. 6.3.20).
+- ``G(p)``, ``E(p)``: (3, 4) with ``omega_local = 2 G pd`` and ``omega = 2 E pd`` (Haug eq. 6.3.21).
+- ``phi``: (m,) constraint residuals Phi(q, t); ``phi_q``: (m, nq) Jacobian.
+- ``nu``: (m,) velocity right side, ``phi_q qd = nu = -phi_t``.
+- ``gamma``: (m,) acceleration right side, ``phi_q qdd = gamma``.
+- ``lam``: (m,) Lagrange multipliers; ``M``: (nq, nq) mass matrix; ``Q``: (nq,) applied forces.
+- suffix ``_local``: body frame; ``_q``: partial derivative in q.
+"""
+
+__version__ = "0.1.0"

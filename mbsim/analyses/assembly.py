@@ -1,0 +1,113 @@
+"""Assembly: Newton-Raphson with a line search from the deck's estimates onto Phi(q, t) = 0.
+
+The minimum-norm Newton step dq = -Phi_q^+ Phi works for any DOF (Haug Sec. 4.5 uses the
+square case); Euler parameters are renormalised after each step (the normalisation rows
+make that a no-op at convergence).  Redundant rows are found by a rank-revealing QR and
+reported by joint name: consistent redundancy is a warning (the rows are dropped by the
+analyses that need a full-rank Phi_q), a conflict is an error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mbsim import equations as eq
+from mbsim.analyses.common import rank_and_redundant
+from mbsim.errors import ConvergenceError, ModelError
+
+
+@dataclass
+class Assembly:
+    q: np.ndarray
+    iterations: int
+    residual: float  # max |Phi|
+    rank: int
+    redundant_rows: np.ndarray
+    redundant_items: list[str]
+    active_rows: np.ndarray  # rows kept (all minus redundant)
+    dof: int  # nq - rank
+    warnings: list[str] = field(default_factory=list)
+
+
+def worst_constraints(model, ph, n=5) -> str:
+    order = np.argsort(-np.abs(ph))[:n]
+    return ", ".join(f"{model.row_label[r]} = {ph[r]:.3g}" for r in order if abs(ph[r]) > 0)
+
+
+def normalize_q(model, q):
+    qq = q.reshape(model.nb, 7).copy()
+    qq[:, 3:] /= np.linalg.norm(qq[:, 3:], axis=1, keepdims=True)
+    return qq.reshape(-1)
+
+
+def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None):
+    """Solve Phi(q, t) = 0 (rows: the subset to solve); returns (q, iterations, max|Phi|).
+
+    Raises ConvergenceError naming the worst constraints if ||Phi|| stalls or max_iter passes.
+    """
+    q = normalize_q(model, np.array(q, float))
+    T = eq.constraints(model, q, t)
+    ph, J = T.phi, T.jac
+    if rows is not None:
+        ph, J = ph[rows], J[rows]
+    res = np.abs(ph).max(initial=0.0)
+    for it in range(1, max_iter + 1):
+        if res < tol:
+            return q, it - 1, res
+        dq = np.linalg.lstsq(J, -ph, rcond=None)[0]
+        f0 = ph @ ph
+        alpha = 1.0
+        while True:
+            qn = normalize_q(model, q + alpha * dq)
+            Tn = eq.constraints(model, qn, t)
+            phn, Jn = Tn.phi, Tn.jac
+            if rows is not None:
+                phn, Jn = phn[rows], Jn[rows]
+            if phn @ phn <= (1 - 1e-4 * alpha) * f0 or alpha < 1e-3:
+                break
+            alpha *= 0.5
+        q, ph, J = qn, phn, Jn
+        res = np.abs(ph).max(initial=0.0)
+    if res < tol:
+        return q, max_iter, res
+    full = eq.phi(model, q, t)
+    raise ConvergenceError(
+        f"Newton iteration did not converge in {max_iter} iterations (max |Phi| = {res:.3g}); "
+        f"worst constraints: {worst_constraints(model, full)}",
+        time=t, items=tuple(model.items_of_rows(np.argsort(-np.abs(full))[:3])),
+    )
+
+
+def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50) -> Assembly:
+    """Put q (default: the deck's estimates) on the constraint manifold and check its rank."""
+    q0 = model.q0 if q is None else q
+    try:
+        q, its, res = newton(model, q0, t, tol, max_iter)
+    except ConvergenceError as exc:
+        # A rank-deficient Phi_q where Newton stalls means constraints that contradict
+        # each other: name them rather than only the residuals.
+        qs = normalize_q(model, q0)
+        J = eq.phi_q(model, qs, t)
+        rank, red = rank_and_redundant(model, J)
+        if red.size:
+            names = model.items_of_rows(red)
+            raise ModelError(f"{exc}; Phi_q is rank deficient (rank {rank} of {model.m} rows), "
+                             f"conflicting or redundant: {', '.join(names)}", tuple(names)) from exc
+        raise
+    J = eq.phi_q(model, q, t)
+    rank, red = rank_and_redundant(model, J)
+    warnings = []
+    active = np.setdiff1d(np.arange(model.m), red)
+    red_items = model.items_of_rows(red) if red.size else []
+    if red.size:
+        # Consistent redundancy: Phi still vanishes after solving with the independent rows.
+        qa, _, _ = newton(model, q, t, tol, max_iter, rows=active)
+        resid = np.abs(eq.phi(model, qa, t)[red]).max()
+        if resid > 1e3 * tol:
+            raise ModelError(f"conflicting constraints: {', '.join(red_items)} "
+                             f"(residual {resid:.3g} once the others hold)", tuple(red_items))
+        warnings.append(f"redundant constraints removed: {', '.join(red_items)} "
+                        f"({red.size} equation(s): {', '.join(model.row_label[r] for r in red)})")
+    return Assembly(q, its, res, rank, red, red_items, active, model.nq - rank, warnings)

@@ -1,0 +1,103 @@
+"""Kinematic analysis of a driven system with DOF = 0 (Haug Sec. 3.6 / 7.x):
+at each output time solve Phi(q, t) = 0, Phi_q qd = nu, Phi_q qdd = gamma."""
+
+from __future__ import annotations
+
+import time as _time
+
+import numpy as np
+import scipy.linalg as la
+
+from mbsim import equations as eq
+from mbsim.analyses.assembly import assemble, newton
+from mbsim.analyses.common import Recorder, singular_rows
+from mbsim.errors import AnalysisError, ConvergenceError, ModelError, SingularJacobianError
+from mbsim.result import STATUS_INCOMPLETE
+
+DEFAULTS = {"t_start": 0.0, "t_end": 1.0, "step": 0.01, "tol": 1e-10, "max_iter": 25,
+            "cond_max": 1e12}
+
+
+def output_times(t0, t1, step):
+    n = int(round((t1 - t0) / step))
+    if n < 1 or abs(t0 + n * step - t1) > 1e-9 * max(1.0, abs(t1)):
+        n = int(np.ceil((t1 - t0) / step - 1e-9))
+    return np.linspace(t0, t1, n + 1) if n >= 1 else np.array([t0])
+
+
+def solve_square(model, J, rhs, t, what):
+    """Solve J x = rhs for square J; a singular J names the joints involved."""
+    try:
+        lu = la.lu_factor(J, check_finite=False)
+    except (la.LinAlgError, ValueError) as exc:  # pragma: no cover - lu_factor warns instead
+        raise SingularJacobianError(str(exc), time=t) from exc
+    piv = np.abs(np.diag(lu[0]))
+    if piv.min() <= 1e-14 * piv.max():
+        rows, s = singular_rows(model, J)
+        names = model.items_of_rows(rows)
+        raise SingularJacobianError(
+            f"singular constraint Jacobian in the {what} solve (smallest singular value "
+            f"{s[-1]:.3g}, largest {s[0]:.3g}); constraints involved: {', '.join(names)}",
+            time=t, items=tuple(names))
+    return la.lu_solve(lu, rhs, check_finite=False)
+
+
+def kinematic(model, options=None):
+    """Run a kinematic analysis; returns a Result (status incomplete on failure)."""
+    opt = dict(DEFAULTS, **(model.spec.analysis.get("kinematic", {}) if model.spec else {}))
+    opt.update({k: v for k, v in (options or {}).items() if v is not None})
+    wall0 = _time.perf_counter()
+    times = output_times(float(opt["t_start"]), float(opt["t_end"]), float(opt["step"]))
+    asm = assemble(model, t=times[0], tol=opt["tol"])
+    rows = asm.active_rows
+    if asm.dof != 0:
+        drivers = [it.name for it in model.items if it.kind == "driver"]
+        raise ModelError(
+            f"kinematic analysis needs DOF = 0, but the drivers ({', '.join(drivers) or 'none'}) "
+            f"leave DOF = {asm.dof}: add {asm.dof} driver(s) or run --mode dynamic")
+    rec = Recorder(model)
+    cond = []
+    q, qd_prev, qdd_prev = asm.q, None, None
+    status, message = "complete", ""
+    newton_its = 0
+    for k, t in enumerate(times):
+        try:
+            if k > 0:  # second-order predictor from the last solution
+                h = t - times[k - 1]
+                q = q + h * qd_prev + 0.5 * h * h * qdd_prev
+                q, its, _ = newton(model, q, t, opt["tol"], opt["max_iter"], rows=rows)
+                newton_its += its
+            T = eq.constraints(model, q, t, qd=None, phi=True, jac=True, nu=True)
+            J = T.jac[rows]
+            if model.nq <= 400:
+                s = np.linalg.svd(J, compute_uv=False)
+                c = s[0] / s[-1] if s[-1] > 0 else np.inf
+                if c > opt["cond_max"]:
+                    rws, _ = singular_rows(model, J)
+                    names = model.items_of_rows(rows[rws])
+                    raise SingularJacobianError(
+                        f"constraint Jacobian is singular (condition number {c:.3g} > "
+                        f"{opt['cond_max']:.3g}): a lock-up or bifurcation; constraints involved: "
+                        f"{', '.join(names)}", time=t, items=tuple(names))
+                cond.append(c)
+            qd = solve_square(model, J, T.nu[rows], t, "velocity")
+            G = eq.gamma(model, q, qd, t)[rows]
+            qdd = solve_square(model, J, G, t, "acceleration")
+        except (ConvergenceError, SingularJacobianError, AnalysisError) as exc:
+            status, message = STATUS_INCOMPLETE, str(exc)
+            break
+        rec.add(t, q, qd, qdd, residual=np.abs(T.phi).max())
+        qd_prev, qdd_prev = qd, qdd
+    res = rec.result("kinematic")
+    if len(rec):
+        res.add("constraints/residual", rec.extra["residual"], "", "max |Phi| after Newton")
+        if cond:
+            res.add("constraints/condition", cond[: len(rec)], "",
+                    "condition number of the driven Jacobian Phi_q")
+    res.status, res.message = status, message
+    res.settings = {k: (float(v) if isinstance(v, (int, float)) else v) for k, v in opt.items()}
+    res.counters = {"output_steps": len(rec), "newton_iterations": newton_its}
+    res.summary = {"dof": asm.dof, "rank": asm.rank, "redundant": asm.redundant_items,
+                   "assembly_iterations": asm.iterations}
+    res.wall_time = _time.perf_counter() - wall0
+    return res

@@ -1,0 +1,379 @@
+"""The command line: parse -> API call -> summary -> exit code.
+
+Exit codes: 0 success; 1 the analysis failed part-way (partial results written, marked
+incomplete) or a comparison found differences; 2 a deck or usage error.  Only this module
+talks to the terminal; the library reports through exceptions, Results and ``logging``.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+import click
+import numpy as np
+
+from mbsim import __version__
+from mbsim.errors import DeckError, MbsimError
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+def _fail(exc: Exception) -> None:
+    code = getattr(exc, "exit_code", EXIT_FAILED)
+    click.echo(f"error: {exc}".replace("\n", " "), err=True)
+    sys.exit(code)
+
+
+def _warn(lines) -> None:
+    for w in lines:
+        click.echo(f"warning: {w}", err=True)
+
+
+def _parse_sets(sets: tuple[str, ...]) -> dict[str, str]:
+    out = {}
+    for s in sets:
+        if "=" not in s:
+            raise click.UsageError(f"--set {s!r}: expected PATH=VALUE, e.g. parameters.k=2000")
+        k, v = s.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def _load(deck, sets=(), scene=None):
+    from mbsim.api import load_model
+
+    spec, model = load_model(deck, overrides=_parse_sets(sets), scene=scene)
+    _warn(spec.warnings)
+    return spec, model
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="mbsim")
+@click.option("-v", "--verbose", count=True, help="Log progress (-vv for debug).")
+def main(verbose: int) -> None:
+    """mbsim: spatial multibody kinematics and dynamics (Haug 1989) from YAML decks."""
+    level = logging.WARNING - 10 * min(verbose, 2)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+
+
+MODES = ["kinematic", "equilibrium", "inverse", "dynamic"]
+
+
+@main.command()
+@click.argument("deck", type=click.Path(dir_okay=False))
+@click.option("--mode", "-m", type=click.Choice(MODES), required=True, help="Analysis to run.")
+@click.option("-o", "--output", help="Results file (HDF5); may hold {param} fields. "
+              "Default: <deck>_<mode>.h5")
+@click.option("--set", "sets", multiple=True, metavar="PATH=VALUE",
+              help="Override a deck value, e.g. parameters.k=2000 (repeatable).")
+@click.option("--scene", help="Apply a named scene of the deck.")
+@click.option("--t-end", type=float, help="End time, s.")
+@click.option("--step", type=float, help="Output step, s (fixed step for fixed-step methods).")
+@click.option("--integrator", help="Integrator name (dynamic mode); see `mbsim list integrators`.")
+@click.option("--rtol", type=float, help="Relative tolerance (dynamic mode).")
+@click.option("--atol", type=float, help="Absolute tolerance (dynamic mode).")
+@click.option("--method", help="Equilibrium method: minimum | settle | steady.")
+@click.option("--plot", "make_plot", is_flag=True, help="Also write a PNG of the main outputs.")
+@click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
+def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, method, make_plot,
+        quiet):
+    """Run an analysis of DECK and write the results to HDF5.
+
+    Example: mbsim run models/governor.yaml --mode dynamic --t-end 2 -o gov.h5
+    """
+    from mbsim.api import output_path, run_model
+    from mbsim.output import write_result
+
+    try:
+        spec, model = _load(deck, sets, scene)
+        out = output_path(output, deck, mode, spec.parameters, scene)
+        opts = {"t_end": t_end, "step": step, "integrator": integrator, "rtol": rtol,
+                "atol": atol, "method": method}
+        opts = {k: v for k, v in opts.items() if v is not None}
+        result = run_model(model, mode, opts)
+        result.settings.setdefault("overrides", _parse_sets(sets))
+        if scene:
+            result.settings.setdefault("scene", scene)
+        write_result(result, out)
+    except MbsimError as exc:
+        _fail(exc)
+    if make_plot:
+        _default_plot(result, out.with_suffix(".png"))
+    if not quiet:
+        _summary(result, out)
+    if not result.complete:
+        click.echo(f"error: {result.message} (results up to t = "
+                   f"{result.t[-1] if len(result.t) else float('nan'):.6g} s kept in {out}, "
+                   "marked incomplete)", err=True)
+        sys.exit(EXIT_FAILED)
+
+
+def _summary(result, out) -> None:
+    nt = len(result.t)
+    span = f"t = {result.t[0]:.6g} .. {result.t[-1]:.6g} s, {nt} outputs" if nt else "no outputs"
+    click.echo(f"{result.mode}: {result.status}; {span}; wall {result.wall_time:.3g} s -> {out}")
+    for k, v in result.summary.items():
+        if isinstance(v, (list, tuple)) and len(v) > 8:
+            v = f"[{len(v)} values]"
+        click.echo(f"  {k}: {v}")
+    if result.counters:
+        click.echo("  " + ", ".join(f"{k} {v}" for k, v in result.counters.items()))
+
+
+def _default_plot(result, path: Path) -> None:
+    from mbsim.output import plot_channels, save_figure
+
+    names = [n for n in result.channels if n.startswith(("drivers/", "points/"))
+             and n.endswith(("torque", "force", "position"))]
+    if not names:
+        names = [n for n in result.channels if n.startswith("bodies/") and n.endswith("/r")]
+        names = [n for n in names if not n.startswith("bodies/ground")][:4]
+    if not names:
+        return
+    fig = plot_channels(result, names[:6], title=f"{result.mode}: {Path(result.deck_file).name}")
+    save_figure(fig, path)
+    click.echo(f"  plot -> {path}")
+
+
+@main.command()
+@click.argument("deck", type=click.Path(dir_okay=False))
+@click.option("--set", "sets", multiple=True, metavar="PATH=VALUE", help="Override a deck value.")
+@click.option("--scene", help="Apply a named scene of the deck.")
+def info(deck, sets, scene):
+    """Print the kinematic model as the book lists it: bodies, nc, constraints, nh, DOF,
+    and the rank of Phi_q at the assembled configuration.
+
+    Example: mbsim info models/governor.yaml
+    """
+    from mbsim.analyses.assembly import assemble
+
+    try:
+        spec, model = _load(deck, sets, scene)
+    except MbsimError as exc:
+        _fail(exc)
+    nc = model.nq
+    click.echo(f"{model.title or Path(deck).name}")
+    click.echo("Bodies")
+    click.echo(f"  {model.nb} bodies{'':<31}nc = {nc}")
+    for n in model.body_names:
+        b = spec.bodies[n]
+        tag = "ground" if b.ground else f"m = {b.mass:g} kg"
+        click.echo(f"    {n:<24} {tag}")
+    click.echo("Constraints")
+    nh = 0
+    groups: dict[str, int] = {}
+    for it in model.items:
+        if it.kind in ("joint", "driver"):
+            label = f"{it.type} {'driver' if it.kind == 'driver' else 'joint'}: {it.name}"
+            click.echo(f"  {label:<40}{it.rows.size}")
+        else:
+            groups[it.kind] = groups.get(it.kind, 0) + it.rows.size
+        nh += it.rows.size
+    if groups.get("ground"):
+        click.echo(f"  {'Ground constraint':<40}{groups['ground']}")
+    click.echo(f"  {'Euler parameter normalization':<40}{groups.get('normalization', 0)}")
+    click.echo(f"  {'':<40}nh = {nh}")
+    click.echo(f"DOF = {nc} - {nh} = {nc - nh}")
+    try:
+        asm = assemble(model)
+        red = f"redundant: {', '.join(asm.redundant_items)}" if asm.redundant_items else \
+            "no redundant constraints"
+        click.echo(f"Rank of Phi_q at the assembled configuration: {asm.rank} of {model.m} rows "
+                   f"({red}); DOF = {asm.dof}")
+    except MbsimError as exc:
+        click.echo(f"assembly failed: {exc}", err=True)
+        sys.exit(EXIT_FAILED)
+
+
+@main.command()
+@click.argument("deck", type=click.Path(dir_okay=False))
+@click.option("--set", "sets", multiple=True, metavar="PATH=VALUE", help="Override a deck value.")
+@click.option("--scene", help="Apply a named scene of the deck.")
+@click.option("-n", "--worst", default=5, show_default=True, help="How many residuals to print.")
+def check(deck, sets, scene, worst):
+    """Validate DECK, assemble it, and print the worst constraint residuals before and after.
+
+    Example: mbsim check models/slider_crank.yaml
+    """
+    from mbsim import equations as eq
+    from mbsim.analyses.assembly import assemble
+
+    try:
+        spec, model = _load(deck, sets, scene)
+        ph0 = eq.phi(model, model.q0)
+        asm = assemble(model)
+    except MbsimError as exc:
+        _fail(exc)
+    ph = eq.phi(model, asm.q)
+    click.echo(f"{deck}: {model.nb} bodies, {model.m} constraint equations, DOF {asm.dof}")
+    click.echo(f"deck estimates: max |Phi| = {np.abs(ph0).max(initial=0):.3e}")
+    for r in np.argsort(-np.abs(ph0))[:worst]:
+        if abs(ph0[r]) > 0:
+            click.echo(f"    {model.row_label[r]:<40} {ph0[r]: .3e}")
+    click.echo(f"assembled in {asm.iterations} Newton iterations: max |Phi| = "
+               f"{np.abs(ph).max(initial=0):.3e}")
+    for r in np.argsort(-np.abs(ph))[:worst]:
+        click.echo(f"    {model.row_label[r]:<40} {ph[r]: .3e}")
+    dq = (asm.q - model.q0).reshape(model.nb, 7)
+    moved = np.argsort(-np.linalg.norm(dq[:, :3], axis=1))[:3]
+    for b in moved:
+        click.echo(f"  body {model.body_names[b]} moved {np.linalg.norm(dq[b, :3]):.3e} m")
+    _warn(asm.warnings)
+
+
+@main.command()
+@click.argument("files", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("-y", "ys", multiple=True, help="Channel(s) to plot, e.g. drivers.crank.torque.")
+@click.option("-x", "x", default="time", show_default=True, help="Channel for the x axis.")
+@click.option("-o", "--output", default="plot.png", show_default=True,
+              help="Figure file: .png, .svg or .pdf.")
+@click.option("--label", "labels", multiple=True, help="Curve label per file (with several files).")
+@click.option("--title", help="Figure title.")
+@click.option("--list", "list_only", is_flag=True, help="List the channels of the file(s).")
+def plot(files, ys, x, output, labels, title, list_only):
+    """Plot stored channels of results file(s) against time or another channel.
+
+    Example: mbsim plot slider_inverse.h5 -y drivers.crank.torque -o torque.png
+    """
+    from mbsim.output import list_channels, plot_channels, plot_results, read_result, save_figure
+
+    try:
+        if list_only:
+            for f in files:
+                click.echo(f"{f}:")
+                for name, shape, unit, desc in list_channels(f):
+                    click.echo(f"  {name.replace('/', '.'):<44} {str(shape):<10} {unit:<8} {desc}")
+            return
+        if not ys:
+            raise click.UsageError("name at least one channel with -y (see --list)")
+        results = [read_result(f) for f in files]
+        if len(results) == 1:
+            fig = plot_channels(results[0], list(ys), x=x, title=title)
+        else:
+            labs = list(labels) or [Path(f).stem for f in files]
+            fig = plot_results(list(zip(labs, results)), ys[0], x=x, title=title)
+        save_figure(fig, output)
+    except KeyError as exc:
+        _fail(DeckError(str(exc).strip("'\"")))
+    except (MbsimError, ValueError, OSError) as exc:
+        _fail(DeckError(str(exc)))
+    click.echo(f"plot -> {output}")
+
+
+@main.command("list")
+@click.argument("what", type=click.Choice(["joints", "drivers", "forces", "integrators", "modes",
+                                           "functions", "units"]), default="joints")
+def list_(what):
+    """List what the registries hold, one line each.
+
+    Example: mbsim list joints
+    """
+    if what == "joints":
+        from mbsim.constraints import JOINTS
+
+        for name, cls in JOINTS.items():
+            click.echo(f"{name:<22} {cls.n_eq} eq.  {cls.description}")
+    elif what == "drivers":
+        from mbsim.constraints import DRIVERS
+
+        for name, cls in DRIVERS.items():
+            click.echo(f"{name:<22} {cls.description} [{cls.effort_unit}]")
+    elif what == "forces":
+        from mbsim.forces import FORCES
+
+        for name, cls in FORCES.items():
+            click.echo(f"{name:<22} {cls.description}")
+    elif what == "integrators":
+        try:
+            from mbsim.integrators import INTEGRATORS
+        except ImportError:
+            INTEGRATORS = {}
+        for name, cls in INTEGRATORS.items():
+            doc = getattr(cls, "description", "") or (cls.__doc__ or "").strip().splitlines()[0]
+            click.echo(f"{name:<22} {doc}")
+    elif what == "modes":
+        from mbsim.api import ANALYSES
+
+        for name, (_, _, desc) in ANALYSES.items():
+            click.echo(f"{name:<22} {desc}")
+    elif what == "functions":
+        from mbsim.expr import FUNCTIONS
+
+        click.echo(" ".join(sorted(FUNCTIONS)))
+    elif what == "units":
+        from mbsim.units import UNITS
+
+        click.echo(" ".join(sorted(UNITS)))
+
+
+@main.command()
+@click.argument("a", type=click.Path(exists=True, dir_okay=False))
+@click.argument("b", type=click.Path(exists=True, dir_okay=False))
+@click.option("--rtol", type=float, default=1e-9, show_default=True)
+@click.option("--atol", type=float, default=0.0, show_default=True)
+@click.option("--channels", help="Comma-separated channels to compare (default: all).")
+@click.option("-n", "--worst", default=10, show_default=True, help="Rows in the table.")
+def compare(a, b, rtol, atol, channels, worst):
+    """Compare results A against reference B: exit 0 if they agree, 1 if not.
+
+    Example: mbsim compare new.h5 golden.h5 --rtol 1e-6 --atol 1e-9
+    """
+    from mbsim.output import compare_results, read_result
+
+    try:
+        ra, rb = read_result(a), read_result(b)
+        chans = [c.strip().replace(".", "/") for c in channels.split(",")] if channels else None
+        ok, diffs, problems = compare_results(ra, rb, rtol=rtol, atol=atol, channels=chans)
+    except (MbsimError, KeyError, ValueError, OSError) as exc:
+        _fail(DeckError(str(exc)))
+    for p in problems:
+        click.echo(f"problem: {p}")
+    bad = [d for d in diffs if d.failed]
+    show = bad or diffs
+    if show:
+        click.echo(f"{'channel':<40} {'time':>10} {'A':>14} {'B':>14} {'|A-B|':>10} {'scaled':>8}")
+        for d in show[:worst]:
+            click.echo(f"{d.channel.replace('/', '.'):<40} {d.time:>10.5g} {d.a:>14.7g} "
+                       f"{d.b:>14.7g} {d.abs_err:>10.3g} {d.scaled:>8.3g}")
+    click.echo(f"{'agree' if ok else 'DIFFER'}: {len(bad)} of {len(diffs)} channels outside "
+               f"rtol={rtol:g}, atol={atol:g}")
+    sys.exit(EXIT_OK if ok else EXIT_FAILED)
+
+
+@main.command()
+@click.argument("file", type=click.Path(exists=True, dir_okay=False))
+@click.option("--csv", "csv_path", default=None, help="CSV file to write (default: FILE.csv).")
+@click.option("--channels", help="Comma-separated channels (default: all).")
+def export(file, csv_path, channels):
+    """Export a results file to CSV for spreadsheets.
+
+    Example: mbsim export gov.h5 --csv gov.csv --channels bodies.collar.r
+    """
+    from mbsim.output import export_csv, read_result
+
+    try:
+        res = read_result(file)
+        chans = [c.strip() for c in channels.split(",")] if channels else None
+        paths = export_csv(res, csv_path or str(Path(file).with_suffix(".csv")), channels=chans)
+    except (MbsimError, KeyError, ValueError, OSError) as exc:
+        _fail(DeckError(str(exc)))
+    for p in paths:
+        click.echo(f"csv -> {p}")
+
+
+def _register_optional() -> None:
+    """Commands contributed by other modules (kept out of this file's import cost)."""
+    for mod, attr in (("mbsim.cli_dynamic", "bench_command"),):
+        try:
+            module = __import__(mod, fromlist=[attr])
+        except ImportError:
+            continue
+        main.add_command(getattr(module, attr))
+
+
+_register_optional()
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,434 @@
+"""Deck file -> validated :class:`~mbsim.deck.spec.DeckSpec` (the format: docs/deck.md).
+
+Steps: read the text; compose the YAML into a line-aware tree (:mod:`mbsim.deck.tree`);
+apply the scene (remove, set, analysis) and then the ``--set`` overrides to that tree;
+validate it section by section, converting numbers to SI floats.  Every problem is a
+one-line :class:`DeckError` naming file, key path and line.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from mbsim import rotations
+from mbsim.deck import schema
+from mbsim.deck.schema import FIELD_DIMENSIONS as DIM
+from mbsim.deck.spec import (
+    BodySpec,
+    DeckSpec,
+    DriverSpec,
+    ForceSpec,
+    JointSpec,
+    OutputSpec,
+    PointSet,
+)  # fmt: skip
+from mbsim.deck.tree import Node, apply_override, apply_scene, compose, scene_names, to_plain
+from mbsim.deck.values import NAME_RE, Reader, describe
+from mbsim.errors import DeckError, Where
+from mbsim.expr import FUNCTIONS, RESERVED
+
+
+def load_deck(
+    path: str | Path, overrides: Mapping[str, str] | None = None, scene: str | None = None
+) -> DeckSpec:
+    """Read and validate the deck file at ``path``.
+
+    Parameters
+    ----------
+    path : deck file (YAML).
+    overrides : {key path: value} from ``mbsim run --set PATH=VALUE``; values are YAML text.
+    scene : name of an entry of the deck's ``scenes:`` to apply before the overrides.
+    """
+    file = str(path)
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise DeckError("no such deck file", Where(file)) from None
+    except IsADirectoryError:
+        raise DeckError("is a directory, not a deck file", Where(file)) from None
+    except OSError as exc:
+        raise DeckError(f"cannot read the deck: {exc.strerror or exc}", Where(file)) from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise DeckError(
+            f"not a text file: byte 0x{data[exc.start]:02x} at offset {exc.start} is not UTF-8",
+            Where(file, "", line),
+        ) from None
+    return load_deck_text(text, file, overrides, scene)
+
+
+def load_deck_text(
+    text: str, file: str = "<deck>", overrides: Mapping[str, str] | None = None,
+    scene: str | None = None,
+) -> DeckSpec:  # fmt: skip
+    """Validate deck ``text``; ``file`` is the name used in messages (see :func:`load_deck`)."""
+    root = compose(text, file)
+    if root is None or root.kind != "map":
+        got = "an empty file" if root is None else describe(root)
+        raise DeckError(
+            f"expected a mapping of top-level keys (bodies, joints, ...), got {got}",
+            Where(file, "", None if root is None else root.line),
+        )
+    for name in scene_names(root):  # every scene must apply, not only the one asked for
+        if name != scene:
+            apply_scene(copy.deepcopy(root), name, file)
+    if scene is not None:
+        apply_scene(root, scene, file)
+    for key, value in (overrides or {}).items():
+        apply_override(root, key, value, file)
+    return _build(root, Reader(file), text, scene)
+
+
+# -- the deck -----------------------------------------------------------------------------------
+def _build(root: Node, rd: Reader, text: str, scene: str | None) -> DeckSpec:
+    top = rd.fields(root, Where(rd.file, "", root.line), schema.TOP_KEYS, ("bodies",), "a deck")
+    title = ""
+    if "title" in top:
+        title = str(to_plain(top["title"][0]) or "")
+    if "units" in top and rd.name(*top["units"], what="units") not in ("SI", "si"):
+        node, w = top["units"]
+        raise rd.error(
+            w,
+            f"only SI units are supported, got {describe(node)} (write values "
+            "with other units as strings: '12 in', '30 deg')",
+            node,
+        )
+    if "parameters" in top:
+        _parameters(rd, *top["parameters"])
+    gravity = rd.vector(*top["gravity"], 3, "acceleration") if "gravity" in top else np.zeros(3)
+    bodies = _section(rd, top, "bodies", _body)
+    if not bodies:
+        raise rd.error(top["bodies"][1], "expected at least one body")
+    joints = _section(rd, top, "joints", _joint, bodies)
+    drivers = _section(rd, top, "drivers", _driver, bodies, joints)
+    forces = _section(rd, top, "forces", _force, bodies, joints)
+    outputs = _outputs(rd, *top["outputs"], bodies) if "outputs" in top else {}
+    analysis = _analysis(rd, *top["analysis"]) if "analysis" in top else {}
+    if "scenes" in top:
+        for name, node, w in rd.items(*top["scenes"]):
+            rd.fields(node, w, schema.SCENE_KEYS, what="a scene")
+    return DeckSpec(
+        title=title, file=rd.file, text=text, gravity=gravity, parameters=dict(rd.params),
+        bodies=bodies, joints=joints, drivers=drivers, forces=forces, outputs=outputs,
+        analysis=analysis, raw=to_plain(root), warnings=rd.warnings, scene=scene,
+    )  # fmt: skip
+
+
+def _section(rd: Reader, top: dict, key: str, build, *known) -> dict:
+    if key not in top:
+        return {}
+    node, where = top[key]
+    if node.kind == "scalar" and node.value is None:
+        return {}  # `joints:` with nothing under it
+    return {name: build(rd, name, child, w, *known) for name, child, w in rd.items(node, where)}
+
+
+def _parameters(rd: Reader, node: Node, where: Where) -> None:
+    """Evaluated in order; a parameter may use the ones before it."""
+    items = rd.items(node, where) if not (node.kind == "scalar" and node.value is None) else []
+    names = [k for k, _, _ in items]
+    for i, (name, child, w) in enumerate(items):
+        if not NAME_RE.fullmatch(name) or name in RESERVED or name in FUNCTIONS or name == "t":
+            why = "is reserved" if NAME_RE.fullmatch(name) else "is not a name"
+            raise rd.error(
+                w,
+                f"parameter name {name!r} {why} (use letters, digits, _; not t, "
+                "pi, e or a function name)",
+            )
+        try:
+            rd.params[name] = rd.number(child, w)
+        except DeckError:
+            text = child.value if child.kind == "scalar" and isinstance(child.value, str) else ""
+            later = [n for n in names[i:] if n in NAME_RE.findall(text)]
+            if not later:
+                raise
+            what = "itself" if later[0] == name else f"{later[0]!r}, which comes later"
+            raise rd.error(
+                w,
+                f"parameter {name!r} uses {what}; a parameter may only use "
+                "parameters defined before it",
+                child,
+            ) from None
+
+
+# -- bodies -------------------------------------------------------------------------------------
+def _body(rd: Reader, name: str, node: Node, where: Where) -> BodySpec:
+    pre = rd.fields(node, where, schema.BODY_KEYS, what="a body")
+    ground = False
+    if "ground" in pre:
+        gnode, gw = pre["ground"]
+        if not isinstance(gnode.value, bool):
+            raise rd.error(gw, f"expected true or false, got {describe(gnode)}", gnode)
+        ground = gnode.value
+    got = rd.fields(
+        node,
+        where,
+        schema.BODY_KEYS,
+        () if ground else ("mass", "inertia"),
+        "a body (give mass and inertia, or ground: true)",
+    )
+    if ground:
+        moving = [k for k in ("omega", "omega_local", "rdot") if k in got]
+        if moving:
+            raise rd.error(got[moving[0]][1], f"a ground body does not move; remove {moving[0]!r}")
+    mass = rd.number(*got["mass"], "mass") if "mass" in got else 1.0
+    if mass <= 0:
+        raise rd.error(got["mass"][1], f"mass must be > 0, got {mass:g}", got["mass"][0])
+    inertia = _inertia(rd, *got["inertia"]) if "inertia" in got else np.eye(3)
+    vec = {
+        k: rd.vector(*got[k], 3, DIM[k]) for k in ("r", "rdot", "omega", "omega_local") if k in got
+    }
+    if "omega" in got and "omega_local" in got:
+        raise rd.error(
+            got["omega_local"][1], "give omega (global frame) or omega_local (body frame), not both"
+        )
+    return BodySpec(
+        name=name, mass=mass, inertia=inertia, r=vec.get("r", np.zeros(3)),
+        p=_orientation(rd, got), rdot=vec.get("rdot", np.zeros(3)), omega=vec.get("omega"),
+        omega_local=vec.get("omega_local"), ground=ground, where=where,
+    )  # fmt: skip
+
+
+def _inertia(rd: Reader, node: Node, where: Where) -> np.ndarray:
+    """J' from Ixx Iyy Izz [Ixy Iyz Izx]; products enter with a + sign (Haug's tables)."""
+    n = len(node.value) if node.kind == "seq" else 0
+    vals = rd.vector(node, where, 6 if n == 6 else 3, "inertia")
+    ixx, iyy, izz = vals[:3]
+    ixy, iyz, izx = vals[3:] if n == 6 else (0.0, 0.0, 0.0)
+    J = np.array([[ixx, ixy, izx], [ixy, iyy, iyz], [izx, iyz, izz]])
+    eig = np.linalg.eigvalsh(J)
+    trace = float(np.trace(J))
+    if eig[0] < -1e-12 * abs(trace) or trace <= 0 and eig[0] < 0:
+        raise rd.error(
+            where,
+            f"inertia has a negative principal moment ({eig[0]:.4g} kg m²); "
+            "the tensor must be positive (semi)definite",
+            node,
+        )
+    tol = 1e-12 * max(trace, 0.0)
+    if eig[0] <= tol:
+        rd.warn(
+            where,
+            f"inertia has a zero principal moment (principal moments "
+            f"{', '.join(f'{e:.4g}' for e in eig)}); the body can only be used where "
+            "constraints hold it",
+        )
+    elif eig[0] + eig[1] < eig[2] * (1 - 1e-9):
+        rd.warn(
+            where,
+            f"principal moments {', '.join(f'{e:.4g}' for e in eig)} violate the "
+            "triangle inequality (no real body has them)",
+        )
+    return J
+
+
+def _orientation(rd: Reader, got: dict) -> np.ndarray:
+    given = [k for k in schema.ORIENTATION_KEYS if k in got]
+    if len(given) > 1:
+        raise rd.error(
+            got[given[1]][1], f"give one of p, euler_deg, axis_angle; got {' and '.join(given)}"
+        )
+    if not given:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    key = given[0]
+    node, where = got[key]
+    if key == "euler_deg":  # plain numbers are degrees; a quantity ('1 rad') is converted
+        if node.kind != "seq" or len(node.value) != 3:
+            raise rd.error(where, f"expected 3 numbers, got {describe(node)}", node)
+        angles = []
+        for i, v in enumerate(node.value):
+            x, with_unit = rd.number_info(
+                v, Where(rd.file, f"{where.path}[{i}]", where.line), "angle"
+            )
+            angles.append(x if with_unit else math.radians(x))
+        return rotations.from_euler313(*angles)
+    if key == "axis_angle":
+        aa = rd.fields(node, where, schema.AXIS_ANGLE_KEYS, schema.AXIS_ANGLE_KEYS, "axis_angle")
+        axis = rd.vector(*aa["axis"], 3)
+        if np.linalg.norm(axis) < 1e-12:
+            raise rd.error(aa["axis"][1], "the rotation axis has zero length")
+        return rotations.from_axis_angle(axis, rd.number(*aa["angle"], "angle"))
+    p = rd.vector(node, where, 4)
+    norm = float(np.linalg.norm(p))
+    if abs(norm - 1.0) > 0.01:
+        raise rd.error(
+            where,
+            f"Euler parameters have length {norm:.4g}; expected unit length "
+            "(e0² + e1² + e2² + e3² = 1)",
+            node,
+        )
+    if abs(norm - 1.0) > 1e-3:
+        rd.warn(where, f"Euler parameters have length {norm:.4g}; normalised")
+    return p / norm
+
+
+# -- joints, drivers, forces --------------------------------------------------------------------
+def _joint(rd: Reader, name: str, node: Node, where: Where, bodies: dict) -> JointSpec:
+    got = rd.fields(node, where, schema.JOINT_KEYS, ("type",), "a joint")
+    jtype = rd.choice(*got["type"], schema.JOINT_TYPES, "joint type")
+    spec = schema.JOINT_TYPES[jtype]
+    allowed = ("type", "bodies", "points") + spec.data
+    got = rd.fields(node, where, allowed, ("bodies", "points") + spec.data, f"a {jtype} joint")
+    one = spec.needs_j is None
+    names = rd.body_names(*got["bodies"], bodies, 1 if one else 2)
+    needs = {names[0]: spec.needs_i} if one else dict(zip(names, (spec.needs_i, spec.needs_j)))
+    points = rd.points(*got["points"], needs)
+    data: dict = {}
+    if "distance" in got:
+        data["distance"] = rd.number(*got["distance"], "length")
+        if data["distance"] <= 0:
+            raise rd.error(got["distance"][1], f"distance must be > 0, got {data['distance']:g}")
+    if "axis" in got:
+        data["axis"] = rd.choice(*got["axis"], schema.AXES, "axis")
+        data["value"] = rd.function(*got["value"], "length")
+    return JointSpec(name, jtype, (names[0], None if one else names[1]), points, data, where)
+
+
+def _driver(rd: Reader, name: str, node: Node, where: Where, bodies: dict,
+            joints: dict) -> DriverSpec:  # fmt: skip
+    got = rd.fields(node, where, schema.DRIVER_KEYS, ("type",), "a driver")
+    dtype = rd.choice(*got["type"], schema.DRIVER_TYPES, "driver type")
+    spec = schema.DRIVER_TYPES[dtype]
+    required = ("function",) + tuple(k for k in spec.keys if k != "point")
+    got = rd.fields(node, where, ("type", "function") + spec.keys, required, f"a {dtype} driver")
+    function = rd.function(*got["function"], spec.dim)
+    out = DriverSpec(name, dtype, function, where=where)
+    if "joint" in got:
+        out.joint = rd.name(*got["joint"], joints, "joint")
+        joint = joints[out.joint]
+        if joint.type not in spec.joints:
+            raise rd.error(
+                got["joint"][1],
+                f"a {dtype} driver needs a "
+                f"{' or '.join(spec.joints)} joint; {out.joint} is {joint.type}",
+            )
+        out.bodies = joint.bodies
+        if dtype == "rotation" and joint.points[joint.bodies[1]].R is None:
+            rd.warn(got["joint"][1], f"joint {out.joint} gives no R on body {joint.bodies[1]}; "
+                    "the angle is measured from an arbitrary direction across the axis")  # fmt: skip
+    elif dtype == "distance":
+        out.bodies = rd.body_names(*got["bodies"], bodies, 2)
+        out.points = rd.points(*got["points"], dict.fromkeys(out.bodies, "P"))
+    else:  # absolute
+        body = rd.name(*got["body"], bodies, "body")
+        out.bodies = (body, None)
+        P = rd.vector(*got["point"], 3, "length") if "point" in got else np.zeros(3)
+        out.points = {body: PointSet(P, where=got.get("point", (None, where))[1])}
+        out.data["axis"] = rd.choice(*got["axis"], schema.AXES, "axis")
+    return out
+
+
+def _force(rd: Reader, name: str, node: Node, where: Where, bodies: dict,
+           joints: dict) -> ForceSpec:  # fmt: skip
+    got = rd.fields(
+        node,
+        where,
+        sorted({k for t in schema.FORCE_TYPES for k in schema.force_keys(t)}),
+        ("type",),
+        "a force",
+    )
+    ftype = rd.choice(*got["type"], schema.FORCE_TYPES, "force type")
+    spec = schema.FORCE_TYPES[ftype]
+    required = tuple(k for k, f in spec.fields.items() if f.required)
+    if spec.bodies == "pair":
+        required += ("bodies", "points")
+    elif spec.bodies.startswith("one"):
+        required += ("body",)
+    got = rd.fields(node, where, schema.force_keys(ftype), required, f"a {ftype} force")
+    for group in spec.one_of:
+        given = [k for k in group if k in got]
+        if len(given) != 1:
+            raise rd.error(
+                got[given[1]][1] if given else where,
+                f"give exactly one of {', '.join(group)}; got {', '.join(given) or 'none'}",
+            )
+    data: dict = {}
+    for key, fld in spec.fields.items():
+        if key not in got:
+            if fld.default is not None:
+                data[key] = fld.default
+            continue
+        child, w = got[key]
+        data[key] = _field(rd, fld, child, w, joints)
+    out = ForceSpec(name, ftype, (), data=data, where=where)
+    if spec.bodies.startswith("pair"):
+        joint = joints.get(data.get("joint"))
+        if "bodies" in got:
+            out.bodies = rd.body_names(*got["bodies"], bodies, 2)
+            if joint is not None and set(out.bodies) != set(joint.bodies):
+                raise rd.error(
+                    got["bodies"][1],
+                    f"the bodies must be those of joint "
+                    f"{data['joint']} ({', '.join(joint.bodies)})",
+                )
+        else:
+            out.bodies = tuple(joint.bodies)
+        if "points" in got:
+            out.points = rd.points(*got["points"], dict.fromkeys(out.bodies, "P"))
+    else:
+        out.bodies = (rd.name(*got["body"], bodies, "body"),)
+        if spec.bodies == "one":
+            P = rd.vector(*got["point"], 3, "length") if "point" in got else np.zeros(3)
+            out.points = {out.bodies[0]: PointSet(P, where=got.get("point", (None, where))[1])}
+    return out
+
+
+def _field(rd: Reader, fld: schema.Field, node: Node, where: Where, joints: dict):
+    if fld.kind == "number":
+        return rd.number(node, where, fld.dim)
+    if fld.kind == "vector":
+        return rd.vector(node, where, 3, fld.dim)
+    if fld.kind == "function":
+        return rd.function(node, where, fld.dim)
+    if fld.kind == "law":
+        return rd.law(node, where, fld.dim, fld.names)
+    if fld.kind == "law3":
+        if node.kind != "seq" or len(node.value) != 3:
+            raise rd.error(where, f"expected 3 components, got {describe(node)}", node)
+        return [
+            rd.law(
+                v, Where(rd.file, f"{where.path}[{i}]", v.line or where.line), fld.dim, fld.names
+            )
+            for i, v in enumerate(node.value)
+        ]
+    if fld.kind == "choice":
+        return rd.choice(node, where, fld.options)
+    if fld.kind == "joint":
+        jname = rd.name(node, where, joints, "joint")
+        if joints[jname].type not in fld.options:
+            raise rd.error(
+                where, f"needs a {' or '.join(fld.options)} joint; {jname} is {joints[jname].type}"
+            )
+        return jname
+    raise ValueError(f"FORCE_TYPES: unknown field kind {fld.kind!r}")
+
+
+# -- outputs, analysis --------------------------------------------------------------------------
+def _outputs(rd: Reader, node: Node, where: Where, bodies: dict) -> dict[str, OutputSpec]:
+    got = rd.fields(node, where, schema.OUTPUT_KEYS, what="outputs")
+    out = {}
+    if "points" in got:
+        for name, child, w in rd.items(*got["points"]):
+            pt = rd.fields(child, w, schema.OUTPUT_POINT_KEYS, ("body",), "an output point")
+            body = rd.name(*pt["body"], bodies, "body")
+            P = rd.vector(*pt["point"], 3, "length") if "point" in pt else np.zeros(3)
+            out[name] = OutputSpec(name, body, P, w)
+    return out
+
+
+def _analysis(rd: Reader, node: Node, where: Where) -> dict[str, dict]:
+    got = rd.fields(node, where, schema.ANALYSIS_MODES, what="analysis")
+    return {
+        mode: {
+            key: rd.setting(child, w, schema.ANALYSIS_DIMENSIONS.get(key))
+            for key, child, w in rd.items(*got[mode])
+        }
+        for mode in got
+    }

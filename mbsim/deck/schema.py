@@ -1,0 +1,225 @@
+"""The deck's vocabulary as data: keys, joint/driver/force types, physical dimensions.
+
+The loader reads these tables and holds no per-type branches of its own where a table
+can say it; adding a force type means adding a row to :data:`FORCE_TYPES` (and its
+model in ``mbsim.forces``).  docs/deck.md is the prose version of these tables.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+TOP_KEYS = (
+    "title", "units", "gravity", "parameters", "bodies", "joints", "drivers", "forces",
+    "outputs", "analysis", "scenes",
+)  # fmt: skip
+BODY_KEYS = (
+    "ground", "mass", "inertia", "r", "p", "euler_deg", "axis_angle", "omega", "omega_local",
+    "rdot",
+)  # fmt: skip
+ORIENTATION_KEYS = ("p", "euler_deg", "axis_angle")  # at most one per body
+AXIS_ANGLE_KEYS = ("axis", "angle")
+POINT_KEYS = ("P", "Q", "R")
+OUTPUT_KEYS = ("points",)
+OUTPUT_POINT_KEYS = ("body", "point")
+SCENE_KEYS = ("description", "set", "remove", "analysis")
+ANALYSIS_MODES = ("assembly", "kinematic", "dynamic", "inverse", "equilibrium")
+AXES = ("x", "y", "z")
+
+# Physical dimensions: name -> (SI unit, as mbsim.units spells it; words for messages).
+# A quantity with a unit ('30 deg') given for a field of known dimension must match it.
+DIMENSIONS = {
+    "mass": ("kg", "mass"),
+    "inertia": ("kg*m^2", "moment of inertia"),
+    "length": ("m", "length"),
+    "angle": ("rad", "angle"),
+    "time": ("s", "time"),
+    "velocity": ("m/s", "velocity"),
+    "angular_velocity": ("rad/s", "angular velocity"),
+    "acceleration": ("m/s^2", "acceleration"),
+    "force": ("N", "force"),
+    "torque": ("N*m", "torque"),
+    "stiffness": ("N/m", "stiffness"),
+    "damping": ("N*s/m", "damping coefficient"),
+    "rot_stiffness": ("N*m/rad", "rotational stiffness"),
+    "rot_damping": ("N*m*s/rad", "rotational damping coefficient"),
+}
+
+# Deck field -> dimension, where the key alone says it.  Force fields: FORCE_TYPES.
+FIELD_DIMENSIONS = {
+    "mass": "mass",
+    "inertia": "inertia",
+    "r": "length",
+    "rdot": "velocity",
+    "omega": "angular_velocity",
+    "omega_local": "angular_velocity",
+    "angle": "angle",
+    "gravity": "acceleration",
+    "P": "length",
+    "Q": "length",
+    "R": "length",
+    "point": "length",
+    "distance": "length",
+}
+
+# Analysis settings of known dimension (others: any quantity, converted to SI).
+ANALYSIS_DIMENSIONS = {"t_start": "time", "t_end": "time", "step": "time", "h": "time"}
+
+
+class JointType(NamedTuple):
+    """n_eq: constraint equations; needs_i / needs_j: the points each body must give
+    (others may be given too); needs_j None: a one-body constraint; data: required keys."""
+
+    n_eq: int
+    needs_i: str
+    needs_j: str | None
+    data: tuple[str, ...] = ()
+
+
+JOINT_TYPES = {
+    "spherical": JointType(3, "P", "P"),
+    "universal": JointType(4, "PQ", "PQ"),
+    "revolute": JointType(5, "PQR", "PQ"),
+    "cylindrical": JointType(4, "PQR", "PQ"),
+    "translational": JointType(5, "PQR", "PQR"),
+    "revolute-spherical": JointType(2, "PQ", "P", ("distance",)),
+    "revolute-cylindrical": JointType(3, "PQ", "PQR"),
+    "spherical-spherical": JointType(1, "P", "P", ("distance",)),
+    "distance": JointType(1, "P", "P", ("distance",)),
+    "strut": JointType(2, "P", "PQR"),
+    "fixed": JointType(6, "PQR", "PQR"),
+    "absolute": JointType(1, "P", None, ("axis", "value")),
+}
+JOINT_KEYS = ("type", "bodies", "points", "distance", "axis", "value")
+
+
+class DriverType(NamedTuple):
+    """keys: the driver's own keys (besides type and function); joints: the joint types a
+    rotation/translation driver may drive; dim: dimension of the function's value."""
+
+    keys: tuple[str, ...]
+    joints: tuple[str, ...]
+    dim: str
+
+
+DRIVER_TYPES = {
+    "rotation": DriverType(("joint",), ("revolute", "cylindrical"), "angle"),
+    "translation": DriverType(("joint",), ("translational", "cylindrical"), "length"),
+    "distance": DriverType(("bodies", "points"), (), "length"),
+    "absolute": DriverType(("body", "point", "axis"), (), "length"),
+}
+DRIVER_KEYS = ("type", "function", "joint", "bodies", "points", "body", "point", "axis")
+
+# Function-of-time forms: the one key of a mapping (besides table's `interpolation`).
+FUNCTION_FORMS = ("expression", "polynomial", "table", "harmonic")
+HARMONIC_KEYS = ("amplitude", "frequency", "phase", "offset")
+INTERPOLATIONS = ("cubic", "linear", "akima")
+
+
+class Field(NamedTuple):
+    """One field of a force type.
+
+    kind: 'number' (float), 'vector' (3 floats), 'function' (FunctionSpec of t),
+      'law' (FunctionSpec of t, or a bound Expression when it uses other names),
+      'law3' (a list of 3 laws), 'choice' (one of ``options``), 'joint' (the name of a
+      joint whose type is in ``options``).
+    dim: key of DIMENSIONS (None: any).  names: the variables a law may use besides t and
+      the parameters (None: any name; the force model checks them).
+    """
+
+    kind: str
+    dim: str | None = None
+    required: bool = False
+    default: Any = None
+    options: tuple[str, ...] = ()
+    names: tuple[str, ...] | None = None
+
+
+class ForceType(NamedTuple):
+    """bodies: 'pair' (`bodies: [i, j]` with `points: {i: P, j: P}`), 'pair-joint'
+    (`bodies` optional, default the bodies of `joint`), 'one' (`body:` and an optional
+    `point:`, default the centroid), 'one-nopoint' (`body:` only).
+    fields: the type's own fields; one_of: groups of which exactly one must be given."""
+
+    bodies: str
+    fields: dict[str, Field]
+    one_of: tuple[tuple[str, ...], ...] = ()
+
+
+FORCE_TYPES = {
+    "tsda": ForceType(
+        "pair",
+        {
+            "k": Field("number", "stiffness", default=0.0),
+            "c": Field("number", "damping", default=0.0),
+            "L0": Field("number", "length", required=True),
+            "actuator": Field("law", "force"),
+        },
+    ),
+    "rsda": ForceType(
+        "pair-joint",
+        {
+            "joint": Field("joint", required=True, options=("revolute",)),
+            "k": Field("number", "rot_stiffness", default=0.0),
+            "c": Field("number", "rot_damping", default=0.0),
+            "theta0": Field("number", "angle", default=0.0),
+            "actuator": Field("law", "torque"),
+        },
+    ),
+    "force": ForceType(
+        "one",
+        {
+            "vector": Field("vector", "force"),
+            "law": Field("law3", "force"),
+            "frame": Field("choice", default="global", options=("global", "local")),
+        },
+        one_of=(("vector", "law"),),
+    ),
+    "torque": ForceType(
+        "one-nopoint",
+        {
+            "vector": Field("vector", "torque"),
+            "law": Field("law3", "torque"),
+            "frame": Field("choice", default="global", options=("global", "local")),
+        },
+        one_of=(("vector", "law"),),
+    ),
+}
+FORCE_BODY_KEYS = {
+    "pair": ("bodies", "points"),
+    "pair-joint": ("bodies", "points"),
+    "one": ("body", "point"),
+    "one-nopoint": ("body",),
+}
+
+
+def force_keys(kind: str) -> tuple[str, ...]:
+    """All keys a force of type ``kind`` may have."""
+    ftype = FORCE_TYPES[kind]
+    return ("type",) + FORCE_BODY_KEYS[ftype.bodies] + tuple(ftype.fields)
+
+
+def can_add(segs: list[str | int]) -> bool:
+    """May a scene `set` or a --set create the key at ``segs`` when the deck lacks it?
+
+    Only keys the format defines for that place: a top-level key, a body/joint/driver/force
+    field, an analysis mode or setting.  Parameter and item names must already exist.
+    """
+    segs = [str(s) for s in segs]
+    n = len(segs)
+    if n == 1:
+        return segs[0] in TOP_KEYS
+    group = segs[0]
+    if n == 3 and group == "bodies":
+        return segs[2] in BODY_KEYS
+    if n == 4 and group == "bodies" and segs[2] == "axis_angle":
+        return segs[3] in AXIS_ANGLE_KEYS
+    if n == 3 and group == "joints":
+        return segs[2] in JOINT_KEYS
+    if n == 3 and group == "drivers":
+        return segs[2] in DRIVER_KEYS
+    if n == 3 and group == "forces":
+        return any(segs[2] in force_keys(kind) for kind in FORCE_TYPES)
+    if group == "analysis":
+        return n == 3 or (n == 2 and segs[1] in ANALYSIS_MODES)
+    return False

@@ -1,0 +1,345 @@
+"""YAML text -> a tree of :class:`Node` that remember their deck line; path edits.
+
+PyYAML's loaders forget where a value came from and silently keep the last of two
+equal keys.  Here the text is only *composed* (``yaml.compose``, safe tags) and the node
+graph is turned into our own tree, so that every value knows its line and duplicate keys
+are errors.  Scenes and ``--set`` overrides edit this tree (:func:`set_path`,
+:func:`remove_path`) before validation; :func:`to_plain` gives the plain ``raw`` tree.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import yaml
+
+from mbsim.deck.schema import SCENE_KEYS, can_add
+from mbsim.errors import DeckError, Where
+
+MERGE_TAG = "tag:yaml.org,2002:merge"
+
+
+@dataclass(eq=False)
+class Node:
+    """One YAML value.
+
+    kind: 'map' (value: dict[str, Node]), 'seq' (value: list[Node]) or 'scalar'
+    (value: None, bool, int, float, str, as YAML's safe loader reads it).
+    """
+
+    kind: str
+    value: Any
+    line: int | None = None  # 1-based deck line; None for values from --set
+    text: str = ""  # scalars: the source text; names are read from it (`on`, `1` stay names)
+    key_lines: dict[str, int | None] = field(default_factory=dict)  # maps: line of each key
+    origin: str | None = None  # '--set' for values that did not come from the deck file
+
+    def name(self) -> str | None:
+        """The scalar as a name (plain `yes`, `1` give 'yes', '1'); None for non-scalars."""
+        if self.kind != "scalar" or self.value is None:
+            return None
+        return self.value if isinstance(self.value, str) else self.text
+
+
+def compose(text: str, file: str, origin: str | None = None) -> Node | None:
+    """Parse YAML ``text`` into a Node tree (None for an empty document)."""
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        what = "; ".join(s for s in (exc.context, exc.problem) if s)
+        line = mark.line + 1 if mark is not None and origin is None else None
+        col = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        raise DeckError(_one_line(f"not valid YAML: {what}{col}"), Where(file, "", line)) from None
+    except yaml.YAMLError as exc:  # ReaderError: control characters, bad encoding
+        pos = getattr(exc, "position", None)
+        line = text.count("\n", 0, pos) + 1 if pos is not None and origin is None else None
+        reason = getattr(exc, "reason", None) or str(exc)
+        char = getattr(exc, "character", None)
+        bad = f" (character {char!r})" if char is not None else ""
+        raise DeckError(_one_line(f"not a YAML text file: {reason}{bad}"), Where(file, "", line))
+    if root is None:
+        return None
+    return _Converter(file, origin).convert(root, "")
+
+
+class _Converter:
+    def __init__(self, file: str, origin: str | None):
+        self.file = file
+        self.origin = origin
+        self.constructor = yaml.constructor.SafeConstructor()
+        self.done: dict[int, Node] = {}  # aliases share one Node (no exponential blow-up)
+        self.active: set[int] = set()
+
+    def line(self, ynode: yaml.Node) -> int | None:
+        return None if self.origin else ynode.start_mark.line + 1
+
+    def fail(self, ynode: yaml.Node, message: str) -> DeckError:
+        return DeckError(message, Where(self.file, "", self.line(ynode)))
+
+    def convert(self, ynode: yaml.Node, path: str) -> Node:
+        key = id(ynode)
+        if key in self.done:
+            return self.done[key]
+        if key in self.active:
+            raise self.fail(ynode, "recursive YAML alias")
+        self.active.add(key)
+        if isinstance(ynode, yaml.MappingNode):
+            node = self.mapping(ynode, path)
+        elif isinstance(ynode, yaml.SequenceNode):
+            items = [self.convert(v, f"{path}[{i}]") for i, v in enumerate(ynode.value)]
+            node = Node("seq", items, self.line(ynode))
+        else:
+            try:
+                value = self.constructor.construct_object(ynode)
+            except yaml.YAMLError:
+                raise self.fail(ynode, f"unsupported YAML tag {ynode.tag!r}") from None
+            node = Node("scalar", value, self.line(ynode), text=ynode.value)
+        node.origin = self.origin
+        self.active.discard(key)
+        self.done[key] = node
+        return node
+
+    def mapping(self, ynode: yaml.MappingNode, path: str) -> Node:
+        node = Node("map", {}, self.line(ynode))
+        merged: list[Node] = []
+        for knode, vnode in ynode.value:
+            if knode.tag == MERGE_TAG:  # `<<: *defaults`: keys not given here are merged in
+                sources = vnode.value if isinstance(vnode, yaml.SequenceNode) else [vnode]
+                merged += [self.convert(s, path) for s in sources]
+                continue
+            if not isinstance(knode, yaml.ScalarNode):
+                raise self.fail(knode, "a mapping key must be a plain name, not a list or mapping")
+            name = knode.value
+            here = f"{path}.{name}" if path else name
+            if name in node.value:
+                first = node.key_lines[name]
+                raise DeckError(
+                    f"duplicate key {name!r} (first given on line {first})",
+                    Where(self.file, here, self.line(knode)),
+                )
+            node.value[name] = self.convert(vnode, here)
+            node.key_lines[name] = self.line(knode)
+        for source in merged:
+            if source.kind != "map":
+                raise self.fail(ynode, "`<<` must merge a mapping")
+            for name, child in source.value.items():
+                if name not in node.value:
+                    node.value[name] = child
+                    node.key_lines[name] = source.key_lines.get(name)
+        return node
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def to_plain(node: Node | None) -> Any:
+    """The tree as plain dicts, lists and scalars (the ``raw`` of a DeckSpec)."""
+    if node is None:
+        return None
+    if node.kind == "map":
+        return {k: to_plain(v) for k, v in node.value.items()}
+    if node.kind == "seq":
+        return [to_plain(v) for v in node.value]
+    return node.value
+
+
+def from_value(value: Any, file: str, path: str, origin: str = "--set") -> Node:
+    """A --set VALUE (YAML scalar or flow text, or a Python value) as a Node."""
+    if not isinstance(value, str):
+        value = yaml.safe_dump(_pythonic(value), default_flow_style=True).strip()
+        value = value.removesuffix("\n...")
+    try:
+        node = compose(value, file, origin=origin)
+    except DeckError as exc:
+        raise DeckError(f"{origin} {path}={value}: {exc.message}", Where(file, path)) from None
+    return node if node is not None else Node("scalar", None, None, "", origin=origin)
+
+
+def _pythonic(value: Any) -> Any:
+    if hasattr(value, "tolist"):  # numpy arrays and scalars
+        return value.tolist()
+    if isinstance(value, (list, tuple)):
+        return [_pythonic(v) for v in value]
+    return value
+
+
+class PathError(Exception):
+    """A key path that does not lead anywhere; ``message`` says why (one line)."""
+
+    def __init__(self, message: str):
+        self.message = message
+        super().__init__(message)
+
+
+def split_path(path: str) -> list[str | int]:
+    """'bodies.crank.r[1]' or 'bodies.crank.r.1' -> ['bodies', 'crank', 'r', 1]."""
+    segs: list[str | int] = []
+    for part in path.strip().split("."):
+        m = re.fullmatch(r"([^\[\]]*)((?:\[\d+\])*)", part)
+        if m is None or (not m.group(1) and not m.group(2)):
+            raise PathError(f"bad key path {path!r}")
+        if m.group(1):
+            segs.append(int(m.group(1)) if m.group(1).isdigit() else m.group(1))
+        segs += [int(i) for i in re.findall(r"\[(\d+)\]", m.group(2))]
+    return segs
+
+
+def join_path(segs: list[str | int]) -> str:
+    out = ""
+    for s in segs:
+        out += f"[{s}]" if isinstance(s, int) else (f".{s}" if out else s)
+    return out
+
+
+def _step(node: Node, segs: list[str | int], i: int) -> tuple[str | int, int]:
+    """Key into ``node`` for segs[i:], and how many segments it used (names may hold dots)."""
+    seg = segs[i]
+    if node.kind == "seq":
+        if not isinstance(seg, int):
+            raise PathError(f"{join_path(segs[:i])} is a list; expected an index, got {seg!r}")
+        if not 0 <= seg < len(node.value):
+            raise PathError(f"index {seg} is out of range (the list has {len(node.value)} items)")
+        return seg, 1
+    for n in range(len(segs) - i, 0, -1):  # longest match first: a body named 'arm.left'
+        cand = ".".join(str(s) for s in segs[i : i + n])
+        if cand in node.value:
+            return cand, n
+    return str(seg), 0
+
+
+def _missing(node: Node, segs: list[str | int], i: int) -> PathError:
+    here = segs[:i]
+    keys = list(node.value)
+    close = difflib.get_close_matches(str(segs[i]), keys, n=1)
+    if close:
+        return PathError(f"no such key; did you mean {join_path(here + [close[0]])}?")
+    listed = ", ".join(keys[:12]) + (", ..." if len(keys) > 12 else "")
+    where = join_path(here) or "the top level"
+    return PathError(f"no such key; {where} has: {listed or 'nothing'}")
+
+
+def _descend(root: Node, segs: list[str | int], can_add: Callable[[list], bool], create: bool):
+    """Walk to the parent of the last key; copies containers on the way (aliases stay intact).
+
+    Returns (parent, key); with ``create``, missing mappings on the way are made when
+    ``can_add(path)`` allows them.
+    """
+    node, i = root, 0
+    while True:
+        if node.kind == "scalar":
+            raise PathError(f"{join_path(segs[:i])} is a single value, not a mapping or list")
+        key, used = _step(node, segs, i)
+        if used == 0 and not (create and can_add(segs[: i + 1])):
+            raise _missing(node, segs, i)
+        used = used or 1
+        if i + used == len(segs):
+            return node, key
+        child = node.value.get(key) if node.kind == "map" else node.value[key]
+        if child is None:
+            child = Node("map", {}, None, origin="--set")
+        elif child.kind != "scalar":  # copy on descent: never edit a node shared by an alias
+            child = Node(
+                child.kind,
+                type(child.value)(child.value),
+                child.line,
+                child.text,
+                dict(child.key_lines),
+                child.origin,
+            )
+        if node.kind == "map" and key not in node.value:
+            node.key_lines[key] = None
+        node.value[key] = child
+        node, i = child, i + used
+
+
+def set_path(root: Node, path: str, value: Node, can_add: Callable[[list], bool]) -> None:
+    """Replace the value at ``path`` (or add it where ``can_add(segments)`` allows)."""
+    segs = split_path(path)
+    parent, key = _descend(root, segs, can_add, create=True)
+    parent.value[key] = value
+    if parent.kind == "map":
+        parent.key_lines[key] = value.line
+
+
+def remove_path(root: Node, path: str) -> None:
+    """Delete the key or list item at ``path``."""
+    segs = split_path(path)
+    parent, key = _descend(root, segs, lambda segs: False, create=False)
+    del parent.value[key]
+    if parent.kind == "map":
+        parent.key_lines.pop(key, None)
+
+
+# -- scenes and --set ----------------------------------------------------------------------------
+def apply_override(root: Node, path: str, value: Any, file: str) -> None:
+    """``--set PATH=VALUE``: VALUE is YAML text (``2000``, ``[1, 2, 3]``) or a Python value."""
+    try:
+        set_path(root, path, from_value(value, file, path), can_add)
+    except PathError as exc:
+        raise DeckError(f"cannot --set: {exc.message}", Where(file, path)) from None
+
+
+def scene_names(root: Node) -> list[str]:
+    scenes = root.value.get("scenes")
+    return list(scenes.value) if scenes is not None and scenes.kind == "map" else []
+
+
+def apply_scene(root: Node, name: str, file: str) -> None:
+    """Apply ``scenes.<name>`` to the tree: ``remove`` paths, then ``set`` values, then merge
+    its ``analysis`` settings (each as a set of ``analysis.<mode>.<key>``)."""
+    known = scene_names(root)
+    if name not in known:
+        close = difflib.get_close_matches(name, known, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        listed = ", ".join(known) or "the deck has none"
+        raise DeckError(f"unknown scene {name!r}{hint} (scenes: {listed})",
+                        Where(file, "scenes", root.key_lines.get("scenes")))  # fmt: skip
+    scenes = root.value["scenes"]
+    scene = _mapping(scenes.value[name], Where(file, f"scenes.{name}", scenes.key_lines[name]))
+    for key in scene.value:
+        if key not in SCENE_KEYS:
+            close = difflib.get_close_matches(key, SCENE_KEYS, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else f" (keys: {', '.join(SCENE_KEYS)})"
+            w = Where(file, f"scenes.{name}.{key}", scene.key_lines[key])
+            raise DeckError(f"unknown key {key!r} in a scene{hint}", w)
+    here = f"scenes.{name}"
+    if "remove" in scene.value:
+        node = scene.value["remove"]
+        for i, item in enumerate(node.value if node.kind == "seq" else [node]):
+            w = Where(file, f"{here}.remove[{i}]", item.line)
+            if not isinstance(item.value, str):
+                raise DeckError("expected a key path such as bodies.rod", w)
+            _edit(root, item.value, None, w, "remove")
+    if "set" in scene.value:
+        node = _mapping(scene.value["set"], Where(file, f"{here}.set", scene.key_lines["set"]))
+        for key, item in node.value.items():
+            _edit(root, key, item, Where(file, f"{here}.set.{key}", node.key_lines[key]), "set")
+    if "analysis" in scene.value:
+        w = Where(file, f"{here}.analysis", scene.key_lines["analysis"])
+        for mode, settings in _mapping(scene.value["analysis"], w).value.items():
+            mw = Where(file, f"{w.path}.{mode}", w.line)
+            for key, item in _mapping(settings, mw).value.items():
+                kw = Where(file, f"{mw.path}.{key}", settings.key_lines[key])
+                _edit(root, f"analysis.{mode}.{key}", item, kw, "set")
+
+
+def _mapping(node: Node, where: Where) -> Node:
+    if node.kind != "map":
+        raise DeckError("expected a mapping", where)
+    return node
+
+
+def _edit(root: Node, path: str, value: Node | None, where: Where, how: str) -> None:
+    try:
+        if value is None:
+            remove_path(root, path)
+        else:
+            set_path(root, path, value, can_add)
+    except PathError as exc:
+        raise DeckError(f"cannot {how} {path}: {exc.message}", where) from None

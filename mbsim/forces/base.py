@@ -1,0 +1,38 @@
+"""Force elements: the contract every type implements.
+
+Contract of a force type (a class registered in ``FORCES``):
+
+1. ``type``: the deck name; ``description``: one line for ``mbsim list forces``.
+2. ``from_spec(spec, body_index) -> element``: compile a ForceSpec (names -> indices,
+   laws -> callables); raise DeckError with ``spec.where`` for what the loader cannot know.
+3. ``apply(st, t, F, n_local)``: ADD this element's loads to the accumulators
+   ``F`` (nb, 3) global forces at the centroids and ``n_local`` (nb, 3) torques about the
+   centroids in body frames.  ``st`` is :class:`mbsim.equations.State` (r, p, rd, pd, A,
+   omega, omega_local).  A point force F at body point s' contributes F to F[b] and
+   s' x (A^T F) to n_local[b]; the equations turn these into Q_r = F and Q_p = 2 G^T n'
+   (Haug eq. 11.1.x).
+4. ``potential(st) -> float``: stored energy of the conservative part (0 if none), for the
+   energy monitor and minimum-potential-energy equilibrium.
+5. ``channels(st, t) -> dict[name, (value, unit)]``: optional outputs (length, force, ...).
+"""
+
+from __future__ import annotations
+
+
+class ForceElement:
+    type = ""
+    description = ""
+    name = ""
+
+    @classmethod
+    def from_spec(cls, spec, body_index):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def apply(self, st, t, F, n_local) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def potential(self, st) -> float:
+        return 0.0
+
+    def channels(self, st, t) -> dict:
+        return {}

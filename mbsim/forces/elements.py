@@ -1,0 +1,1 @@
+"""Built-in force elements (registered in FORCES on import)."""

@@ -1,0 +1,144 @@
+"""Euler-parameter algebra (Haug 1989, Sec. 6.3 and 9.3), batched over leading axes.
+
+Every function accepts a single Euler-parameter vector p = (e0, e1, e2, e3) of shape (4,)
+or a stack of shape (k, 4), and returns the matching (3, 3) / (k, 3, 3) etc.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def skew(a: np.ndarray) -> np.ndarray:
+    """Skew-symmetric cross-product matrix: skew(a) @ b = a x b. (…, 3) -> (…, 3, 3)."""
+    a = np.asarray(a, dtype=float)
+    out = np.zeros(a.shape[:-1] + (3, 3))
+    out[..., 0, 1] = -a[..., 2]
+    out[..., 0, 2] = a[..., 1]
+    out[..., 1, 0] = a[..., 2]
+    out[..., 1, 2] = -a[..., 0]
+    out[..., 2, 0] = -a[..., 1]
+    out[..., 2, 1] = a[..., 0]
+    return out
+
+
+def A(p: np.ndarray) -> np.ndarray:
+    """Rotation matrix body -> global, A = (2 e0^2 - 1) I + 2 (e e^T + e0 e~) (Haug eq. 6.3.20).
+
+    Off the unit sphere this quadratic form is what the constraint equations differentiate
+    (see :func:`B`); the normalisation constraint keeps |p| = 1 at every solution.
+    """
+    p = np.asarray(p, dtype=float)
+    e0, e1, e2, e3 = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    out = np.empty(p.shape[:-1] + (3, 3))
+    d = 2.0 * e0 * e0 - 1.0
+    out[..., 0, 0] = d + 2 * e1 * e1
+    out[..., 1, 1] = d + 2 * e2 * e2
+    out[..., 2, 2] = d + 2 * e3 * e3
+    out[..., 0, 1] = 2 * (e1 * e2 - e0 * e3)
+    out[..., 1, 0] = 2 * (e1 * e2 + e0 * e3)
+    out[..., 0, 2] = 2 * (e1 * e3 + e0 * e2)
+    out[..., 2, 0] = 2 * (e1 * e3 - e0 * e2)
+    out[..., 1, 2] = 2 * (e2 * e3 - e0 * e1)
+    out[..., 2, 1] = 2 * (e2 * e3 + e0 * e1)
+    return out
+
+
+def G(p: np.ndarray) -> np.ndarray:
+    """G(p) = [-e, -e~ + e0 I], (…, 3, 4): omega_local = 2 G(p) pd (Haug eq. 6.3.18)."""
+    p = np.asarray(p, dtype=float)
+    e0, e1, e2, e3 = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    out = np.empty(p.shape[:-1] + (3, 4))
+    out[..., 0, :] = np.stack([-e1, e0, e3, -e2], axis=-1)
+    out[..., 1, :] = np.stack([-e2, -e3, e0, e1], axis=-1)
+    out[..., 2, :] = np.stack([-e3, e2, -e1, e0], axis=-1)
+    return out
+
+
+def E(p: np.ndarray) -> np.ndarray:
+    """E(p) = [-e, e~ + e0 I], (…, 3, 4): omega (global) = 2 E(p) pd (Haug eq. 6.3.17)."""
+    p = np.asarray(p, dtype=float)
+    e0, e1, e2, e3 = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    out = np.empty(p.shape[:-1] + (3, 4))
+    out[..., 0, :] = np.stack([-e1, e0, -e3, e2], axis=-1)
+    out[..., 1, :] = np.stack([-e2, e3, e0, -e1], axis=-1)
+    out[..., 2, :] = np.stack([-e3, -e2, e1, e0], axis=-1)
+    return out
+
+
+def B(p: np.ndarray, a_local: np.ndarray) -> np.ndarray:
+    """Exact partial derivative d(A(p) a')/dp, (…, 3, 4).
+
+    For A(p) as written in :func:`A`: column e0 is 2(2 e0 a' + e~ a') and the e block is
+    2((e^T a') I + e a'^T - e0 a'~).  It differs from Haug's B (eq. 9.3.14) by 2 a' p^T, a
+    term along p that the normalisation constraint absorbs; using the exact derivative makes
+    Phi_q match finite differences of Phi everywhere, not only on |p| = 1.
+    B is linear in p, so d/dt(B(p, a')) = B(pd, a').
+    """
+    p = np.asarray(p, dtype=float)
+    a = np.asarray(a_local, dtype=float)
+    e0 = p[..., 0]
+    e = p[..., 1:]
+    out = np.empty(np.broadcast_shapes(p.shape[:-1], a.shape[:-1]) + (3, 4))
+    out[..., :, 0] = 2.0 * (2.0 * e0[..., None] * a + np.cross(e, a))
+    ea = np.sum(e * a, axis=-1)
+    blk = 2.0 * (e[..., :, None] * a[..., None, :] - e0[..., None, None] * skew(a))
+    idx = np.arange(3)
+    blk[..., idx, idx] += 2.0 * ea[..., None]
+    out[..., :, 1:] = blk
+    return out
+
+
+def normalize(p: np.ndarray) -> np.ndarray:
+    p = np.asarray(p, dtype=float)
+    return p / np.linalg.norm(p, axis=-1, keepdims=True)
+
+
+def from_matrix(R: np.ndarray) -> np.ndarray:
+    """Euler parameters of a rotation matrix (Shepperd's method, robust for any angle); e0 >= 0."""
+    R = np.asarray(R, dtype=float)
+    tr = np.trace(R)
+    cands = np.array([tr, R[0, 0], R[1, 1], R[2, 2]])
+    k = int(np.argmax(cands))
+    if k == 0:
+        e0 = 0.5 * np.sqrt(1 + tr)
+        p = [e0, (R[2, 1] - R[1, 2]) / (4 * e0), (R[0, 2] - R[2, 0]) / (4 * e0),
+             (R[1, 0] - R[0, 1]) / (4 * e0)]
+    else:
+        i = k - 1
+        j, m = (i + 1) % 3, (i + 2) % 3
+        ei = 0.5 * np.sqrt(1 + 2 * R[i, i] - tr)
+        e = [0.0, 0.0, 0.0]
+        e[i] = ei
+        e[j] = (R[j, i] + R[i, j]) / (4 * ei)
+        e[m] = (R[m, i] + R[i, m]) / (4 * ei)
+        e0 = (R[m, j] - R[j, m]) / (4 * ei)
+        p = [e0] + e
+    p = np.array(p)
+    return p if p[0] >= 0 else -p
+
+
+def from_axis_angle(axis, angle: float) -> np.ndarray:
+    """p = (cos(angle/2), sin(angle/2) u) for a rotation by `angle` about unit axis u (Haug eq. 6.3.5)."""
+    u = np.asarray(axis, dtype=float)
+    u = u / np.linalg.norm(u)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * u])
+
+
+def from_euler313(phi: float, theta: float, psi: float) -> np.ndarray:
+    """Euler parameters of 3-1-3 Euler angles (radians): Rz(phi) Rx(theta) Rz(psi)."""
+    c, s = np.cos, np.sin
+    Rz1 = np.array([[c(phi), -s(phi), 0], [s(phi), c(phi), 0], [0, 0, 1]])
+    Rx = np.array([[1, 0, 0], [0, c(theta), -s(theta)], [0, s(theta), c(theta)]])
+    Rz2 = np.array([[c(psi), -s(psi), 0], [s(psi), c(psi), 0], [0, 0, 1]])
+    return from_matrix(Rz1 @ Rx @ Rz2)
+
+
+def omega_to_pd(p: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """pd from global angular velocity: pd = 1/2 E(p)^T omega (Haug eq. 6.3.27, |p| = 1)."""
+    return 0.5 * np.einsum("...ji,...j->...i", E(p), omega)
+
+
+def omega_local_to_pd(p: np.ndarray, omega_local: np.ndarray) -> np.ndarray:
+    """pd from body-frame angular velocity: pd = 1/2 G(p)^T omega' (|p| = 1)."""
+    return 0.5 * np.einsum("...ji,...j->...i", G(p), omega_local)

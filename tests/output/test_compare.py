@@ -1,0 +1,102 @@
+"""Regression comparison: the isclose criterion with b as reference, problems reported."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mbsim.output.compare import compare_files, compare_results, scaled_error
+from mbsim.output.hdf5 import read_result, write_result
+from mbsim.result import Result
+
+
+def make_result(nt: int = 201) -> Result:
+    t = np.linspace(0.0, 2.0, nt)
+    r = Result(mode="dynamic", t=t)
+    r.add(
+        "bodies/crank/r",
+        np.column_stack([np.cos(t), np.sin(t), 0 * t + 1]),
+        "m",
+        components=("x", "y", "z"),
+    )
+    r.add("drivers/crank/torque", 3.0 + np.sin(2 * t), "N m")
+    return r
+
+
+def test_identical_files_pass(tmp_path):
+    pa = write_result(make_result(), tmp_path / "a.h5")
+    pb = write_result(make_result(), tmp_path / "b.h5")
+    ok, diffs, problems = compare_files(pa, pb, rtol=0.0, atol=0.0)
+    assert ok and problems == []
+    assert [d.scaled for d in diffs] == [0.0, 0.0]
+
+
+def test_small_change_caught_by_rtol(tmp_path):
+    b = make_result()
+    a = make_result()
+    a.channels["bodies/crank/r"].data[50, 1] *= 1 + 1e-6
+    pa, pb = write_result(a, tmp_path / "a.h5"), write_result(b, tmp_path / "b.h5")
+    ok, diffs, problems = compare_files(pa, pb, rtol=1e-9)
+    assert not ok and problems == []
+    worst = diffs[0]
+    assert worst.channel == "bodies/crank/r" and worst.failed
+    assert worst.index == (50, 1) and worst.time == pytest.approx(b.t[50])
+    assert worst.scaled == pytest.approx(1e-6 / 1e-9, rel=1e-6)
+    assert not diffs[1].failed  # the torque channel is identical
+    ok, diffs, problems = compare_files(pa, pb, rtol=1e-3)
+    assert ok and diffs[0].scaled == pytest.approx(1e-3, rel=1e-6)
+
+
+def test_missing_channel_reported():
+    a, b = make_result(), make_result()
+    del a.channels["drivers/crank/torque"]
+    b.add("joints/REV1/force", np.zeros((201, 3)), "N")
+    ok, _, problems = compare_results(a, b)
+    assert not ok
+    assert any("drivers/crank/torque" in p and "missing in a" in p for p in problems)
+    assert any("joints/REV1/force" in p and "missing in a" in p for p in problems)
+    ok, _, problems = compare_results(a, b, channels=["bodies.crank.r"])
+    assert ok and problems == []
+
+
+def test_shape_and_time_problems():
+    a, b = make_result(), make_result(nt=101)
+    ok, _, problems = compare_results(a, b)
+    assert not ok and any("time axes differ" in p for p in problems)
+    assert any("shape" in p for p in problems)
+    a, b = make_result(), make_result()
+    a.t = a.t + 1e-3
+    ok, _, problems = compare_results(a, b, rtol=1e-9)
+    assert not ok and any("time axes differ" in p for p in problems)
+    ok, _, problems = compare_results(a, b, atol=1e-2)
+    assert ok, problems
+
+
+def test_status_difference_is_a_problem():
+    a, b = make_result(), make_result()
+    a.status = "incomplete"
+    ok, _, problems = compare_results(a, b)
+    assert not ok and problems == ["status differs: a is 'incomplete', b is 'complete'"]
+
+
+def test_scaled_error_rules():
+    nan, inf = np.nan, np.inf
+    a = np.array([1.0, nan, nan, 1.0, inf, 1.0, 0.0, 2.0])
+    b = np.array([1.0, nan, 1.0, nan, inf, inf, 0.0, 1.0])
+    diff, scaled = scaled_error(a, b, rtol=0.0, atol=0.0)
+    np.testing.assert_array_equal(scaled, [0, 0, inf, inf, 0, inf, 0, inf])
+    diff, scaled = scaled_error(a, b, rtol=0.5, atol=0.25)
+    assert scaled[-1] == pytest.approx(1.0 / 0.75)
+    assert np.all(np.isfinite(diff[[0, 1, 4, 6, 7]]))
+    # numpy.isclose agreement on finite values (b the reference)
+    rng = np.random.default_rng(1)
+    x, y = rng.normal(size=1000), rng.normal(size=1000)
+    y[::3] = x[::3] * (1 + 1e-7)
+    _, scaled = scaled_error(x, y, rtol=1e-6, atol=1e-3)
+    np.testing.assert_array_equal(scaled <= 1, np.isclose(x, y, rtol=1e-6, atol=1e-3))
+
+
+def test_round_trip_compares_exactly(tmp_path):
+    r = make_result()
+    ok, _, problems = compare_results(read_result(write_result(r, tmp_path / "r.h5")), r, 0, 0)
+    assert ok and problems == []
