@@ -73,20 +73,16 @@ class Function:
     impl: Callable[..., Any]
     partials: tuple[str, ...]
     doc: str
+    name: str = field(init=False)
+    params: tuple[str, ...] = field(init=False)
+    nargs: tuple[int, int | None] = field(init=False)  # (least, most); most None: any number
 
-    @property
-    def name(self) -> str:
-        return self.signature.split("(")[0]
-
-    @property
-    def params(self) -> tuple[str, ...]:
-        return tuple(self.signature[len(self.name) + 1 : -1].split(", "))
-
-    @property
-    def nargs(self) -> tuple[int, int | None]:
-        """(least, most) number of arguments; most None: any number."""
-        n = len(self.params)
-        return (n - 1, None) if self.params[-1] == "..." else (n, n)
+    def __post_init__(self) -> None:
+        name, params = self.signature[:-1].split("(")
+        params = tuple(params.split(", "))
+        nargs = (len(params) - 1, None) if params[-1] == "..." else (len(params), len(params))
+        for key, value in (("name", name), ("params", params), ("nargs", nargs)):
+            object.__setattr__(self, key, value)  # derived once; the dataclass stays frozen
 
 
 # ---- numerics: math on Python floats (several times faster than numpy scalars), else numpy ----
@@ -411,6 +407,10 @@ class Expression:
 
     def __hash__(self) -> int:
         return hash(self._node)
+
+    def __reduce__(self) -> tuple:
+        # the compiled closures do not pickle; the tree does (models sent to worker processes)
+        return (Expression, (self._node, self.text, self._columns))
 
 
 def _coerce(name: str, v: Any, text: str) -> float | np.ndarray:

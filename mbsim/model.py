@@ -18,6 +18,7 @@ from mbsim.constraints.basic import KERNELS, Block
 from mbsim.constraints.joints import DRIVERS, JOINTS
 from mbsim.deck.spec import DeckSpec, PointSet
 from mbsim.errors import DeckError, Where
+from mbsim.rotations import B_tensor
 
 
 @dataclass(frozen=True)
@@ -144,6 +145,9 @@ class _Rows:
             bj = np.array([e["bj"] for e in entries], dtype=int)
             keys = entries[0]["vecs"].keys()
             vecs = {k: np.array([e["vecs"][k] for e in entries]) for k in keys}
+            for key in list(vecs):  # B(p, a') = T(a') p, precomputed (mbsim.rotations.B_tensor)
+                if vecs[key].ndim == 2 and vecs[key].shape[1] == 3:
+                    vecs[key + "~T"] = B_tensor(vecs[key])
             c_const = np.array([[e["target"]] * ne for e in entries], dtype=float)
             funcs = tuple((n, e["func"], e["squared"]) for n, e in enumerate(entries)
                           if e["func"] is not None)

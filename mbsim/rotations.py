@@ -23,15 +23,16 @@ def skew(a: np.ndarray) -> np.ndarray:
 
 
 def A(p: np.ndarray) -> np.ndarray:
-    """Rotation matrix body -> global, A = (2 e0^2 - 1) I + 2 (e e^T + e0 e~) (Haug eq. 6.3.20).
-
-    Off the unit sphere this quadratic form is what the constraint equations differentiate
-    (see :func:`B`); the normalisation constraint keeps |p| = 1 at every solution.
+    """Rotation matrix body -> global (Haug eq. 6.3.20), written in the homogeneous form
+    A = (e0^2 - e^T e) I + 2 e e^T + 2 e0 e~, which equals Haug's (2 e0^2 - 1) I + 2 (e e^T + e0 e~)
+    on |p| = 1.  Homogeneous, A(p) a' is a quadratic form in p, so its derivative B(p, a') is
+    bilinear in (p, a') and A(p) a' = B(p, a') p / 2: one precomputed tensor contraction gives
+    both (see :func:`B_tensor`).  The normalisation constraint keeps |p| = 1 at every solution.
     """
     p = np.asarray(p, dtype=float)
     e0, e1, e2, e3 = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     out = np.empty(p.shape[:-1] + (3, 3))
-    d = 2.0 * e0 * e0 - 1.0
+    d = e0 * e0 - e1 * e1 - e2 * e2 - e3 * e3
     out[..., 0, 0] = d + 2 * e1 * e1
     out[..., 1, 1] = d + 2 * e2 * e2
     out[..., 2, 2] = d + 2 * e3 * e3
@@ -42,6 +43,26 @@ def A(p: np.ndarray) -> np.ndarray:
     out[..., 1, 2] = 2 * (e2 * e3 - e0 * e1)
     out[..., 2, 1] = 2 * (e2 * e3 + e0 * e1)
     return out
+
+
+def _quadratic_tensor() -> np.ndarray:
+    """S (3, 4, 4, 3), symmetric in its middle axes, with (A(p) a')_i = S_ikml p_k p_m a_l."""
+    S = np.zeros((3, 4, 4, 3))
+    eye4, eye3 = np.eye(4), np.eye(3)
+    for k in range(4):
+        for m in range(4):
+            for l_ in range(3):
+                # polarisation of the quadratic form: S_km = (Q(u+v) - Q(u-v)) / 4
+                S[:, k, m, l_] = (A(eye4[k] + eye4[m]) - A(eye4[k] - eye4[m]))[:, l_] / 4.0
+    return S
+
+
+_S2 = 2.0 * _quadratic_tensor()  # B(p, a')_ik = _S2_ikml p_m a'_l
+
+
+def B_tensor(a_local: np.ndarray) -> np.ndarray:
+    """(…, 3, 4, 4) tensor T(a') with B(p, a') = T(a') p, precomputed once per body-fixed vector."""
+    return np.einsum("ikml,...l->...ikm", _S2, np.asarray(a_local, dtype=float))
 
 
 def G(p: np.ndarray) -> np.ndarray:
@@ -67,26 +88,12 @@ def E(p: np.ndarray) -> np.ndarray:
 
 
 def B(p: np.ndarray, a_local: np.ndarray) -> np.ndarray:
-    """Exact partial derivative d(A(p) a')/dp, (…, 3, 4).
+    """Exact partial derivative d(A(p) a')/dp, (…, 3, 4) (Haug eq. 9.3.14 on |p| = 1).
 
-    For A(p) as written in :func:`A`: column e0 is 2(2 e0 a' + e~ a') and the e block is
-    2((e^T a') I + e a'^T - e0 a'~).  It differs from Haug's B (eq. 9.3.14) by 2 a' p^T, a
-    term along p that the normalisation constraint absorbs; using the exact derivative makes
-    Phi_q match finite differences of Phi everywhere, not only on |p| = 1.
-    B is linear in p, so d/dt(B(p, a')) = B(pd, a').
+    Column e0 is 2 (e0 a' + e~ a'), the e block 2 ((e^T a') I + e a'^T - a' e^T - e0 a'~).
+    B is linear in p, so d/dt(B(p, a')) = B(pd, a'), and A(p) a' = B(p, a') p / 2.
     """
-    p = np.asarray(p, dtype=float)
-    a = np.asarray(a_local, dtype=float)
-    e0 = p[..., 0]
-    e = p[..., 1:]
-    out = np.empty(np.broadcast_shapes(p.shape[:-1], a.shape[:-1]) + (3, 4))
-    out[..., :, 0] = 2.0 * (2.0 * e0[..., None] * a + np.cross(e, a))
-    ea = np.sum(e * a, axis=-1)
-    blk = 2.0 * (e[..., :, None] * a[..., None, :] - e0[..., None, None] * skew(a))
-    idx = np.arange(3)
-    blk[..., idx, idx] += 2.0 * ea[..., None]
-    out[..., :, 1:] = blk
-    return out
+    return np.einsum("...ikm,...m->...ik", B_tensor(a_local), np.asarray(p, dtype=float))
 
 
 def normalize(p: np.ndarray) -> np.ndarray:

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import ast
 import builtins
+import copy
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -212,8 +214,12 @@ def test_bind_substitutes_and_folds():
     c = parse_expression("2*pi*f*A").bind({"f": 0.5, "A": 3})
     assert c.is_constant() and str(c) == repr(3 * math.pi) and c() == 3 * math.pi
     assert parse_expression("x").bind({}) == parse_expression("x")
-    for bad, match in [({"pi": 3.0}, "reserved"), ({"e": 1.0}, "reserved"),
-                       ({"C": "abc"}, "finite number"), ({"C": math.inf}, "finite number")]:
+    for bad, match in [
+        ({"pi": 3.0}, "reserved"),
+        ({"e": 1.0}, "reserved"),
+        ({"C": "abc"}, "finite number"),
+        ({"C": math.inf}, "finite number"),
+    ]:
         with pytest.raises(ExpressionError, match=match):
             e.bind(bad)
 
@@ -344,6 +350,14 @@ def test_formulas_never_reach_eval_or_exec(monkeypatch):
     e = parse_expression("sqrt(x) + where(x > 1, 2, 3)*unique_name_1234 + step(x, 0, 0, 1, 1)")
     assert e(x=4.0, unique_name_1234=1.0) == 5.0
     assert math.isfinite(e.diff("x").diff("x")(x=0.5, unique_name_1234=2.0))
+
+
+def test_expressions_pickle_and_hash():
+    e = parse_expression("C*(y0 - y) + step(t, 0, 0, 1, 1)", allowed=["C", "y0", "y", "t"])
+    again = pickle.loads(pickle.dumps(e.diff("t")))
+    assert again == e.diff("t") and hash(again) == hash(e.diff("t"))
+    assert again(t=0.5) == e.diff("t")(t=0.5) and again.text == e.diff("t").text
+    assert copy.deepcopy(e).names == e.names and repr(e).startswith("Expression(")
 
 
 def test_functions_registry_is_documented():

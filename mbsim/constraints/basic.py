@@ -24,7 +24,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mbsim.rotations import B
 
 
 @dataclass(frozen=True)
@@ -43,24 +42,28 @@ class Block:
 
 
 class Vec:
-    """A body-fixed vector a' on the bodies `b` of a batch, evaluated at the current state."""
+    """A body-fixed vector a' on the bodies `b` of a batch, evaluated at the current state.
 
-    __slots__ = ("b", "loc", "val", "jac", "vel", "bdot")
+    Uses the tensor T(a') precomputed at compile time (``vecs[key + "~T"]``), so that
+    B(p, a') = T p, a = A(p) a' = B p / 2, ad = B pd and bdot = B(pd, a') pd are four
+    contractions (see :func:`mbsim.rotations.B_tensor`)."""
 
-    def __init__(self, st, b: np.ndarray, loc: np.ndarray, vel: bool):
-        self.b, self.loc = b, loc
-        self.val = np.einsum("kij,kj->ki", st.A[b], loc)
-        self.jac = B(st.p[b], loc)  # (k, 3, 4)
+    __slots__ = ("val", "jac", "vel", "bdot")
+
+    def __init__(self, st, b: np.ndarray, T: np.ndarray, vel: bool):
+        p = st.p[b]
+        self.jac = np.einsum("nikm,nm->nik", T, p)  # (k, 3, 4)
+        self.val = 0.5 * np.einsum("kij,kj->ki", self.jac, p)
         if vel:
             pd = st.pd[b]
             self.vel = np.einsum("kij,kj->ki", self.jac, pd)
-            self.bdot = np.einsum("kij,kj->ki", B(pd, loc), pd)
+            self.bdot = np.einsum("kij,kj->ki", np.einsum("nikm,nm->nik", T, pd), pd)
 
 
 def _point_diff(st, blk, vel):
     """d = r_j + A_j s_j - r_i - A_i s_i, with its parts (Haug eq. 9.2.x)."""
-    si = Vec(st, blk.bi, blk.vecs["si"], vel)
-    sj = Vec(st, blk.bj, blk.vecs["sj"], vel)
+    si = Vec(st, blk.bi, blk.vecs["si~T"], vel)
+    sj = Vec(st, blk.bj, blk.vecs["sj~T"], vel)
     d = st.r[blk.bj] + sj.val - st.r[blk.bi] - si.val
     dd = None
     if vel:
@@ -70,8 +73,8 @@ def _point_diff(st, blk, vel):
 
 def dot1(st, blk, jac=True, gamma=False):
     """Phi = a_i . a_j  (Haug eq. 9.2.3)."""
-    ai = Vec(st, blk.bi, blk.vecs["ai"], gamma)
-    aj = Vec(st, blk.bj, blk.vecs["aj"], gamma)
+    ai = Vec(st, blk.bi, blk.vecs["ai~T"], gamma)
+    aj = Vec(st, blk.bj, blk.vecs["aj~T"], gamma)
     out = {"phi": np.sum(ai.val * aj.val, axis=1)[:, None]}
     if jac:
         k = len(blk.bi)
@@ -92,7 +95,7 @@ def dot2(st, blk, jac=True, gamma=False):
     d, dd, si, sj = _point_diff(st, blk, gamma)
     on_j = blk.vecs["on_j"]
     bc = np.where(on_j, blk.bj, blk.bi)
-    a = Vec(st, bc, blk.vecs["a"], gamma)
+    a = Vec(st, bc, blk.vecs["a~T"], gamma)
     out = {"phi": np.sum(a.val * d, axis=1)[:, None]}
     if jac:
         k = len(blk.bi)
@@ -154,9 +157,9 @@ def angle(st, blk, jac=True, gamma=False, t=0.0):
     """Relative rotation theta from g_i to g_j about f_i, minus its target f(t), wrapped to
     (-pi, pi] (Haug Sec. 9.5: rotational driver).  c = g_i.g_j, s = h_i.g_j are dot-1 terms;
     theta = atan2(s, c) without any history, since the target unwraps it."""
-    gi = Vec(st, blk.bi, blk.vecs["gi"], gamma)
-    hi = Vec(st, blk.bi, blk.vecs["hi"], gamma)
-    gj = Vec(st, blk.bj, blk.vecs["gj"], gamma)
+    gi = Vec(st, blk.bi, blk.vecs["gi~T"], gamma)
+    hi = Vec(st, blk.bi, blk.vecs["hi~T"], gamma)
+    gj = Vec(st, blk.bj, blk.vecs["gj~T"], gamma)
     c = np.sum(gi.val * gj.val, 1)
     s = np.sum(hi.val * gj.val, 1)
     f = np.array([fn(t) for _, fn, _ in blk.funcs]) if blk.funcs else blk.c_const[:, 0]
@@ -189,7 +192,7 @@ def angle(st, blk, jac=True, gamma=False, t=0.0):
 
 def absolute(st, blk, jac=True, gamma=False):
     """Phi = (r + A s')[axis] - c(t): a global coordinate of a body point (Haug Sec. 9.5)."""
-    s = Vec(st, blk.bi, blk.vecs["s"], gamma)
+    s = Vec(st, blk.bi, blk.vecs["s~T"], gamma)
     ax = blk.vecs["axis"]
     k = len(blk.bi)
     kk = np.arange(k)

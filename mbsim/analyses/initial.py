@@ -1,0 +1,171 @@
+"""Consistent initial conditions for a dynamic analysis (Haug Sec. 11.4 and 12.x).
+
+1. Positions: :func:`mbsim.analyses.assembly.assemble` (redundant rows dropped: ``active``).
+2. Velocities: the constraints Phi_q qd = nu (hard) plus the velocities the deck gives
+   (each given component is one condition):
+
+   - ``rdot`` (global):          e_k^T rd_b = rdot_k
+   - ``omega`` (global):         2 E(p_b)_k pd_b = omega_k       (Haug eq. 6.3.17)
+   - ``omega_local`` (body):     2 G(p_b)_k pd_b = omega'_k      (Haug eq. 6.3.18)
+
+   Writing qd = qd_p + N z with N a basis of null(Phi_q) (so the constraints hold exactly),
+   the given conditions become C N z = c - C qd_p.  They are solved in the least-squares
+   sense with kinetic-energy weights (sqrt(m) for rdot rows, sqrt(J_kk) for omega rows, so
+   that rows of different units are comparable): consistent data are met exactly; data that
+   conflict with the constraints or with each other are met as closely as the constraints
+   allow, with a warning naming the bodies whose given velocity changed and by how much.
+   Whatever freedom is left is fixed by minimum kinetic energy, 1/2 qd^T M qd.
+   Hook: further conditions (e.g. a joint's relative rate) are rows appended in
+   :func:`given_conditions`; nothing else changes.
+3. Accelerations and multipliers: the KKT system (``equations.accelerations``) on the
+   active rows; the multipliers of dropped rows are 0.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import scipy.linalg as la
+
+from mbsim import equations as eq
+from mbsim.analyses.assembly import assemble
+from mbsim.rotations import A as rot_A
+from mbsim.rotations import E as rot_E
+from mbsim.rotations import G as rot_G
+
+log = logging.getLogger(__name__)
+XYZ = "xyz"
+
+
+def given_conditions(model, q):
+    """Rows C (n, nq), targets c (n,), weights w (n,) and labels [(body, key, k)] of the
+    velocities the deck gives (NaN: not given)."""
+    nb = model.nb
+    p = q.reshape(nb, 7)[:, 3:]
+    Ep, Gp, Am = rot_E(p), rot_G(p), rot_A(p)
+    rows, c, w, labels = [], [], [], []
+    for b, name in enumerate(model.body_names):
+        J, A = model.J_local[b], Am[b]
+        for key, given in (("rdot", model.rdot0[b]), ("omega", model.omega0[b]),
+                           ("omega_local", model.omega0_local[b])):
+            for k in np.flatnonzero(np.isfinite(given)):
+                row = np.zeros(model.nq)
+                if key == "rdot":
+                    row[7 * b + k] = 1.0
+                    weight = model.mass[b]
+                elif key == "omega":
+                    row[7 * b + 3: 7 * b + 7] = 2.0 * Ep[b, k]
+                    weight = (A @ J @ A.T)[k, k]
+                else:
+                    row[7 * b + 3: 7 * b + 7] = 2.0 * Gp[b, k]
+                    weight = J[k, k]
+                rows.append(row)
+                c.append(given[k])
+                w.append(np.sqrt(weight) if weight > 0 else 1.0)
+                labels.append((name, key, int(k)))
+    # hook: joint relative rates given in the deck would append their rows here
+    C = np.array(rows).reshape(-1, model.nq)
+    return C, np.array(c, float), np.array(w, float), labels
+
+
+def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
+    """(qd, info) from the constraints and the given velocities (module doc, step 2)."""
+    active = np.arange(model.m) if active is None else active
+    T = eq.constraints(model, q, t0, nu=True)
+    H, h = T.jac[active], T.nu[active]
+    M = eq.mass_matrix(model, q)
+    C, c, w, labels = given_conditions(model, q)
+    # constraints: qd = qd_p + N z
+    U, s, Vt = la.svd(H, full_matrices=True)
+    rank = int(np.sum(s > rtol * max(1.0, s[0] if s.size else 1.0)))
+    qd_p = Vt[:rank].T @ ((U[:, :rank].T @ h) / s[:rank])
+    N = Vt[rank:].T
+    # given velocities, weighted least squares in z
+    Cw = w[:, None] * (C @ N)
+    cw = w * (c - C @ qd_p)
+    if Cw.shape[0]:
+        U2, s2, Vt2 = la.svd(Cw, full_matrices=True)
+        r2 = int(np.sum(s2 > rtol * max(1.0, s2[0] if s2.size else 1.0)))
+        z1 = Vt2[:r2].T @ ((U2[:, :r2].T @ cw) / s2[:r2])
+        Nc = Vt2[r2:].T
+    else:
+        z1, Nc = np.zeros(N.shape[1]), np.eye(N.shape[1])
+    # remaining freedom: minimum kinetic energy
+    base = qd_p + N @ z1
+    free = N @ Nc
+    if free.shape[1]:
+        K = free.T @ M @ free
+        z2 = la.solve(K, -free.T @ (M @ base), assume_a="pos")
+        qd = base + free @ z2
+    else:
+        qd = base
+    info = {"free_velocity_dof": int(free.shape[1]), "given": len(labels), "changed": {},
+            "warnings": []}
+    if labels:
+        dev = C @ qd - c
+        scale = max(1.0, float(np.abs(c).max()), float(np.abs(h).max(initial=0.0)))
+        bad = np.abs(dev) > 1e3 * rtol * scale
+        if bad.any():
+            changed: dict[str, dict[str, np.ndarray]] = {}
+            for (name, key, k), d, b in zip(labels, dev, bad):
+                changed.setdefault(name, {}).setdefault(key, np.zeros(3))[k] = d
+            info["changed"] = changed
+            parts = []
+            for name, keys in changed.items():
+                for key, d in keys.items():
+                    unit = "m/s" if key == "rdot" else "rad/s"
+                    parts.append(f"{name} {key} by ({', '.join(f'{x:.4g}' for x in d)}) {unit}")
+            msg = ("the given initial velocities conflict with the constraints (or each other); "
+                   "least-squares compromise changed: " + "; ".join(parts))
+            info["warnings"].append(msg)
+            log.warning(msg)
+    return qd, info
+
+
+def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10):
+    """Consistent (q, qd, qdd, lam, info) at t0 (module doc).
+
+    Parameters
+    ----------
+    model : compiled Model.
+    t0 : initial time (s).
+    q : (nq,) initial estimate; default the deck's ``model.q0``.
+    tol : Newton tolerance on max |Phi| for the assembly.
+
+    Returns
+    -------
+    q, qd, qdd : (nq,) positions, velocities, accelerations satisfying Phi = 0,
+        Phi_q qd = nu, Phi_q qdd = gamma on the active rows.
+    lam : (m,) multipliers (0 on redundant rows).
+    info : dict with 'assembly' (Assembly), 'active_rows', 'warnings' (list of str),
+        'changed' ({body: {'rdot'|'omega'|'omega_local': (3,) change}}), 'given' (number of
+        given components), 'free_velocity_dof' (freedom fixed by minimum kinetic energy).
+    """
+    asm = assemble(model, q, t0, tol)
+    q = asm.q
+    active = asm.active_rows
+    qd, info = initial_velocities(model, q, t0, active)
+    info["warnings"] = list(asm.warnings) + info["warnings"]
+    info["assembly"] = asm
+    info["active_rows"] = active
+    if active.size == model.m:
+        qdd, lam = eq.accelerations(model, q, qd, t0)
+    else:
+        qdd, lam_a = _accelerations_on(model, q, qd, t0, active)
+        lam = np.zeros(model.m)
+        lam[active] = lam_a
+    return q, qd, qdd, lam, info
+
+
+def _accelerations_on(model, q, qd, t, rows):
+    """The KKT solve of equations.accelerations restricted to ``rows``."""
+    T = eq.constraints(model, q, t, qd=qd, phi=False, gamma=True)
+    J, g = T.jac[rows], T.gamma[rows]
+    Q = eq.applied_forces(model, q, qd, t)[0]
+    M = eq.mass_matrix(model, q)
+    n, m = model.nq, len(rows)
+    K = np.zeros((n + m, n + m))
+    K[:n, :n], K[:n, n:], K[n:, :n] = M, J.T, J
+    sol = la.solve(K, np.concatenate([Q, g]))
+    return sol[:n], sol[n:]

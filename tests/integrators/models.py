@@ -1,0 +1,227 @@
+"""Models with known answers for the dynamics tests, built as specs (no YAML).
+
+Each builder returns a compiled Model; ``consistent_state`` turns given velocities into a
+state on the constraint manifold, so that the tests do not depend on the initial-condition
+analysis.  ``Tsda`` is a local translational spring-damper (Haug Sec. 11.5) used where the
+deck registry's ``tsda`` may not exist yet; it follows the ForceElement contract.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from mbsim import equations as eq
+from mbsim.analyses.assembly import assemble
+from mbsim.forces.base import ForceElement
+from mbsim.model import compile_model
+from mbsim.rotations import from_axis_angle, omega_to_pd
+from tests.helpers import body, joint, pts, spec
+
+
+class Tsda(ForceElement):
+    """Spring-damper between points s_i' (body i) and s_j' (body j): f = k (L - L0) + c Ld,
+    pulling the points together for f > 0 (Haug eq. 11.5.x)."""
+
+    type = "tsda-test"
+
+    def __init__(self, bi, bj, si, sj, k, c, L0, name="tsda"):
+        self.bi, self.bj, self.k, self.c, self.L0, self.name = bi, bj, k, c, L0, name
+        self.si, self.sj = np.asarray(si, float), np.asarray(sj, float)
+
+    def _geom(self, st):
+        si, sj = st.A[self.bi] @ self.si, st.A[self.bj] @ self.sj
+        d = st.r[self.bj] + sj - st.r[self.bi] - si
+        return si, sj, d
+
+    def apply(self, st, t, F, n_local):
+        si, sj, d = self._geom(st)
+        L = np.sqrt(d @ d)
+        u = d / L
+        w = st.omega
+        vd = st.rd[self.bj] + np.cross(w[self.bj], sj) - st.rd[self.bi] - np.cross(w[self.bi], si)
+        f = self.k * (L - self.L0) + self.c * (u @ vd)
+        Fj = -f * u  # force on body j, towards i when stretched
+        F[self.bj] += Fj
+        F[self.bi] -= Fj
+        n_local[self.bj] += np.cross(self.sj, st.A[self.bj].T @ Fj)
+        n_local[self.bi] += np.cross(self.si, st.A[self.bi].T @ -Fj)
+
+    def potential(self, st):
+        L = np.linalg.norm(self._geom(st)[2])
+        return 0.5 * self.k * (L - self.L0) ** 2
+
+
+def with_forces(model, *forces):
+    return dataclasses.replace(model, forces=tuple(model.forces) + tuple(forces))
+
+
+def consistent_state(model, q=None, omega=None, rdot=None, t=0.0):
+    """Assemble q and find qd with Phi_q qd = nu and the given body velocities.
+
+    omega, rdot: {body name: (3,) global vector}.  The given values are stacked under the
+    velocity equations and solved in least squares; the result satisfies both when they are
+    consistent (a test then checks Phi_q qd = nu to round-off)."""
+    asm = assemble(model, q, t)
+    q = asm.q
+    T = eq.constraints(model, q, t, nu=True)
+    rows, rhs = [T.jac[asm.active_rows]], [T.nu[asm.active_rows]]
+    for name, w in (omega or {}).items():
+        b = model.body_index(name)
+        p = q[7 * b + 3: 7 * b + 7]
+        R = np.zeros((3, model.nq))
+        # omega = 2 E(p) pd (Haug eq. 6.3.17)
+        from mbsim.rotations import E
+
+        R[:, 7 * b + 3: 7 * b + 7] = 2 * E(p)
+        rows.append(R)
+        rhs.append(np.asarray(w, float))
+    for name, v in (rdot or {}).items():
+        b = model.body_index(name)
+        R = np.zeros((3, model.nq))
+        R[:, 7 * b: 7 * b + 3] = np.eye(3)
+        rows.append(R)
+        rhs.append(np.asarray(v, float))
+    qd = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)[0]
+    return q, qd
+
+
+# ---------------------------------------------------------------- the models
+
+def free_body(J=(1.0, 2.0, 3.0), mass=2.0):
+    """One asymmetric free body, no joints, no ground: only its normalisation row."""
+    return compile_model(spec([body("b", mass, J)]))
+
+
+def top(m=1.0, l=0.1, I1c=2e-3, I3=4e-3, g=9.81):
+    """Symmetric top: spherical joint between the ground origin and the tip (0, 0, -l) of
+    the body; symmetry axis z'; gravity -z."""
+    bodies = [body("ground", ground=True), body("top", m, (I1c, I1c, I3), (0, 0, l))]
+    joints = [joint("tip", "spherical", "ground", "top",
+                    {"ground": pts((0, 0, 0)), "top": pts((0, 0, -l))})]
+    return compile_model(spec(bodies, joints, gravity=(0, 0, -g)))
+
+
+def top_state(model, theta, omega3, l=0.1, g=9.81):
+    """Steady-precession initial state at nutation angle theta, spin omega3 = e3 . omega.
+
+    Closed form (Goldstein Sec. 5.7): m g l = Omega (I3 omega3 - I1 Omega cos theta), I1 about
+    the tip; the slow root is returned with the state."""
+    m = model.mass[1]
+    I1 = model.J_local[1, 0, 0] + m * l * l
+    I3 = model.J_local[1, 2, 2]
+    a, b, c = I1 * np.cos(theta), -I3 * omega3, m * g * l
+    Om = (-b - np.sqrt(b * b - 4 * a * c)) / (2 * a)  # slow precession
+    p = from_axis_angle((1, 0, 0), theta)  # symmetry axis tilted by theta towards -y
+    from mbsim.rotations import A as rot_A
+
+    e3 = rot_A(p)[:, 2]
+    # omega = Omega z + psid e3 with e3 . omega = omega3
+    psid = omega3 - Om * e3[2]
+    w = Om * np.array([0, 0, 1.0]) + psid * e3
+    q = model.q0.copy()
+    q[10:14] = p
+    q[7:10] = l * e3
+    qd = np.zeros(model.nq)
+    qd[7:10] = np.cross(w, l * e3)
+    qd[10:14] = omega_to_pd(p, w)
+    return q, qd, Om
+
+
+def slider_crank(ell=0.3, g=9.81):
+    """Undriven spatial slider-crank, reference geometry §1 (as tests/analyses kinematic test)."""
+    xC = np.sqrt(ell**2 - 0.1**2 - 0.2**2)
+    rod_p = {0.3: (0.42926, 0.56191, -0.69455, -0.13265), 0.27: (0.46612, 0.53173, -0.68405, -0.17911),
+             0.24: (0.52244, 0.47650, -0.65984, -0.25419)}[ell]
+    bodies = [
+        body("crank", 0.12, (1e-4, 1e-5, 1e-4), (0, 0.1, 0.12), (0.70711, 0.70711, 0, 0)),
+        body("rod", 0.5, (0.004, 0.0004, 0.004), (xC / 2, 0.05, 0.1), rod_p),
+        body("slider", 2.0, (1e-4, 1e-4, 1e-4), (xC, 0, 0)),
+        body("ground", ground=True),
+    ]
+    joints = [
+        joint("A", "revolute", "ground", "crank",
+              {"ground": pts((0, 0.1, 0.12), (1, 0.1, 0.12), (0, 1.1, 0.12)),
+               "crank": pts((0, 0, 0), (1, 0, 0), (0, 1, 0))}),
+        joint("B", "spherical", "crank", "rod", {"crank": pts((0, 0.08, 0)), "rod": pts((0, ell / 2, 0))}),
+        joint("C", "universal", "rod", "slider",
+              {"rod": pts((0, -ell / 2, 0), (1, -ell / 2, 0)), "slider": pts((0, 0, 0), (1, 0, 0))}),
+        joint("T", "translational", "slider", "ground",
+              {"slider": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)),
+               "ground": pts((0, 0, 0), (1, 0, 0), (0, 1, 0))}),
+    ]
+    return compile_model(spec(bodies, joints, gravity=(0, 0, -g)))
+
+
+def slider_crank_state(model, omega0):
+    """Crank spinning at omega0 about -x (reference §1.5), the rest from the velocity equations."""
+    return consistent_state(model, omega={"crank": (-omega0, 0, 0)})
+
+
+GOVERNOR_OMEGA = 11.0174  # rad/s, Haug Sec. 12.6.2
+
+
+def governor(g=9.80, k=1000.0, c=30.0, L0=0.15):
+    """Flyball governor, Haug Tables 12.6.1-12.6.6 (Ball 1 e3 = -0.3827: typo fixed, reference
+    geometry §4 #1); y up, gravity -y; TSDA between spindle and collar origins."""
+    bodies = [
+        body("ground", ground=True),
+        body("spindle", 200.0, (25.0, 50.0, 25.0), (0, 0.2, 0)),
+        body("ball1", 1.0, (0.1, 0.1, 0.1), (0.11314, 0.08686, 0), (0.9239, 0, 0, -0.3827)),
+        body("ball2", 1.0, (0.1, 0.1, 0.1), (-0.11314, 0.08686, 0), (0.9239, 0, 0, 0.3827)),
+        body("collar", 1.0, (0.15, 0.125, 0.15), (0, 0.05, 0)),
+    ]
+    P0 = (0, 0, 0)
+    joints = [
+        joint("DIST1", "distance", "ball1", "collar", {"ball1": pts((-0.08, 0, 0)), "collar": pts(P0)},
+              distance=0.10922),
+        joint("DIST2", "distance", "ball2", "collar", {"ball2": pts((0.08, 0, 0)), "collar": pts(P0)},
+              distance=0.10922),
+        joint("REV1", "revolute", "ground", "spindle",
+              {"ground": pts(P0, (0, 1, 0), (0, 0, 1)), "spindle": pts((0, -0.2, 0), (0, -1.2, 0), (0, -0.2, 1))}),
+        joint("REV2", "revolute", "spindle", "ball1",
+              {"spindle": pts(P0, (0, 0, 1), (1, 0, 0)), "ball1": pts((-0.16, 0, 0), (-0.16, 0, 1), (1, 0, 0))}),
+        joint("REV3", "revolute", "spindle", "ball2",
+              {"spindle": pts(P0, (0, 0, 1), (1, 0, 0)), "ball2": pts((0.16, 0, 0), (0.16, 0, 1), (1, 0, 0))}),
+        joint("TRANS1", "translational", "spindle", "collar",
+              {"spindle": pts(P0, (0, 1, 0), (0, 0, 1)), "collar": pts(P0, (0, 1, 0), (0, 0, 1))}),
+    ]
+    model = compile_model(spec(bodies, joints, gravity=(0, -g, 0)))
+    return with_forces(model, Tsda(1, 4, P0, P0, k, c, L0, name="spring"))
+
+
+def governor_state(model, omega=GOVERNOR_OMEGA):
+    """Steady state of Table 12.6.6: every body turning with the spindle about y."""
+    w = np.array([0.0, omega, 0.0])
+    asm = assemble(model)
+    q = asm.q
+    qd = np.zeros(model.nq)
+    for b in range(1, model.nb):
+        r, p = q[7 * b: 7 * b + 3], q[7 * b + 3: 7 * b + 7]
+        qd[7 * b: 7 * b + 3] = np.cross(w, r)
+        qd[7 * b + 3: 7 * b + 7] = omega_to_pd(p, w)
+    return q, qd
+
+
+def chain(n, g=9.81, angle=0.3):
+    """Spherical chain (benchmark spec): link i, 1 kg, 0.5 m, rod axis y', J' = diag(1/48, 1e-4,
+    1/48), joint points (0, +-0.25, 0); link i rotated `angle` about (cos phi_i, 0, sin phi_i),
+    phi_i = 2 pi i / n, about its top joint (the chain hangs from the origin)."""
+    bodies = [body("ground", ground=True)]
+    joints = []
+    top = np.zeros(3)
+    from mbsim.rotations import A as rot_A
+
+    for i in range(n):
+        ph = 2 * np.pi * i / n
+        p = from_axis_angle((np.cos(ph), 0, np.sin(ph)), angle)
+        Ai = rot_A(p)
+        r = top - Ai @ np.array([0, 0.25, 0])
+        bodies.append(body(f"link{i}", 1.0, (1 / 48, 1e-4, 1 / 48), r, p))
+        prev = "ground" if i == 0 else f"link{i - 1}"
+        Pprev = (0, 0, 0) if i == 0 else (0, -0.25, 0)
+        joints.append(joint(f"S{i}", "spherical", prev, f"link{i}",
+                            {prev: pts(Pprev), f"link{i}": pts((0, 0.25, 0))}))
+        top = r + Ai @ np.array([0, -0.25, 0])
+    return compile_model(spec(bodies, joints, gravity=(0, -g, 0)))
