@@ -20,9 +20,13 @@ from mbsim.errors import DeckError, MbsimError
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
 
-def _fail(exc: Exception) -> None:
+def _fail(exc: Exception, deck: str | None = None) -> None:
+    """One line on stderr, then the exit code of the error's class (2 input, 1 analysis)."""
     code = getattr(exc, "exit_code", EXIT_FAILED)
-    click.echo(f"error: {exc}".replace("\n", " "), err=True)
+    msg = str(exc).replace("\n", " ")
+    if deck and not isinstance(exc, DeckError) and not msg.startswith(str(deck)):
+        msg = f"{deck}: {msg}"  # model/analysis errors name the deck too
+    click.echo(f"error: {msg}", err=True)
     sys.exit(code)
 
 
@@ -98,13 +102,13 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, me
             result.settings.setdefault("scene", scene)
         write_result(result, out)
     except MbsimError as exc:
-        _fail(exc)
+        _fail(exc, deck)
     if make_plot:
         _default_plot(result, out.with_suffix(".png"))
     if not quiet:
         _summary(result, out)
     if not result.complete:
-        click.echo(f"error: {result.message} (results up to t = "
+        click.echo(f"error: {deck}: {result.message} (results up to t = "
                    f"{result.t[-1] if len(result.t) else float('nan'):.6g} s kept in {out}, "
                    "marked incomplete)", err=True)
         sys.exit(EXIT_FAILED)
@@ -152,7 +156,7 @@ def info(deck, sets, scene):
     try:
         spec, model = _load(deck, sets, scene)
     except MbsimError as exc:
-        _fail(exc)
+        _fail(exc, deck)
     nc = model.nq
     click.echo(f"{model.title or Path(deck).name}")
     click.echo("Bodies")
@@ -205,7 +209,7 @@ def check(deck, sets, scene, worst):
         ph0 = eq.phi(model, model.q0)
         asm = assemble(model)
     except MbsimError as exc:
-        _fail(exc)
+        _fail(exc, deck)
     ph = eq.phi(model, asm.q)
     click.echo(f"{deck}: {model.nb} bodies, {model.m} constraint equations, DOF {asm.dof}")
     click.echo(f"deck estimates: max |Phi| = {np.abs(ph0).max(initial=0):.3e}")

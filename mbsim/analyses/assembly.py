@@ -15,7 +15,7 @@ import numpy as np
 
 from mbsim import equations as eq
 from mbsim.analyses.common import rank_and_redundant
-from mbsim.errors import ConvergenceError, ModelError
+from mbsim.errors import ConvergenceError, DeckError, ModelError
 
 
 @dataclass
@@ -42,16 +42,29 @@ def normalize_q(model, q):
     return qq.reshape(-1)
 
 
-def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None):
+def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
     """Solve Phi(q, t) = 0 (rows: the subset to solve); returns (q, iterations, max|Phi|).
 
+    ``hold``: coordinate indices kept at their starting values (extra rows q_k - q0_k = 0),
+    e.g. the independent coordinates of a system with DOF > 0 during assembly.
     Raises ConvergenceError naming the worst constraints if ||Phi|| stalls or max_iter passes.
     """
     q = normalize_q(model, np.array(q, float))
-    T = eq.constraints(model, q, t)
-    ph, J = T.phi, T.jac
-    if rows is not None:
-        ph, J = ph[rows], J[rows]
+    hold = np.asarray([] if hold is None else hold, dtype=int)
+    qh = q[hold].copy()
+    Ih = np.eye(model.nq)[hold]
+
+    def system(qq):
+        T = eq.constraints(model, qq, t)
+        ph, J = T.phi, T.jac
+        if rows is not None:
+            ph, J = ph[rows], J[rows]
+        if hold.size:
+            ph = np.concatenate([ph, qq[hold] - qh])
+            J = np.vstack([J, Ih])
+        return ph, J
+
+    ph, J = system(q)
     res = np.abs(ph).max(initial=0.0)
     for it in range(1, max_iter + 1):
         if res < tol:
@@ -61,10 +74,7 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None):
         alpha = 1.0
         while True:
             qn = normalize_q(model, q + alpha * dq)
-            Tn = eq.constraints(model, qn, t)
-            phn, Jn = Tn.phi, Tn.jac
-            if rows is not None:
-                phn, Jn = phn[rows], Jn[rows]
+            phn, Jn = system(qn)
             if phn @ phn <= (1 - 1e-4 * alpha) * f0 or alpha < 1e-3:
                 break
             alpha *= 0.5
@@ -80,11 +90,37 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None):
     )
 
 
-def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50) -> Assembly:
-    """Put q (default: the deck's estimates) on the constraint manifold and check its rank."""
+COORDS = {"x": 0, "y": 1, "z": 2, "e0": 3, "e1": 4, "e2": 5, "e3": 6}
+
+
+def hold_indices(model, hold) -> list[int]:
+    """'collar.y', 'spindle.e2' -> coordinate indices (deck: analysis.assembly.hold)."""
+    where = model.spec.where_of("analysis.assembly.hold") if hasattr(model.spec, "where_of") \
+        else None
+    out = []
+    for h in hold or []:
+        body, _, coord = str(h).rpartition(".")
+        if body not in model.body_names or coord not in COORDS:
+            raise DeckError(f"analysis.assembly.hold: {h!r} is not BODY.COORD with BODY one of "
+                            f"{', '.join(model.body_names)} and COORD one of "
+                            f"{', '.join(COORDS)}", where)
+        out.append(7 * model.body_index(body) + COORDS[coord])
+    return out
+
+
+def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembly:
+    """Put q (default: the deck's estimates) on the constraint manifold and check its rank.
+
+    ``hold`` (default: the deck's ``analysis.assembly.hold``) names coordinates kept at their
+    estimates, 'BODY.x|y|z|e0|e1|e2|e3': with DOF > 0 the manifold has many points near the
+    estimates, and holding the independent coordinates picks the one the user means.
+    """
     q0 = model.q0 if q is None else q
+    if hold is None and model.spec is not None:
+        hold = model.spec.analysis.get("assembly", {}).get("hold")
+    hold_idx = hold_indices(model, hold)
     try:
-        q, its, res = newton(model, q0, t, tol, max_iter)
+        q, its, res = newton(model, q0, t, tol, max_iter, hold=hold_idx)
     except ConvergenceError as exc:
         # A rank-deficient Phi_q where Newton stalls means constraints that contradict
         # each other: name them rather than only the residuals.

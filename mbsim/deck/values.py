@@ -166,7 +166,8 @@ class Reader:
             raise self.error(where, f"bad quantity {text!r}: {_message(exc)}", node) from None
         if dim is not None and got_dim != self._dim(dim):
             unit, words = DIMENSIONS[dim]
-            raise self.error(where, f"expected a {words} (SI unit {unit}), got {text!r}", node)
+            got = f"{text!r} ({got_dim})"
+            raise self.error(where, f"expected {_an(words)} (SI unit {unit}), got {got}", node)
         return self._finite(float(value), node, where, text)
 
     def _dim(self, dim: str):
@@ -192,10 +193,11 @@ class Reader:
                 names = set()
             unknown = sorted(set(names) - set(allowed))
             if unknown:
-                what = "parameter" if NAME_RE.fullmatch(text) else "name"
+                bare = NAME_RE.fullmatch(text.strip())
+                what = "parameter" if bare else "name"
                 known = ", ".join(sorted(allowed)) or "none"
                 hint = suggest(unknown[0], allowed) or f" (known: {known})"
-                return f"unknown {what} {unknown[0]!r} in {text!r}{hint}"
+                return f"unknown {what} {unknown[0]!r}{'' if bare else f' in {text!r}'}{hint}"
         return f"bad formula: {_message(exc)}"
 
     def vector(self, node: Node, where: Where, n: int = 3, dim: str | None = None) -> np.ndarray:
@@ -438,6 +440,10 @@ def _item(where: Where, i: int, node: Node) -> Where:
 
 def _a(dim: str | None) -> str:
     return "a number" if dim is None else f"a number ({DIMENSIONS[dim][1]})"
+
+
+def _an(words: str) -> str:
+    return f"{'an' if words[0] in 'aeiou' else 'a'} {words}"
 
 
 def _is_float(text: str) -> bool:

@@ -77,7 +77,7 @@ def test_governor_loads_completely():
     rev = spec.joints["REV2"]
     assert rev.type == "revolute" and rev.bodies == ("spindle", "ball1")
     np.testing.assert_allclose(rev.points["ball1"].P, [0.0254 * 6.3 / 2, 0, 0])
-    assert rev.points["ball1"].R is None
+    np.testing.assert_array_equal(rev.points["ball1"].R, [0, 0, 0])
     assert spec.joints["DIST1"].data == {"distance": 0.10922}
     height = spec.joints["HEIGHT"]
     assert height.bodies == ("ground", None) and height.data["axis"] == "z"

@@ -1,0 +1,182 @@
+"""Every force type: generalized forces against the potential (virtual work), damping power,
+point-force moments and follower forces by hand.
+
+Virtual work: for a tangent dq (dp perpendicular to p) Q . dq = -dV, dV by a central
+difference of equations.potential_energy (step 1e-6: truncation ~ h^2 |V'''| ~ 1e-12,
+round-off ~ 1e-16 |V| / h ~ 1e-10 for V ~ 1, so 1e-7 relative is a safe bound).
+"""
+
+import numpy as np
+import pytest
+
+from mbsim import equations as eq
+from mbsim.errors import DeckError
+from mbsim.forces import FORCES
+from mbsim.model import compile_model
+from mbsim.rotations import from_axis_angle
+from tests.forces.builders import (
+    Q_of,
+    force,
+    revolute_ab,
+    rotations,
+    tangent,
+    two_body_model,
+)
+from tests.helpers import body, spec
+
+rng = np.random.default_rng(2024)
+
+
+def _case(type_):
+    """A model with one element of type_ (conservative data where the type has any)."""
+    if type_ == "tsda":
+        f = force("S", "tsda", ("a", "b"), {"a": rng.normal(size=3), "b": rng.normal(size=3)},
+                  k=120.0, c=0.0, L0=0.8)
+        return two_body_model([f], rng)
+    if type_ == "rsda":
+        J = revolute_ab(rng)
+        f = force("R", "rsda", ("a", "b"), dict(J.points), joint="REV", k=35.0, theta0=0.0)
+        m = two_body_model([f], rng, [J])
+        # theta0 0.6 rad away from the current angle: far from the wrap at theta0 +- pi
+        th, _ = m.forces[0].angle.terms(eq.State(m, m.q0))
+        f.data["theta0"] = th + 0.6
+        return compile_model(m.spec)
+    if type_ == "force":
+        f = force("F", "force", ("a",), {"a": rng.normal(size=3)}, vector=rng.normal(size=3))
+        return two_body_model([f], rng)
+    if type_ == "torque":
+        f = force("T", "torque", ("a", "b"), vector=rng.normal(size=3))
+        return two_body_model([f], rng)
+    raise KeyError(f"no test case for force type {type_!r}: add one")
+
+
+@pytest.mark.parametrize("type_", sorted(FORCES))
+def test_virtual_work(type_):
+    """Q . dq = -dV for conservative elements; torques do T . dphi."""
+    model = _case(type_)
+    q = model.q0
+    Q = Q_of(model, q)
+    for _ in range(3):
+        dq = tangent(model, q, rng)
+        if type_ == "torque":
+            T = np.asarray(model.spec.forces["T"].data["vector"])
+            dphi = rotations(model, q, dq)
+            expected = T @ (dphi[1] - dphi[0])  # +T on b (j), -T on a (i)
+            assert abs(Q @ dq - expected) < 1e-12 * max(1, abs(expected))
+            continue
+        h = 1e-6
+        dV = (eq.potential_energy(model, q + h * dq) - eq.potential_energy(model, q - h * dq)) / (2 * h)
+        assert eq.potential_energy(model, q) != 0.0
+        assert abs(Q @ dq + dV) < 1e-7 * max(1.0, abs(dV)), (Q @ dq, -dV)
+
+
+def _velocity(model, q):
+    """A random qd with p . pd = 0 (a possible motion)."""
+    return tangent(model, q, rng)
+
+
+@pytest.mark.parametrize("type_", ["tsda", "rsda"])
+def test_damping_power(type_):
+    """k = 0, c > 0: Q . qd = -c rate^2 <= 0 (the gyroscopic term does no work); the rate
+    against a central difference of the length/angle along q + s qd."""
+    c = 7.5
+    if type_ == "tsda":
+        f = force("S", "tsda", ("a", "b"), {"a": rng.normal(size=3), "b": rng.normal(size=3)},
+                  k=0.0, c=c, L0=0.3)
+        model = two_body_model([f], rng)
+    else:
+        J = revolute_ab(rng)
+        f = force("R", "rsda", ("a", "b"), dict(J.points), joint="REV", c=c)
+        model = two_body_model([f], rng, [J])
+    el = model.forces[0]
+    q = model.q0
+    qd = _velocity(model, q)
+    power = Q_of(model, q, qd) @ qd
+    key = "velocity" if type_ == "tsda" else "rate"
+    rate = el.channels(eq.State(model, q, qd), 0.0)[key][0]
+    assert power <= 0 and abs(power + c * rate**2) < 1e-10 * max(1, c * rate**2)
+    pos = "length" if type_ == "tsda" else "angle"
+    h = 1e-6
+    x = [el.channels(eq.State(model, q + s * qd, qd), 0.0)[pos][0] for s in (-h, h)]
+    assert abs((x[1] - x[0]) / (2 * h) - rate) < 1e-6 * max(1, abs(rate))
+
+
+def _one_body(forces, p=(1, 0, 0, 0), r=(0, 0, 0)):
+    return compile_model(spec([body("a", 1.0, (1, 1, 1), r, p)], forces=forces))
+
+
+def test_point_force_moment_by_hand():
+    """Body turned 90 deg about z; F = (0, 0, 10) N at s' = (1, 0, 0): global arm A s' =
+    (0, 1, 0), moment (0, 1, 0) x (0, 0, 10) = (10, 0, 0); in the body frame
+    A^T (10, 0, 0) = (0, -10, 0) = s' x A^T F = (1, 0, 0) x (0, 0, 10)."""
+    p = from_axis_angle([0, 0, 1], np.pi / 2)
+    model = _one_body([force("F", "force", ("a",), {"a": [1, 0, 0]}, vector=[0, 0, 10])], p)
+    _, F, n_local = eq.applied_forces(model, model.q0, np.zeros(7))
+    np.testing.assert_allclose(F[0], [0, 0, 10], atol=1e-14)
+    np.testing.assert_allclose(n_local[0], [0, -10, 0], atol=1e-12)
+    A = eq.State(model, model.q0).A[0]
+    np.testing.assert_allclose(A @ n_local[0], [10, 0, 0], atol=1e-12)
+
+
+def test_follower_force_turns_with_the_body():
+    """frame: local, F' = (1, 0, 0): global x at rest, global y after 90 deg about z."""
+    f = force("F", "force", ("a",), {"a": [0, 0, 0]}, vector=[1, 0, 0], frame="local")
+    for angle, expected in ((0.0, [1, 0, 0]), (np.pi / 2, [0, 1, 0]), (np.pi, [-1, 0, 0])):
+        model = _one_body([f], from_axis_angle([0, 0, 1], angle))
+        _, F, n_local = eq.applied_forces(model, model.q0, np.zeros(7))
+        np.testing.assert_allclose(F[0], expected, atol=1e-12)
+        assert model.forces[0].potential(eq.State(model, model.q0)) == 0.0
+
+
+def test_torque_local_frame_and_single_body():
+    """A local torque (0, 0, 2) on a body turned 90 deg about x is global (0, -2, 0)."""
+    p = from_axis_angle([1, 0, 0], np.pi / 2)
+    model = _one_body([force("T", "torque", ("a",), vector=[0, 0, 2], frame="local")], p)
+    _, _, n_local = eq.applied_forces(model, model.q0, np.zeros(7))
+    np.testing.assert_allclose(n_local[0], [0, 0, 2], atol=1e-12)
+    np.testing.assert_allclose(model.forces[0].channels(eq.State(model, model.q0), 0)["torque"][0],
+                               [0, -2, 0], atol=1e-12)
+
+
+def test_tsda_sign_and_actuator():
+    """Points 2 m apart on x, L0 = 1.5, k = 100: tension 50 N pulls them together; an actuator
+    of 80 N pushes them apart (tension -30 N)."""
+    bodies = [body("a", r=(0, 0, 0)), body("b", r=(2, 0, 0))]
+    f = force("S", "tsda", ("a", "b"), {"a": [0, 0, 0], "b": [0, 0, 0]}, k=100.0, L0=1.5)
+    model = compile_model(spec(bodies, forces=[f]))
+    _, F, _ = eq.applied_forces(model, model.q0, np.zeros(14))
+    np.testing.assert_allclose(F, [[50, 0, 0], [-50, 0, 0]])
+    f.data["actuator"] = 80.0
+    model = compile_model(spec(bodies, forces=[f]))
+    _, F, _ = eq.applied_forces(model, model.q0, np.zeros(14))
+    np.testing.assert_allclose(F, [[-30, 0, 0], [30, 0, 0]])
+    assert model.forces[0].potential(eq.State(model, model.q0)) == pytest.approx(12.5)
+
+
+def test_rsda_restoring_torque_by_hand():
+    """Ground frame f = z, g = x; body b turned 0.3 rad about z, theta0 = 0, k = 10: the
+    spring turns b back: torque -3 N m about z on b, +3 on the ground."""
+    from tests.helpers import joint, pts
+
+    J = joint("REV", "revolute", "g", "b", {"g": pts([0, 0, 0], [0, 0, 1], [1, 0, 0]),
+                                           "b": pts([0, 0, 0], [0, 0, 1], [1, 0, 0])})
+    f = force("R", "rsda", ("g", "b"), dict(J.points), joint="REV", k=10.0)
+    bodies = [body("g", ground=True), body("b", p=from_axis_angle([0, 0, 1], 0.3))]
+    model = compile_model(spec(bodies, [J], forces=[f]))
+    st = eq.State(model, model.q0, np.zeros(14))
+    _, _, n_local = eq.applied_forces(model, model.q0, np.zeros(14))
+    np.testing.assert_allclose(st.A[1] @ n_local[1], [0, 0, -3], atol=1e-12)
+    np.testing.assert_allclose(n_local[0], [0, 0, 3], atol=1e-12)
+    ch = model.forces[0].channels(st, 0.0)
+    assert ch["angle"][0] == pytest.approx(0.3) and ch["torque"][0] == pytest.approx(3.0)
+
+
+def test_errors_name_the_field():
+    with pytest.raises(DeckError, match="exactly one of vector, law"):
+        _one_body([force("F", "force", ("a",), vector=[1, 0, 0], law=[0, 0, 1])])
+    with pytest.raises(DeckError, match="needs a direction"):
+        _one_body([force("F", "force", ("a",), law="3*t")])
+    with pytest.raises(DeckError, match="unknown body"):
+        _one_body([force("F", "force", ("nobody",), vector=[1, 0, 0])])
+    with pytest.raises(DeckError, match="either a law"):
+        two_body_model([force("S", "tsda", ("a", "b"), k=1.0, L0=1.0, law="2*l")], rng)
