@@ -47,18 +47,21 @@ def given_conditions(model, q):
     rows, c, w, labels = [], [], [], []
     for b, name in enumerate(model.body_names):
         J, A = model.J_local[b], Am[b]
-        for key, given in (("rdot", model.rdot0[b]), ("omega", model.omega0[b]),
-                           ("omega_local", model.omega0_local[b])):
+        for key, given in (
+            ("rdot", model.rdot0[b]),
+            ("omega", model.omega0[b]),
+            ("omega_local", model.omega0_local[b]),
+        ):
             for k in np.flatnonzero(np.isfinite(given)):
                 row = np.zeros(model.nq)
                 if key == "rdot":
                     row[7 * b + k] = 1.0
                     weight = model.mass[b]
                 elif key == "omega":
-                    row[7 * b + 3: 7 * b + 7] = 2.0 * Ep[b, k]
+                    row[7 * b + 3 : 7 * b + 7] = 2.0 * Ep[b, k]
                     weight = (A @ J @ A.T)[k, k]
                 else:
-                    row[7 * b + 3: 7 * b + 7] = 2.0 * Gp[b, k]
+                    row[7 * b + 3 : 7 * b + 7] = 2.0 * Gp[b, k]
                     weight = J[k, k]
                 rows.append(row)
                 c.append(given[k])
@@ -100,8 +103,12 @@ def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
         qd = base + free @ z2
     else:
         qd = base
-    info = {"free_velocity_dof": int(free.shape[1]), "given": len(labels), "changed": {},
-            "warnings": []}
+    info = {
+        "free_velocity_dof": int(free.shape[1]),
+        "given": len(labels),
+        "changed": {},
+        "warnings": [],
+    }
     if labels:
         dev = C @ qd - c
         scale = max(1.0, float(np.abs(c).max()), float(np.abs(h).max(initial=0.0)))
@@ -116,8 +123,10 @@ def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
                 for key, d in keys.items():
                     unit = "m/s" if key == "rdot" else "rad/s"
                     parts.append(f"{name} {key} by ({', '.join(f'{x:.4g}' for x in d)}) {unit}")
-            msg = ("the given initial velocities conflict with the constraints (or each other); "
-                   "least-squares compromise changed: " + "; ".join(parts))
+            msg = (
+                "the given initial velocities conflict with the constraints (or each other); "
+                "least-squares compromise changed: " + "; ".join(parts)
+            )
             info["warnings"].append(msg)
             log.warning(msg)
     return qd, info

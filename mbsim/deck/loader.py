@@ -191,7 +191,7 @@ def _body(rd: Reader, name: str, node: Node, where: Where) -> BodySpec:
         )
     return BodySpec(
         name=name, mass=mass, inertia=inertia, r=vec.get("r", np.zeros(3)),
-        p=_orientation(rd, got), rdot=vec.get("rdot", np.zeros(3)), omega=vec.get("omega"),
+        p=_orientation(rd, got), rdot=vec.get("rdot"), omega=vec.get("omega"),
         omega_local=vec.get("omega_local"), ground=ground, where=where,
     )  # fmt: skip
 
@@ -327,86 +327,71 @@ def _driver(rd: Reader, name: str, node: Node, where: Where, bodies: dict,
 
 def _force(rd: Reader, name: str, node: Node, where: Where, bodies: dict,
            joints: dict) -> ForceSpec:  # fmt: skip
-    got = rd.fields(
-        node,
-        where,
-        sorted({k for t in schema.FORCE_TYPES for k in schema.force_keys(t)}),
-        ("type",),
-        "a force",
-    )
+    every = sorted({k for t in schema.FORCE_TYPES for k in schema.force_keys(t)})
+    got = rd.fields(node, where, every, ("type",), "a force")
     ftype = rd.choice(*got["type"], schema.FORCE_TYPES, "force type")
     spec = schema.FORCE_TYPES[ftype]
     required = tuple(k for k, f in spec.fields.items() if f.required)
-    if spec.bodies == "pair":
-        required += ("bodies", "points")
-    elif spec.bodies.startswith("one"):
-        required += ("body",)
+    required += {"pair": ("bodies", "points"), "one": ("body",)}.get(spec.bodies, ())
     got = rd.fields(node, where, schema.force_keys(ftype), required, f"a {ftype} force")
-    for group in spec.one_of:
+    groups = spec.one_of + ((("body", "bodies"),) if spec.bodies == "one-or-pair" else ())
+    for group in groups:
         given = [k for k in group if k in got]
         if len(given) != 1:
-            raise rd.error(
-                got[given[1]][1] if given else where,
-                f"give exactly one of {', '.join(group)}; got {', '.join(given) or 'none'}",
-            )
+            raise rd.error(got[given[1]][1] if given else where, f"give exactly one of "
+                           f"{', '.join(group)}; got {', '.join(given) or 'none'}")  # fmt: skip
     data: dict = {}
     for key, fld in spec.fields.items():
-        if key not in got:
-            if fld.default is not None:
-                data[key] = fld.default
-            continue
-        child, w = got[key]
-        data[key] = _field(rd, fld, child, w, joints)
+        if key in got:
+            data[key] = _field(rd, fld, *got[key], bodies, joints)
+        elif fld.default is not None:
+            data[key] = fld.default
     out = ForceSpec(name, ftype, (), data=data, where=where)
-    if spec.bodies.startswith("pair"):
-        joint = joints.get(data.get("joint"))
-        if "bodies" in got:
-            out.bodies = rd.body_names(*got["bodies"], bodies, 2)
-            if joint is not None and set(out.bodies) != set(joint.bodies):
-                raise rd.error(
-                    got["bodies"][1],
-                    f"the bodies must be those of joint "
-                    f"{data['joint']} ({', '.join(joint.bodies)})",
-                )
-        else:
-            out.bodies = tuple(joint.bodies)
-        if "points" in got:
-            out.points = rd.points(*got["points"], dict.fromkeys(out.bodies, "P"))
-    else:
+    if "bodies" in got:
+        out.bodies = rd.body_names(*got["bodies"], bodies, 2)
+    elif "body" in got:
         out.bodies = (rd.name(*got["body"], bodies, "body"),)
-        if spec.bodies == "one":
-            P = rd.vector(*got["point"], 3, "length") if "point" in got else np.zeros(3)
-            out.points = {out.bodies[0]: PointSet(P, where=got.get("point", (None, where))[1])}
+    if spec.bodies == "pair":
+        out.points = rd.points(*got["points"], dict.fromkeys(out.bodies, "P"))
+    elif spec.bodies == "pair-joint":  # the force works in the joint's frames
+        joint = joints[data["joint"]]
+        if out.bodies and set(out.bodies) != set(joint.bodies):
+            raise rd.error(got["bodies"][1], f"the bodies must be those of joint "
+                           f"{data['joint']} ({', '.join(joint.bodies)})")  # fmt: skip
+        out.bodies, out.points = tuple(joint.bodies), dict(joint.points)
+    elif spec.bodies == "one":
+        P = rd.vector(*got["point"], 3, "length") if "point" in got else np.zeros(3)
+        out.points = {out.bodies[0]: PointSet(P, where=got.get("point", (None, where))[1])}
     return out
 
 
-def _field(rd: Reader, fld: schema.Field, node: Node, where: Where, joints: dict):
+def _field(rd: Reader, fld: schema.Field, node: Node, where: Where, bodies: dict, joints: dict):
+    """One FORCE_TYPES field (see :class:`mbsim.deck.schema.Field` for the kinds)."""
     if fld.kind == "number":
         return rd.number(node, where, fld.dim)
     if fld.kind == "vector":
         return rd.vector(node, where, 3, fld.dim)
     if fld.kind == "function":
         return rd.function(node, where, fld.dim)
-    if fld.kind == "law":
+    if fld.kind == "law" or fld.kind == "laws" and node.kind != "seq":
         return rd.law(node, where, fld.dim, fld.names)
-    if fld.kind == "law3":
-        if node.kind != "seq" or len(node.value) != 3:
+    if fld.kind == "laws":
+        if len(node.value) != 3:
             raise rd.error(where, f"expected 3 components, got {describe(node)}", node)
-        return [
-            rd.law(
-                v, Where(rd.file, f"{where.path}[{i}]", v.line or where.line), fld.dim, fld.names
-            )
-            for i, v in enumerate(node.value)
-        ]
+        return [rd.law(v, rd.item(where, i, v), fld.dim, fld.names)
+                for i, v in enumerate(node.value)]  # fmt: skip
     if fld.kind == "choice":
         return rd.choice(node, where, fld.options)
     if fld.kind == "joint":
         jname = rd.name(node, where, joints, "joint")
         if joints[jname].type not in fld.options:
-            raise rd.error(
-                where, f"needs a {' or '.join(fld.options)} joint; {jname} is {joints[jname].type}"
-            )
+            raise rd.error(where, f"needs a {' or '.join(fld.options)} joint; {jname} is "
+                           f"{joints[jname].type}")  # fmt: skip
         return jname
+    if fld.kind == "measures":
+        from mbsim.forces.measures import read_measures  # the force models own measures
+
+        return read_measures(rd, node, where, bodies, joints)
     raise ValueError(f"FORCE_TYPES: unknown field kind {fld.kind!r}")
 
 

@@ -121,10 +121,12 @@ class Field(NamedTuple):
 
     kind: 'number' (float), 'vector' (3 floats), 'function' (FunctionSpec of t),
       'law' (FunctionSpec of t, or a bound Expression when it uses other names),
-      'law3' (a list of 3 laws), 'choice' (one of ``options``), 'joint' (the name of a
-      joint whose type is in ``options``).
+      'laws' (one law, or a list of 3 laws), 'choice' (one of ``options``), 'joint' (the name
+      of a joint whose type is in ``options``), 'measures' (read by
+      ``mbsim.forces.measures.read_measures``: {name: MeasureSpec}).
     dim: key of DIMENSIONS (None: any).  names: the variables a law may use besides t and
-      the parameters (None: any name; the force model checks them).
+      the parameters (None: any name; the force model checks them against its own variables
+      and measures).
     """
 
     kind: str
@@ -137,8 +139,9 @@ class Field(NamedTuple):
 
 class ForceType(NamedTuple):
     """bodies: 'pair' (`bodies: [i, j]` with `points: {i: P, j: P}`), 'pair-joint'
-    (`bodies` optional, default the bodies of `joint`), 'one' (`body:` and an optional
-    `point:`, default the centroid), 'one-nopoint' (`body:` only).
+    (`bodies` optional, default the bodies of `joint`, whose points the force gets), 'one'
+    (`body:` and an optional `point:`, default the centroid), 'one-or-pair' (`body: b` or
+    `bodies: [i, j]`, no points).
     fields: the type's own fields; one_of: groups of which exactly one must be given."""
 
     bodies: str
@@ -146,50 +149,60 @@ class ForceType(NamedTuple):
     one_of: tuple[tuple[str, ...], ...] = ()
 
 
+_MEASURES = Field("measures")
+_FRAME = Field("choice", default="global", options=("global", "local"))
 FORCE_TYPES = {
     "tsda": ForceType(
         "pair",
         {
             "k": Field("number", "stiffness", default=0.0),
             "c": Field("number", "damping", default=0.0),
-            "L0": Field("number", "length", required=True),
+            "L0": Field("number", "length", default=0.0),
+            "law": Field("law", "force"),  # the whole force, instead of k and c
             "actuator": Field("law", "force"),
+            "measures": _MEASURES,
         },
     ),
     "rsda": ForceType(
         "pair-joint",
         {
-            "joint": Field("joint", required=True, options=("revolute",)),
+            "joint": Field("joint", required=True, options=("revolute", "cylindrical")),
             "k": Field("number", "rot_stiffness", default=0.0),
             "c": Field("number", "rot_damping", default=0.0),
             "theta0": Field("number", "angle", default=0.0),
+            "law": Field("law", "torque"),
             "actuator": Field("law", "torque"),
+            "measures": _MEASURES,
         },
     ),
     "force": ForceType(
         "one",
         {
             "vector": Field("vector", "force"),
-            "law": Field("law3", "force"),
-            "frame": Field("choice", default="global", options=("global", "local")),
+            "law": Field("laws", "force"),
+            "direction": Field("vector"),
+            "frame": _FRAME,
+            "measures": _MEASURES,
         },
         one_of=(("vector", "law"),),
     ),
     "torque": ForceType(
-        "one-nopoint",
+        "one-or-pair",
         {
             "vector": Field("vector", "torque"),
-            "law": Field("law3", "torque"),
-            "frame": Field("choice", default="global", options=("global", "local")),
+            "law": Field("laws", "torque"),
+            "direction": Field("vector"),
+            "frame": _FRAME,
+            "measures": _MEASURES,
         },
         one_of=(("vector", "law"),),
     ),
 }
 FORCE_BODY_KEYS = {
     "pair": ("bodies", "points"),
-    "pair-joint": ("bodies", "points"),
+    "pair-joint": ("bodies",),
     "one": ("body", "point"),
-    "one-nopoint": ("body",),
+    "one-or-pair": ("body", "bodies"),
 }
 
 

@@ -41,7 +41,7 @@ class BodySpec:
     inertia: np.ndarray  # (3, 3) J' about the centroid, body frame
     r: np.ndarray  # (3,) centroid, global, initial estimate
     p: np.ndarray  # (4,) Euler parameters (e0, e1, e2, e3), normalised on load
-    rdot: np.ndarray  # (3,) centroid velocity, global
+    rdot: np.ndarray | None  # (3,) centroid velocity, global (None: not given, free)
     omega: np.ndarray | None  # (3,) angular velocity, global frame (None: not given)
     omega_local: np.ndarray | None  # (3,) angular velocity, body frame (None: not given)
     ground: bool = False  # True: the ground body, fixed by a 6-equation ground constraint

@@ -51,7 +51,11 @@ def compose(text: str, file: str, origin: str | None = None) -> Node | None:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
-        what = "; ".join(s for s in (exc.context, exc.problem) if s)
+        what = exc.problem or ""
+        if exc.context:  # 'while parsing a flow sequence (line 2, column 6)'
+            cm = exc.context_mark
+            at = f" (line {cm.line + 1}, column {cm.column + 1})" if cm is not None else ""
+            what = f"{exc.context}{at}: {what}"
         line = mark.line + 1 if mark is not None and origin is None else None
         col = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
         raise DeckError(_one_line(f"not valid YAML: {what}{col}"), Where(file, "", line)) from None

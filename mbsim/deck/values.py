@@ -231,6 +231,10 @@ class Reader:
             return False
         return expr.names <= set(self.params)
 
+    def item(self, where: Where, i: int, node: Node) -> Where:
+        """The Where of item ``i`` of the list at ``where``."""
+        return _item(where, i, node)
+
     # -- functions of time ---------------------------------------------------------------
     def function(self, node: Node, where: Where, dim: str | None) -> FunctionSpec:
         """A function of time: number, formula in t, or {expression|polynomial|table|harmonic}."""

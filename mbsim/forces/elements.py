@@ -28,8 +28,10 @@ from mbsim.model import _frame as joint_frame
 
 def _body_indices(spec, body_index, n: int) -> tuple[int, ...]:
     if len(spec.bodies) != n:
-        raise DeckError(f"a {spec.type} force needs {n} bod{'y' if n == 1 else 'ies'}, got "
-                        f"{list(spec.bodies)}", spec.where.child("bodies"))
+        raise DeckError(
+            f"a {spec.type} force needs {n} bod{'y' if n == 1 else 'ies'}, got {list(spec.bodies)}",
+            spec.where.child("bodies"),
+        )
     out = []
     for name in spec.bodies:
         if name not in body_index:
@@ -49,15 +51,23 @@ def _measures(spec, body_index, own: tuple[str, ...]) -> dict:
     measures = compile_measures(spec.data.get("measures"), body_index, spec.where)
     for name in measures:
         if name in own or name == "t":
-            raise DeckError(f"measure name {name!r} is taken by the {spec.type} element "
-                            f"(its own variables: t, {', '.join(own) or 'none'})",
-                            spec.where.child("measures").child(name))
+            raise DeckError(
+                f"measure name {name!r} is taken by the {spec.type} element "
+                f"(its own variables: t, {', '.join(own) or 'none'})",
+                spec.where.child("measures").child(name),
+            )
     return measures
 
 
 def _vector_law(spec, measures: dict, unit: str):
     """(constant vector or None, list of 3 laws or None, (law, unit direction) or None)."""
     d, where = spec.data, spec.where
+    single = d.get("law") is not None and not isinstance(d["law"], (list, tuple))
+    if d.get("direction") is not None and not single:
+        raise DeckError(
+            "direction goes with a single law (law: '...'), not with a vector or 3 laws",
+            where.child("direction"),
+        )
     if d.get("vector") is not None:
         if d.get("law") is not None:
             raise DeckError("give exactly one of vector, law", where.child("law"))
@@ -77,8 +87,10 @@ def _vector_law(spec, measures: dict, unit: str):
             return v, None, None
         return None, laws, None
     if d.get("direction") is None:
-        raise DeckError("a single law needs a direction: [x, y, z] (or give a list of 3 laws)",
-                        where.child("law"))
+        raise DeckError(
+            "a single law needs a direction: [x, y, z] (or give a list of 3 laws)",
+            where.child("law"),
+        )
     u = np.array(d["direction"], dtype=float).reshape(3)
     if not np.linalg.norm(u) > 0:
         raise DeckError("the direction must not be the zero vector", where.child("direction"))
@@ -87,7 +99,12 @@ def _vector_law(spec, measures: dict, unit: str):
     return None, None, (compile_law(law, where.child("law"), measures), u)
 
 
-class _VectorLoad(ForceElement):
+class _Element(ForceElement):
+    def __repr__(self) -> str:
+        return f"<{self.type} {self.name}>"
+
+
+class _VectorLoad(_Element):
     """Shared by force and torque: a vector from a constant, 3 laws or a law times a
     direction, given in the global frame or a body frame."""
 
@@ -99,8 +116,9 @@ class _VectorLoad(ForceElement):
         self.vec, self.laws, self.scaled = _vector_law(spec, measures, unit)
         frame = spec.data.get("frame", "global")
         if frame not in ("global", "local"):
-            raise DeckError(f"expected frame global | local, got {frame!r}",
-                            spec.where.child("frame"))
+            raise DeckError(
+                f"expected frame global | local, got {frame!r}", spec.where.child("frame")
+            )
         self.local = frame == "local"
 
     def vector(self, st, t) -> np.ndarray:
@@ -151,16 +169,20 @@ class PointForce(_VectorLoad):
 @register
 class Torque(_VectorLoad):
     type = "torque"
-    description = ("torque on a body, or equal and opposite on a pair [i, j] (+ on j); "
-                   "constant or laws; global or body frame (of the first body)")
+    description = (
+        "torque on a body, or equal and opposite on a pair [i, j] (+ on j); "
+        "constant or laws; global or body frame (of the first body)"
+    )
 
     @classmethod
     def from_spec(cls, spec, body_index):
         el = cls()
         n = len(spec.bodies)
         if n not in (1, 2):
-            raise DeckError(f"a torque acts on one body or a pair, got {list(spec.bodies)}",
-                            spec.where.child("bodies"))
+            raise DeckError(
+                f"a torque acts on one body or a pair, got {list(spec.bodies)}",
+                spec.where.child("bodies"),
+            )
         idx = _body_indices(spec, body_index, n)
         el.bi, el.bj = (idx[0], idx[1]) if n == 2 else (-1, idx[0])
         el._setup_vector(spec, body_index, "N m")
@@ -184,10 +206,12 @@ class Torque(_VectorLoad):
 
 
 @register
-class TSDA(ForceElement):
+class TSDA(_Element):
     type = "tsda"
-    description = ("translational spring-damper-actuator between two body points, "
-                   "f = k (l - L0) + c ldot - actuator (Haug Sec. 11.3)")
+    description = (
+        "translational spring-damper-actuator between two body points, "
+        "f = k (l - L0) + c ldot - actuator (Haug Sec. 11.3)"
+    )
     own = ("l", "ldot")
 
     @classmethod
@@ -202,8 +226,9 @@ class TSDA(ForceElement):
         el.law = compile_optional(d, "law", where, measures, cls.own)
         el.actuator = compile_optional(d, "actuator", where, measures, cls.own)
         if el.law is not None and (el.k or el.c):
-            raise DeckError("give either a law (the whole tension) or k and c, not both",
-                            where.child("law"))
+            raise DeckError(
+                "give either a law (the whole tension) or k and c, not both", where.child("law")
+            )
         return el
 
     def state(self, st, t):
@@ -247,10 +272,12 @@ class TSDA(ForceElement):
 
 
 @register
-class RSDA(ForceElement):
+class RSDA(_Element):
     type = "rsda"
-    description = ("rotational spring-damper-actuator about a revolute joint's axis, "
-                   "n = k (theta - theta0) + c thetadot - actuator (Haug Sec. 11.3)")
+    description = (
+        "rotational spring-damper-actuator about a revolute joint's axis, "
+        "n = k (theta - theta0) + c thetadot - actuator (Haug Sec. 11.3)"
+    )
     own = ("theta", "thetadot")
 
     @classmethod
@@ -260,19 +287,27 @@ class RSDA(ForceElement):
         bi, bj = _body_indices(spec, body_index, 2)
         names = spec.bodies
         if names[0] not in spec.points or names[1] not in spec.points:
-            raise DeckError(f"the rsda needs the frames of joint {d.get('joint')!r} on both "
-                            f"bodies", where.child("joint"))
+            raise DeckError(
+                f"the rsda needs the frames of joint {d.get('joint')!r} on both bodies",
+                where.child("joint"),
+            )
         el.k, el.c = float(d.get("k", 0.0)), float(d.get("c", 0.0))
         el.theta0 = float(d.get("theta0", 0.0))
-        el.angle = Angle(bi, bj, joint_frame(spec.points[names[0]]),
-                         joint_frame(spec.points[names[1]]), el.theta0)
+        el.angle = Angle(
+            bi,
+            bj,
+            joint_frame(spec.points[names[0]]),
+            joint_frame(spec.points[names[1]]),
+            el.theta0,
+        )
         el.bi, el.bj = bi, bj
         measures = _measures(spec, body_index, cls.own)
         el.law = compile_optional(d, "law", where, measures, cls.own)
         el.actuator = compile_optional(d, "actuator", where, measures, cls.own)
         if el.law is not None and (el.k or el.c):
-            raise DeckError("give either a law (the whole torque) or k and c, not both",
-                            where.child("law"))
+            raise DeckError(
+                "give either a law (the whole torque) or k and c, not both", where.child("law")
+            )
         return el
 
     def state(self, st, t):

@@ -21,7 +21,7 @@ class Law:
     """f(st, t, own) -> float.  ``kind``: 'constant' | 'time' | 'expression'; ``text`` for
     messages; ``measures``: the (name, Measure) pairs the formula uses."""
 
-    __slots__ = ("kind", "text", "value", "_tf", "_expr", "measures", "own")
+    __slots__ = ("_expr", "_tf", "kind", "measures", "own", "text", "value")
 
     def __init__(self, kind, text, value=0.0, tf=None, expr=None, measures=(), own=()):
         self.kind, self.text, self.value = kind, text, float(value)
@@ -65,24 +65,34 @@ def compile_law(value, where: Where, measures: dict, own: tuple[str, ...] = ()) 
         except ExpressionError as exc:
             raise DeckError(f"bad formula: {exc}", where) from None
     if not isinstance(value, Expression):
-        raise DeckError(f"expected a law (number, function of t or formula), got "
-                        f"{type(value).__name__}", where)
+        raise DeckError(
+            f"expected a law (number, function of t or formula), got {type(value).__name__}", where
+        )
     unknown = sorted(value.names - allowed)
     if unknown:
         close = difflib.get_close_matches(unknown[0], sorted(allowed), n=1)
         hint = f"; did you mean {close[0]!r}?" if close else ""
         known = ", ".join(sorted(allowed))
-        raise DeckError(f"unknown name {unknown[0]!r} in the law {str(value)!r}{hint} "
-                        f"(a law may use: {known}; declare others under 'measures')", where)
+        raise DeckError(
+            f"unknown name {unknown[0]!r} in the law {str(value)!r}{hint} "
+            f"(a law may use: {known}; declare others under 'measures')",
+            where,
+        )
     if value.is_constant():
         return Law("constant", str(value), value=float(value({})))
     used = tuple((n, measures[n]) for n in sorted(value.names) if n in measures)
-    return Law("expression", str(value), expr=value, measures=used,
-               own=tuple(n for n in own if n in value.names))
+    return Law(
+        "expression",
+        str(value),
+        expr=value,
+        measures=used,
+        own=tuple(n for n in own if n in value.names),
+    )
 
 
-def compile_optional(data: dict, key: str, where: Where, measures: dict,
-                     own: tuple[str, ...] = ()) -> Law | None:
+def compile_optional(
+    data: dict, key: str, where: Where, measures: dict, own: tuple[str, ...] = ()
+) -> Law | None:
     """The law ``data[key]`` (None when absent)."""
     if data.get(key) is None:
         return None

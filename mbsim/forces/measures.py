@@ -10,7 +10,7 @@ distance            |P_j - P_i|, points on bodies i and j                       
 displacement        u_i . (P_j - P_i), u_i = A_i axis' fixed in body i             m
 velocity            u . v_P, v_P = rd + A (w' x s'); u = axis (global) or A axis'   m/s
 angle               rotation from g_i to g_j about f_i of a revolute/cylindrical  rad
-                    joint, in (theta0 - pi, theta0 + pi]
+                    joint, in [theta0 - pi, theta0 + pi)
 angular_velocity    u . w, u = axis (global) or A axis' (frame local)             rad/s
 coordinate          u . P (global), axis x|y|z or a global direction               m
 time                t                                                              s
@@ -197,9 +197,13 @@ class Angle(Measure):
     @classmethod
     def from_spec(cls, ms, body_index):
         bi, bj = ms.bodies
-        return cls(_index(bi, body_index, ms.where), _index(bj, body_index, ms.where),
-                   joint_frame(ms.points.get(bi)), joint_frame(ms.points.get(bj)),
-                   ms.data.get("theta0", 0.0))
+        return cls(
+            _index(bi, body_index, ms.where),
+            _index(bj, body_index, ms.where),
+            joint_frame(ms.points.get(bi)),
+            joint_frame(ms.points.get(bj)),
+            ms.data.get("theta0", 0.0),
+        )
 
     def terms(self, st):
         """(theta, a): the angle and its gradient axis a (global, (3,)): d theta = a . (dphi_j -
@@ -245,8 +249,10 @@ def compile_measures(specs: dict | None, body_index: dict, where: Where) -> dict
     for name, ms in (specs or {}).items():
         cls = MEASURES.get(ms.type)
         if cls is None:
-            raise DeckError(f"unknown measure type {ms.type!r}; known: {', '.join(MEASURES)}",
-                            where.child("measures").child(name).child("type"))
+            raise DeckError(
+                f"unknown measure type {ms.type!r}; known: {', '.join(MEASURES)}",
+                where.child("measures").child(name).child("type"),
+            )
         out[name] = cls.from_spec(ms, body_index)
     return out
 
@@ -261,13 +267,15 @@ def read_measures(rd, node, where: Where, bodies: dict, joints: dict) -> dict[st
     out = {}
     for name, child, w in rd.items(node, where):
         if not name.isidentifier() or name in ("t", "pi", "e"):
-            raise rd.error(w, f"a measure name must be a plain name other than t, pi, e; "
-                              f"got {name!r}")
+            raise rd.error(
+                w, f"a measure name must be a plain name other than t, pi, e; got {name!r}"
+            )
         got = rd.fields(child, w, ("type",) + _all_keys(), ("type",), "a measure")
         mtype = rd.choice(*got["type"], MEASURES, "measure type")
         cls = MEASURES[mtype]
-        got = rd.fields(child, w, ("type",) + cls.keys, ("type",) + cls.required,
-                        f"a {mtype} measure")
+        got = rd.fields(
+            child, w, ("type",) + cls.keys, ("type",) + cls.required, f"a {mtype} measure"
+        )
         ms = MeasureSpec(name, mtype, where=w)
         if "bodies" in got:
             ms.bodies = rd.body_names(*got["bodies"], bodies, 2)
@@ -292,8 +300,11 @@ def read_measures(rd, node, where: Where, bodies: dict, joints: dict) -> dict[st
             jname = rd.name(*got["joint"], joints, "joint")
             joint = joints[jname]
             if joint.type not in ("revolute", "cylindrical"):
-                raise rd.error(got["joint"][1], f"an angle measure needs a revolute or "
-                                                f"cylindrical joint; {jname} is {joint.type}")
+                raise rd.error(
+                    got["joint"][1],
+                    f"an angle measure needs a revolute or "
+                    f"cylindrical joint; {jname} is {joint.type}",
+                )
             ms.data["joint"] = jname
             ms.bodies, ms.points = tuple(joint.bodies), dict(joint.points)
         out[name] = ms

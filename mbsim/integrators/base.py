@@ -1,4 +1,156 @@
-"""The integrator contract (after scipy's OdeSolver), filled in by the dynamics work.
+"""The integrator contract (after scipy's ``OdeSolver``) and the step-size controller.
 
-See mbsim/integrators/__init__.py for the registry ``INTEGRATORS``.
+An integrator advances a constrained multibody state (q, qd) of a
+:class:`~mbsim.integrators.system.System` one accepted step at a time; the dynamic analysis
+(:mod:`mbsim.analyses.dynamic`) drives it and samples its dense output at the output times,
+so output sampling never constrains the step size.
 """
+
+from __future__ import annotations
+
+import numpy as np
+
+SAFETY = 0.9  # times the asymptotically optimal step (Hairer, Norsett & Wanner, Sec. II.4)
+MIN_FACTOR = 0.2  # largest decrease of the step after a rejected step
+MAX_FACTOR = 5.0  # largest increase after an accepted step
+
+
+class Integrator:
+    """Base class of the multibody integrators.
+
+    Contract of an integrator type (a class registered in ``INTEGRATORS``):
+
+    1. Class data: ``name`` (the registry and ``--integrator`` name), ``description`` (one
+       line for ``mbsim list integrators``), ``order`` (global order of q in h),
+       ``adaptive`` (True: has an error estimate and controls its step from rtol/atol;
+       every integrator also takes a fixed step ``h``), ``formulation`` ('gcp' | 'index-1' |
+       'index-3').  Family facts (tableaus, alpha parameters) are class data too.
+    2. ``__init__(system, t0, q0, qd0, t_bound, options)``: ``system`` is a
+       :class:`~mbsim.integrators.system.System`; (q0, qd0) satisfy Phi = 0 and
+       Phi_q qd = nu; ``options`` holds rtol, atol, h (fixed step: no error control),
+       h0 (first step), h_max, h_min and the family's own settings.  Subclasses call
+       ``super().__init__`` first, then prepare their state.
+    3. ``_step_impl() -> (ok, message)``: take one accepted step from ``t`` towards
+       ``t_bound`` (never past it) and update ``t``, ``q``, ``qd``, ``w`` (the integrated
+       power Q.qd - lam.nu, see :meth:`System.power`) and ``h_last``; store what the dense
+       output needs.  Add to ``self.counters['rejected_steps']`` for every rejected trial.
+       A numerical failure (Newton divergence, singular matrix, step below h_min) returns
+       ``(False, message)`` with the time and the joints involved; it never raises, prints
+       or exits.
+    4. ``_dense_output_impl() -> callable``: ``f(t) -> (q, qd, w)`` for t in the last step
+       [t_old, t].
+    5. Counters: ``self.counters`` (steps, rejected_steps, plus the family's own, e.g.
+       repartitions) merge with ``system.counters`` (function_evaluations, factorizations,
+       newton_iterations, ...) in :meth:`all_counters`.
+    """
+
+    name = ""
+    description = ""
+    order = 0
+    adaptive = True
+    formulation = ""
+
+    TOO_SMALL_STEP = "step size fell below h_min"
+
+    def __init__(self, system, t0, q0, qd0, t_bound, options=None):
+        opt = dict(options or {})
+        self.system = system
+        self.t = float(t0)
+        self.t_old = None
+        self.t_bound = float(t_bound)
+        self.q = np.array(q0, dtype=float)
+        self.qd = np.array(qd0, dtype=float)
+        self.w = 0.0
+        self.rtol = float(opt.get("rtol", 1e-6))
+        self.atol = float(opt.get("atol", 1e-8))
+        self.h_fixed = opt.get("h")
+        self.h_fixed = None if self.h_fixed is None else float(self.h_fixed)
+        self.h_max = float(opt.get("h_max") or np.inf)
+        self.h_min = float(opt.get("h_min") or 0.0)
+        self.h0 = opt.get("h0")
+        self.h_last = 0.0
+        self.options = opt
+        self.status = "running"
+        self.counters = {"steps": 0, "rejected_steps": 0}
+
+    # -- what the driver calls ------------------------------------------------------------
+    def step(self):
+        """Advance by one accepted step; returns (ok, message)."""
+        if self.status != "running":
+            return False, "integrator is not running"
+        if self.t >= self.t_bound:
+            self.status = "finished"
+            return True, ""
+        t = self.t
+        ok, message = self._step_impl()
+        if not ok:
+            self.status = "failed"
+            return False, message
+        self.t_old = t
+        self.counters["steps"] += 1
+        if self.t >= self.t_bound:
+            self.status = "finished"
+        return True, ""
+
+    def dense_output(self):
+        return self._dense_output_impl()
+
+    def all_counters(self) -> dict:
+        out = dict(self.system.counters)
+        out.update(self.counters)
+        return out
+
+    # -- helpers for subclasses ------------------------------------------------------------
+    def _min_step(self):
+        return max(self.h_min, 10 * abs(np.nextafter(self.t, np.inf) - self.t))
+
+    def _clip(self, h):
+        """A trial step: at most h_max, ending exactly at t_bound when close to it."""
+        h = min(h, self.h_max, self.t_bound - self.t)
+        if self.t_bound - (self.t + h) < 1e-12 * max(1.0, abs(self.t_bound)):
+            h = self.t_bound - self.t
+        return h
+
+    def _step_factor(self, err, exponent, rejected):
+        """Step-size factor from the scaled error norm err (<= 1 accepted)."""
+        if err == 0:
+            factor = MAX_FACTOR
+        else:
+            factor = SAFETY * err ** exponent
+        if err <= 1:
+            factor = min(MAX_FACTOR, factor)
+            if rejected:
+                factor = min(1.0, factor)
+        else:
+            factor = max(MIN_FACTOR, factor)
+        return factor
+
+    def _fail(self, message):
+        return False, f"t = {self.t:.6g} s: {message}"
+
+    def _step_impl(self):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def _dense_output_impl(self):  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+def rms_norm(x, scale) -> float:
+    """Scaled RMS norm sqrt(mean((x/scale)^2)) (Hairer, Norsett & Wanner eq. II.4.11)."""
+    z = x / scale
+    return float(np.sqrt(np.dot(z, z) / max(1, z.size)))
+
+
+def hermite(t0, t1, y0, y1, f0, f1):
+    """Cubic Hermite interpolant on [t0, t1] from values y and slopes f; returns g(t)."""
+    h = t1 - t0
+
+    def g(t):
+        x = (t - t0) / h
+        h00 = (1 + 2 * x) * (1 - x) ** 2
+        h10 = x * (1 - x) ** 2
+        h01 = x * x * (3 - 2 * x)
+        h11 = x * x * (x - 1)
+        return h00 * y0 + h10 * h * f0 + h01 * y1 + h11 * h * f1
+
+    return g

@@ -70,7 +70,7 @@ def test_governor_loads_completely():
     assert ball.omega is None
     np.testing.assert_allclose(ball.omega_local, [0, 0, 1])
     for body in spec.bodies.values():
-        for arr in (body.r, body.p, body.rdot, body.inertia):
+        for arr in (body.r, body.p, body.inertia):
             assert isinstance(arr, np.ndarray) and arr.dtype == float
         assert body.where.file == str(GOVERNOR) and body.where.path == f"bodies.{body.name}"
 
@@ -112,6 +112,7 @@ def test_governor_functions_forces_outputs_analysis():
     assert spring.data == {"k": 1000.0, "c": 30.0, "L0": 0.15}
     twist = spec.forces["twist"]
     assert twist.bodies == ("spindle", "ball1") and twist.data["joint"] == "REV2"
+    assert twist.points == spec.joints["REV2"].points  # the rsda works in the joint's frames
     assert twist.data["theta0"] == pytest.approx(math.radians(10))
     push = spec.forces["push"]
     assert push.data["frame"] == "global"
@@ -310,3 +311,23 @@ def test_yaml_merge_keys_and_anchors():
     spec = load(text, overrides={"forces.s1.c": "1"})
     assert spec.forces["s1"].data == {"k": 1000.0, "c": 1.0, "L0": 0.1}
     assert spec.forces["s2"].data == {"k": 5.0, "c": 0.0, "L0": 0.1}
+
+
+def test_force_laws_stay_expressions_and_measures_pass_through():
+    text = BASE + (
+        "forces:\n"
+        "  damper: {type: tsda, bodies: [ground, crank], points: {ground: [0, 0, 0],"
+        " crank: [0, 0, 0]}, law: 'k*(l - 0.1) + dv', measures: {dv: {type: time}}}\n"
+        "  push: {type: force, body: crank, law: '3*t', direction: [0, 0, 1]}\n"
+        "  pair: {type: torque, bodies: [ground, crank], vector: [0, 0, '2 N*m']}\n"
+    )
+    spec = load(text)
+    law = spec.forces["damper"].data["law"]
+    assert isinstance(law, Expression) and law.names == {"l", "dv"}  # k is bound
+    assert law({"l": 0.2, "dv": 0.0}) == pytest.approx(100.0)
+    assert spec.forces["damper"].data["measures"]["dv"].type == "time"
+    push = spec.forces["push"]
+    assert push.data["law"].kind == "expression" and push.data["frame"] == "global"
+    np.testing.assert_array_equal(push.data["direction"], [0, 0, 1])
+    assert spec.forces["pair"].bodies == ("ground", "crank")
+    np.testing.assert_array_equal(spec.forces["pair"].data["vector"], [0, 0, 2])

@@ -25,17 +25,26 @@ def measure(name, type_, bodies=(), points=None, **data):
 
 def two_body_model(forces, rng, joints=()):
     """Bodies a and b at random poses (off any constraint), gravity off."""
-    bodies = [body("a", 2.0, (1, 2, 3), rng.normal(size=3), rng.normal(size=4)),
-              body("b", 3.0, (2, 2, 1), rng.normal(size=3), rng.normal(size=4))]
+    bodies = [
+        body("a", 2.0, (1, 2, 3), rng.normal(size=3), rng.normal(size=4)),
+        body("b", 3.0, (2, 2, 1), rng.normal(size=3), rng.normal(size=4)),
+    ]
     return compile_model(spec(bodies, joints, forces=forces))
 
 
 def revolute_ab(rng):
     """A revolute joint between a and b with random frames (only its frames are used)."""
     P = rng.normal(size=3)
-    return joint("REV", "revolute", "a", "b",
-                 {"a": pts(P, P + rng.normal(size=3), P + rng.normal(size=3)),
-                  "b": pts(rng.normal(size=3), rng.normal(size=3), rng.normal(size=3))})
+    return joint(
+        "REV",
+        "revolute",
+        "a",
+        "b",
+        {
+            "a": pts(P, P + rng.normal(size=3), P + rng.normal(size=3)),
+            "b": pts(rng.normal(size=3), rng.normal(size=3), rng.normal(size=3)),
+        },
+    )
 
 
 def tangent(model, q, rng):

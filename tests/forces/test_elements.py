@@ -30,8 +30,15 @@ rng = np.random.default_rng(2024)
 def _case(type_):
     """A model with one element of type_ (conservative data where the type has any)."""
     if type_ == "tsda":
-        f = force("S", "tsda", ("a", "b"), {"a": rng.normal(size=3), "b": rng.normal(size=3)},
-                  k=120.0, c=0.0, L0=0.8)
+        f = force(
+            "S",
+            "tsda",
+            ("a", "b"),
+            {"a": rng.normal(size=3), "b": rng.normal(size=3)},
+            k=120.0,
+            c=0.0,
+            L0=0.8,
+        )
         return two_body_model([f], rng)
     if type_ == "rsda":
         J = revolute_ab(rng)
@@ -65,7 +72,9 @@ def test_virtual_work(type_):
             assert abs(Q @ dq - expected) < 1e-12 * max(1, abs(expected))
             continue
         h = 1e-6
-        dV = (eq.potential_energy(model, q + h * dq) - eq.potential_energy(model, q - h * dq)) / (2 * h)
+        dV = (eq.potential_energy(model, q + h * dq) - eq.potential_energy(model, q - h * dq)) / (
+            2 * h
+        )
         assert eq.potential_energy(model, q) != 0.0
         assert abs(Q @ dq + dV) < 1e-7 * max(1.0, abs(dV)), (Q @ dq, -dV)
 
@@ -81,8 +90,15 @@ def test_damping_power(type_):
     against a central difference of the length/angle along q + s qd."""
     c = 7.5
     if type_ == "tsda":
-        f = force("S", "tsda", ("a", "b"), {"a": rng.normal(size=3), "b": rng.normal(size=3)},
-                  k=0.0, c=c, L0=0.3)
+        f = force(
+            "S",
+            "tsda",
+            ("a", "b"),
+            {"a": rng.normal(size=3), "b": rng.normal(size=3)},
+            k=0.0,
+            c=c,
+            L0=0.3,
+        )
         model = two_body_model([f], rng)
     else:
         J = revolute_ab(rng)
@@ -123,7 +139,7 @@ def test_follower_force_turns_with_the_body():
     f = force("F", "force", ("a",), {"a": [0, 0, 0]}, vector=[1, 0, 0], frame="local")
     for angle, expected in ((0.0, [1, 0, 0]), (np.pi / 2, [0, 1, 0]), (np.pi, [-1, 0, 0])):
         model = _one_body([f], from_axis_angle([0, 0, 1], angle))
-        _, F, n_local = eq.applied_forces(model, model.q0, np.zeros(7))
+        _, F, _n_local = eq.applied_forces(model, model.q0, np.zeros(7))
         np.testing.assert_allclose(F[0], expected, atol=1e-12)
         assert model.forces[0].potential(eq.State(model, model.q0)) == 0.0
 
@@ -134,8 +150,9 @@ def test_torque_local_frame_and_single_body():
     model = _one_body([force("T", "torque", ("a",), vector=[0, 0, 2], frame="local")], p)
     _, _, n_local = eq.applied_forces(model, model.q0, np.zeros(7))
     np.testing.assert_allclose(n_local[0], [0, 0, 2], atol=1e-12)
-    np.testing.assert_allclose(model.forces[0].channels(eq.State(model, model.q0), 0)["torque"][0],
-                               [0, -2, 0], atol=1e-12)
+    np.testing.assert_allclose(
+        model.forces[0].channels(eq.State(model, model.q0), 0)["torque"][0], [0, -2, 0], atol=1e-12
+    )
 
 
 def test_tsda_sign_and_actuator():
@@ -158,8 +175,13 @@ def test_rsda_restoring_torque_by_hand():
     spring turns b back: torque -3 N m about z on b, +3 on the ground."""
     from tests.helpers import joint, pts
 
-    J = joint("REV", "revolute", "g", "b", {"g": pts([0, 0, 0], [0, 0, 1], [1, 0, 0]),
-                                           "b": pts([0, 0, 0], [0, 0, 1], [1, 0, 0])})
+    J = joint(
+        "REV",
+        "revolute",
+        "g",
+        "b",
+        {"g": pts([0, 0, 0], [0, 0, 1], [1, 0, 0]), "b": pts([0, 0, 0], [0, 0, 1], [1, 0, 0])},
+    )
     f = force("R", "rsda", ("g", "b"), dict(J.points), joint="REV", k=10.0)
     bodies = [body("g", ground=True), body("b", p=from_axis_angle([0, 0, 1], 0.3))]
     model = compile_model(spec(bodies, [J], forces=[f]))

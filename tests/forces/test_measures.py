@@ -40,11 +40,15 @@ def config():
 HAND = [
     # s' = (1, 0, 0) on b is at (1, 1, 0): distance to the origin sqrt 2
     (measure("m", "distance", ("g", "b"), {"g": [0, 0, 0], "b": [1, 0, 0]}), np.sqrt(2)),
-    # along the ground's y: 1; along b's own x' (= global y) from b's centroid to the origin: -0
-    (measure("m", "displacement", ("g", "b"), {"g": [0, 0, 0], "b": [1, 0, 0]}, axis=[0, 1, 0]),
-     1.0),
-    (measure("m", "displacement", ("b", "g"), {"b": [0, 0, 0], "g": [0, 0, 0]}, axis=[0, 1, 0]),
-     1.0),  # u_b = A (0, 1, 0) = (-1, 0, 0); d = 0 - (1, 0, 0): u . d = 1
+    # along the ground's y: 1
+    (
+        measure("m", "displacement", ("g", "b"), {"g": [0, 0, 0], "b": [1, 0, 0]}, axis=[0, 1, 0]),
+        1.0,
+    ),
+    (
+        measure("m", "displacement", ("b", "g"), {"b": [0, 0, 0], "g": [0, 0, 0]}, axis=[0, 1, 0]),
+        1.0,
+    ),  # u_b = A (0, 1, 0) = (-1, 0, 0); d = 0 - (1, 0, 0): u . d = 1
     # v_P = rd + w x (A s') = (0, 0, 1) + (0, 0, 2) x (0, 1, 0) = (-2, 0, 1)
     (measure("m", "velocity", ("b",), {"b": [1, 0, 0]}, axis=[1, 0, 0]), -2.0),
     (measure("m", "velocity", ("b",), {"b": [1, 0, 0]}, axis=[0, 0, 1]), 1.0),
@@ -61,7 +65,9 @@ HAND = [
 ]
 
 
-@pytest.mark.parametrize("ms, expected", HAND, ids=[f"{m.type}-{k}" for k, (m, _) in enumerate(HAND)])
+@pytest.mark.parametrize(
+    "ms, expected", HAND, ids=[f"{m.type}-{k}" for k, (m, _) in enumerate(HAND)]
+)
 def test_measure_by_hand(config, ms, expected):
     model, q, qd = config
     assert _value(model, ms, q, qd, t=0.25) == pytest.approx(expected, abs=1e-12)
@@ -86,11 +92,20 @@ def _qd(model, s, h=1e-6):
 
 RATE_PAIRS = [
     # (position measure, its rate)
-    (measure("x", "coordinate", ("b",), {"b": [0.3, -0.2, 0.5]}, axis=[0.2, 0.5, -1]),
-     measure("v", "velocity", ("b",), {"b": [0.3, -0.2, 0.5]}, axis=[0.2, 0.5, -1])),
-    (measure("x", "displacement", ("g", "b"), {"g": [0.1, 0, 0], "b": [0.3, -0.2, 0.5]},
-             axis=[0, 1, 1]),
-     measure("v", "velocity", ("b",), {"b": [0.3, -0.2, 0.5]}, axis=[0, 1, 1])),
+    (
+        measure("x", "coordinate", ("b",), {"b": [0.3, -0.2, 0.5]}, axis=[0.2, 0.5, -1]),
+        measure("v", "velocity", ("b",), {"b": [0.3, -0.2, 0.5]}, axis=[0.2, 0.5, -1]),
+    ),
+    (
+        measure(
+            "x",
+            "displacement",
+            ("g", "b"),
+            {"g": [0.1, 0, 0], "b": [0.3, -0.2, 0.5]},
+            axis=[0, 1, 1],
+        ),
+        measure("v", "velocity", ("b",), {"b": [0.3, -0.2, 0.5]}, axis=[0, 1, 1]),
+    ),
 ]
 
 
@@ -100,8 +115,10 @@ def test_velocity_is_the_derivative(pos, rate):
     h = 1e-5
     for s in (0.0, 0.4, 1.1):
         qd = _qd(model, s)
-        fd = (_value(model, pos, _motion(model, s + h), qd)
-              - _value(model, pos, _motion(model, s - h), qd)) / (2 * h)
+        fd = (
+            _value(model, pos, _motion(model, s + h), qd)
+            - _value(model, pos, _motion(model, s - h), qd)
+        ) / (2 * h)
         assert abs(_value(model, rate, _motion(model, s), qd) - fd) < 1e-7
 
 

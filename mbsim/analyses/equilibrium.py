@@ -1,0 +1,528 @@
+"""Static equilibrium and steady spin (Haug Sec. 11.5 and 12.6.2).
+
+Methods (``METHODS``, option ``method``):
+
+``minimum`` (default)
+    Minimum of the total potential energy V (gravity + springs + constant forces) on the
+    constraint manifold, from the deck's estimates (or ``options['q0']``).  The stationarity
+    (KKT) conditions are Q(q) - Phi_q^T lam = 0, Phi(q) = 0 (Haug eq. 11.5.x), with Q the
+    generalized applied force at rest (Q = -dV/dq up to components along p, which the
+    normalisation multipliers absorb).  They are solved by a null-space Newton method:
+    with N an orthonormal basis of null(Phi_q) (tangent to the manifold; it includes the
+    normalisation rows, so its Euler-parameter parts are tangent to |p| = 1), the reduced
+    force is r = N^T Q and the reduced Hessian
+
+        H = -N^T d/dq (Q - Phi_q^T lam) N        (lam: least-squares multipliers at q)
+
+    (the Hessian of the Lagrangian V + lam^T Phi projected on the tangent space), by central
+    differences of the generalized force along the columns of N.  Steps N dz with
+    H' dz = r (H' = H with eigenvalues replaced by max(|e|, delta), so every step goes
+    downhill), a backtracking line search on V, and Newton's projection back onto Phi = 0.
+    Stability: the eigenvalues of H at the solution (mixed units: N/m for translations,
+    N m per unit Euler parameter for rotations); all positive = a strict minimum = stable.
+    Where N^T M N is positive definite the small-oscillation frequencies (H z = w^2 M z)
+    are reported too.  Other estimates reach other minima.
+
+``settle``
+    A damped dynamic run (:func:`mbsim.analyses.dynamic.dynamic`) until the largest body
+    velocity and acceleration stay below ``settle_tol``; optional artificial damping
+    ``damping`` (1/s): F = -c m rd and n' = -c J' omega' on every body.  Reports the settled
+    state, the settling time, and the reduced force and Hessian there.
+
+``steady``
+    A machine spinning at constant speed omega about a fixed axis (``axis``, ``point``; by
+    default the axis of the revolute/cylindrical joint between ``body`` and ground): every
+    non-ground body turns rigidly with Omega = omega * axis, so qd and qdd are the rigid
+    rotation field (rd = Omega x (r - c), omega = Omega, rdd = Omega x (Omega x (r - c)),
+    omegad = 0).  In the rotating frame this is an equilibrium of
+
+        Q_eff(q) = Q(q, qd_rot) - M qdd_rot        (centrifugal + inertial torques + applied)
+
+    whose potential is V_eff = V - 1/2 sum(m |Omega x (r - c)|^2 + Omega^T A J' A^T Omega).
+    Given ``omega``: the configuration (the minimum method on Q_eff; the spin angle, a
+    neutral direction, is held).  Without ``omega``: the speed at which the given
+    configuration is steady, from the projection N^T (Q_0 + omega^2 Q_1) = 0 (least squares
+    in omega^2, with Q_0 the static and omega^2 Q_1 the spin part of Q_eff; forces that depend
+    on relative velocity vanish in rigid rotation).  Stability is judged on V_eff alone
+    (gyroscopic coupling ignored).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg as la
+
+from mbsim import equations as eq
+from mbsim.analyses.assembly import assemble, newton
+from mbsim.analyses.common import Recorder
+from mbsim.analyses.reactions import add_reaction_channels
+from mbsim.errors import ConvergenceError, DeckError, ModelError
+from mbsim.forces.base import ForceElement
+from mbsim.result import STATUS_INCOMPLETE, Result
+
+DEFAULTS = {
+    "method": "minimum",
+    "t": 0.0,  # time at which time-dependent loads and driver targets are evaluated
+    "tol": 1e-9,  # reduced force, relative to the force scale
+    "max_iter": 200,
+    "max_step": 0.2,  # largest step in q (norm) per iteration
+    "fd_step": 1e-6,  # central-difference step for the Hessian
+    "phi_tol": 1e-11,
+    # settle
+    "t_end": 20.0,
+    "step": 0.01,
+    "damping": 0.0,
+    "settle_tol": 1e-6,
+    # steady
+    "body": None,
+    "omega": None,
+    "axis": None,
+    "point": None,
+}
+
+
+# -- helpers -------------------------------------------------------------------------------
+
+def null_basis(C, rtol=1e-10):
+    """Orthonormal basis (nq, nq - rank) of null(C) by SVD."""
+    if C.shape[0] == 0:
+        return np.eye(C.shape[1])
+    _, s, Vt = la.svd(C, full_matrices=True)
+    rank = int(np.sum(s > rtol * max(s[0], 1e-300)))
+    return Vt[rank:].T
+
+
+def worst_coordinates(model, g, n=2) -> str:
+    """Name the bodies and coordinates where the residual generalized force g is largest."""
+    labels = ("x", "y", "z", "e0", "e1", "e2", "e3")
+    order = np.argsort(-np.abs(g))[:n]
+    return ", ".join(f"{model.body_names[k // 7]}.{labels[k % 7]} ({g[k]:.3g})" for k in order)
+
+
+@dataclass
+class Stationary:
+    """Outcome of :func:`stationary_point`."""
+
+    q: np.ndarray  # (nq,)
+    lam: np.ndarray  # (m,) multipliers, 0 on redundant rows
+    converged: bool
+    iterations: int
+    reduced_force: float  # max |N^T Q| at q
+    eigenvalues: np.ndarray  # of the reduced Hessian H, ascending
+    frequencies: np.ndarray | None  # rad/s, where N^T M N is positive definite
+    energy: float
+    message: str = ""
+    energy_consistent: bool = True
+    warnings: list[str] = field(default_factory=list)
+
+
+class Problem:
+    """A generalized force g(q) (nq,) with its potential V(q) for one stationary problem."""
+
+    def __init__(self, model, t, rows, force, energy, tangent=None):
+        self.model, self.t, self.rows = model, t, rows
+        self.force, self.energy, self.tangent = force, energy, tangent
+
+    def basis(self, q):
+        J = eq.phi_q(self.model, q, self.t)[self.rows]
+        C = J if self.tangent is None else np.vstack([J, self.tangent(q)[None, :]])
+        return J, null_basis(C)
+
+    def multipliers(self, J, g):
+        return la.lstsq(J.T, g)[0]
+
+    def hessian(self, q, lam, N, h):
+        """H = -N^T d(g - Phi_q^T lam)/dq N by central differences along the columns of N."""
+        def resid(x):
+            return self.force(x) - eq.phi_q(self.model, x, self.t)[self.rows].T @ lam
+        KN = np.column_stack([(resid(q + h * n) - resid(q - h * n)) / (2 * h) for n in N.T])
+        H = -N.T @ KN
+        return 0.5 * (H + H.T)
+
+
+def classify(eigenvalues, rtol=1e-7):
+    """'stable' (all > 0), 'neutral' (smallest ~ 0) or 'unstable' (some < 0)."""
+    e = np.asarray(eigenvalues, float)
+    if e.size == 0:
+        return "stable"
+    tol = rtol * max(1.0, float(np.abs(e).max()))
+    if e.min() > tol:
+        return "stable"
+    return "unstable" if e.min() < -tol else "neutral"
+
+
+def stationary_point(prob: Problem, q0, opt) -> Stationary:
+    """Null-space Newton for g(q) - Phi_q^T lam = 0, Phi = 0, downhill in V (module doc)."""
+    model, t, rows = prob.model, prob.t, prob.rows
+    tol_phi, h = float(opt["phi_tol"]), float(opt["fd_step"])
+    q = newton(model, q0, t, tol_phi, 50, rows=rows)[0]
+    g = prob.force(q)
+    scale = max(1.0, float(np.abs(g).max()), float(np.abs(model.mass * np.linalg.norm(
+        model.gravity)).max()))
+    J, N = prob.basis(q)
+    # Does V belong to g?  dV along a tangent direction must equal -g . v (forces without
+    # a potential, e.g. follower loads, make the line search use |r| instead).
+    v = N @ np.ones(N.shape[1]) / np.sqrt(max(N.shape[1], 1)) if N.shape[1] else None
+    consistent = True
+    if v is not None:
+        hv = 1e-5
+        dV = (prob.energy(q + hv * v) - prob.energy(q - hv * v)) / (2 * hv)
+        consistent = abs(dV + g @ v) <= 1e-5 * scale
+    warnings = [] if consistent else [
+        "the potential energy does not match the applied forces (non-conservative loads?): "
+        "the line search uses the reduced force instead"]
+    V = prob.energy(q)
+    V_start = V
+    it, message, converged = 0, "", False
+    r = N.T @ g
+    while True:
+        lam_a = prob.multipliers(J, g)
+        if np.abs(r).max(initial=0.0) <= opt["tol"] * scale:
+            converged = True
+            break
+        if it >= opt["max_iter"]:
+            break
+        it += 1
+        H = prob.hessian(q, lam_a, N, h)
+        w, U = la.eigh(H)
+        delta = 1e-8 * max(1.0, float(np.abs(w).max()))
+        dz = U @ ((U.T @ r) / np.maximum(np.abs(w), delta))
+        step = N @ dz
+        nrm = np.linalg.norm(step)
+        if nrm > opt["max_step"]:
+            step *= opt["max_step"] / nrm
+        alpha, accepted = 1.0, False
+        slope = -(g @ step)  # dV along the step (< 0)
+        r_norm = np.linalg.norm(r)
+        best = None
+        while alpha >= 1e-6:
+            try:
+                qt = newton(model, q + alpha * step, t, tol_phi, 50, rows=rows)[0]
+            except ConvergenceError:
+                alpha *= 0.5
+                continue
+            gt = prob.force(qt)
+            Jt, Nt = prob.basis(qt)
+            rt = Nt.T @ gt
+            Vt = prob.energy(qt)
+            ok_V = consistent and Vt <= V + 1e-4 * alpha * slope
+            ok_r = np.linalg.norm(rt) < (1 - 1e-4 * alpha) * r_norm and (
+                not consistent or Vt <= V + 1e-12 * max(1.0, abs(V)))
+            if ok_V or ok_r:
+                accepted = True
+                break
+            if best is None or np.linalg.norm(rt) < best[0]:
+                best = (np.linalg.norm(rt), qt, gt, Jt, Nt, rt, Vt)
+            alpha *= 0.5
+        if not accepted:
+            if best is None:
+                message = "no step could be projected back onto the constraints"
+                break
+            _, qt, gt, Jt, Nt, rt, Vt = best
+        q, g, J, N, r, V = qt, gt, Jt, Nt, rt, Vt
+    lam_a = prob.multipliers(J, g)
+    H = prob.hessian(q, lam_a, N, h)
+    w = la.eigvalsh(H) if H.size else np.zeros(0)
+    freq = None
+    if H.size and prob.tangent is None:
+        Mr = N.T @ eq.mass_matrix(model, q) @ N
+        try:
+            w2 = la.eigh(H, 0.5 * (Mr + Mr.T), eigvals_only=True)
+            freq = np.sign(w2) * np.sqrt(np.abs(w2))
+        except la.LinAlgError:  # N^T M N not positive definite (zero inertias)
+            freq = None
+    lam = np.zeros(model.m)
+    lam[rows] = lam_a
+    if not converged and not message:
+        resid = g - J.T @ lam_a
+        cause = ""
+        if consistent and V < V_start - 1e3 * scale:
+            cause = (f"; the potential energy kept falling (from {V_start:.6g} to {V:.6g} J): "
+                     "it may have no minimum (an unsupported body or an unbounded load?)")
+        message = (f"equilibrium did not converge in {it} iterations: reduced force "
+                   f"{np.abs(r).max():.3g} (tolerance {opt['tol'] * scale:.3g}), largest "
+                   f"residual forces at {worst_coordinates(model, resid)}{cause}")
+    return Stationary(q, lam, converged, it, float(np.abs(r).max(initial=0.0)), w, freq, V,
+                      message, consistent, warnings)
+
+
+def _options(model, options):
+    opt = dict(DEFAULTS, **(model.spec.analysis.get("equilibrium", {}) if model.spec else {}))
+    opt.update({k: v for k, v in (options or {}).items() if v is not None})
+    return opt
+
+
+def _configuration(model, q):
+    qq = np.asarray(q).reshape(model.nb, 7)
+    return {n: {"r": qq[b, :3].tolist(), "p": qq[b, 3:].tolist()}
+            for b, n in enumerate(model.body_names)}
+
+
+def _result(model, mode_method, t, q, qd, qdd, lam, sol: Stationary | None, extra=None):
+    rec = Recorder(model)
+    rec.add(t, q, qd, qdd)
+    res = rec.result("equilibrium")
+    res.add("constraints/lam", lam[None, :], "", "Lagrange multipliers (rows as in the model)",
+            model.row_label)
+    add_reaction_channels(res, model, q[None, :], lam[None, :])
+    s = {"method": mode_method, "configuration": _configuration(model, q)}
+    if sol is not None:
+        s.update(converged=sol.converged, iterations=sol.iterations,
+                 reduced_force=sol.reduced_force, eigenvalues=sol.eigenvalues.tolist(),
+                 stability=classify(sol.eigenvalues),
+                 stable=classify(sol.eigenvalues) == "stable",
+                 potential_energy=sol.energy)
+        if sol.frequencies is not None:
+            s["frequencies"] = sol.frequencies.tolist()
+        if sol.warnings:
+            s["warnings"] = list(sol.warnings)
+        if not sol.converged:
+            res.status, res.message = STATUS_INCOMPLETE, sol.message
+    s.update(extra or {})
+    res.summary = s
+    return res
+
+
+def _static_problem(model, t, rows):
+    zero = np.zeros(model.nq)
+    return Problem(model, t, rows, lambda q: eq.applied_forces(model, q, zero, t)[0],
+                   lambda q: eq.potential_energy(model, q))
+
+
+# -- methods -------------------------------------------------------------------------------
+
+def minimum(model, opt) -> Result:
+    """Minimum total potential energy from the estimates (module doc)."""
+    t = float(opt["t"])
+    q0 = model.q0 if opt.get("q0") is None else np.asarray(opt["q0"], float)
+    asm = assemble(model, q0, t, tol=opt["phi_tol"])
+    sol = stationary_point(_static_problem(model, t, asm.active_rows), asm.q, opt)
+    z = np.zeros(model.nq)
+    return _result(model, "minimum", t, sol.q, z, z, sol.lam, sol, {"dof": asm.dof})
+
+
+class ArtificialDamping(ForceElement):
+    """F = -c m rd, n' = -c J' omega' on every body (c in 1/s): mass-proportional damping
+    that settles a model without changing its equilibria."""
+
+    type = "artificial-damping"
+    name = "artificial_damping"
+
+    def __init__(self, model, c):
+        self.c, self.m, self.J = float(c), model.mass, model.J_local
+
+    def apply(self, st, t, F, n_local):
+        F -= self.c * self.m[:, None] * st.rd
+        n_local -= self.c * np.einsum("bij,bj->bi", self.J, st.omega_local)
+
+
+def settle(model, opt) -> Result:
+    """Damped dynamic run until velocities and accelerations stay below settle_tol."""
+    try:
+        from mbsim.analyses.dynamic import dynamic
+    except ModuleNotFoundError as exc:
+        raise DeckError("equilibrium method 'settle' needs the dynamic analysis "
+                        "(mbsim.analyses.dynamic), which this version does not have") from exc
+    run_model = model
+    if opt["damping"]:
+        run_model = dataclasses.replace(
+            model, forces=tuple(model.forces) + (ArtificialDamping(model, opt["damping"]),))
+    dyn_opt = {k: opt[k] for k in ("t_end", "step") if opt.get(k) is not None}
+    for k in ("integrator", "rtol", "atol", "max_steps", "t_start"):
+        if opt.get(k) is not None:
+            dyn_opt[k] = opt[k]
+    res = dynamic(run_model, dyn_opt)
+    res.mode = "equilibrium"
+    nt = len(res.t)
+    speed = np.zeros(nt)
+    for name in model.body_names:
+        for key in ("rd", "omega", "rdd", "omegad"):
+            ch = res.channels.get(f"bodies/{name}/{key}")
+            if ch is not None:
+                speed = np.maximum(speed, np.abs(ch.data).max(axis=1))
+    tol = float(opt["settle_tol"])
+    above = np.flatnonzero(speed > tol)
+    summary = dict(res.summary)
+    summary["method"] = "settle"
+    summary["damping"] = float(opt["damping"])
+    if nt == 0 or (above.size and above[-1] == nt - 1):
+        summary["settled"] = False
+        if res.status != STATUS_INCOMPLETE:
+            res.status = STATUS_INCOMPLETE
+            res.message = (f"did not settle by t = {res.t[-1] if nt else 0:.6g} s: largest "
+                           f"velocity/acceleration {speed[-1] if nt else np.nan:.3g} > "
+                           f"settle_tol {tol:.3g}; run longer (t_end) or add damping")
+        res.summary = summary
+        return res
+    k = 0 if above.size == 0 else above[-1] + 1
+    from mbsim.analyses.inverse import states_from_result
+
+    q = states_from_result(model, res)[0][-1]
+    t = float(res.t[-1])
+    rows = assemble(model, q, t, tol=opt["phi_tol"]).active_rows
+    prob = _static_problem(model, t, rows)
+    J, N = prob.basis(q)
+    g = prob.force(q)
+    lam = prob.multipliers(J, g)
+    H = prob.hessian(q, lam, N, float(opt["fd_step"]))
+    w = la.eigvalsh(H) if H.size else np.zeros(0)
+    summary.update(settled=True, settling_time=float(res.t[k]), configuration=_configuration(
+        model, q), reduced_force=float(np.abs(N.T @ g).max(initial=0.0)),
+        eigenvalues=w.tolist(), stability=classify(w), stable=classify(w) == "stable")
+    res.summary = summary
+    return res
+
+
+def spin_field(model, q, Omega, c, bodies):
+    """Rigid rotation with angular velocity Omega (3,) about the point c: (qd, qdd) (nq,)."""
+    Qr = q.reshape(model.nb, 7)
+    qd = np.zeros((model.nb, 7))
+    qdd = np.zeros((model.nb, 7))
+    st = eq.State(model, q)
+    for b in bodies:
+        rho = Qr[b, :3] - c
+        qd[b, :3] = np.cross(Omega, rho)
+        qdd[b, :3] = np.cross(Omega, qd[b, :3])
+        wl = st.A[b].T @ Omega
+        pd = 0.5 * st.G[b].T @ wl  # Haug eq. 6.3.x: pd = 1/2 G^T omega'
+        qd[b, 3:] = pd
+        qdd[b, 3:] = -(pd @ pd) * Qr[b, 3:]  # omega'd = 0, p^T pdd = -pd^T pd
+    return qd.reshape(-1), qdd.reshape(-1)
+
+
+def _spin_axis(model, opt):
+    """(unit axis, point, body index or None) from the options or the body's joint to ground."""
+    b = None
+    if opt.get("body") is not None:
+        try:
+            b = model.body_index(opt["body"])
+        except ValueError:
+            raise DeckError(f"equilibrium.body: unknown body {opt['body']!r}; bodies: "
+                            f"{', '.join(model.body_names)}") from None
+    axis, point = opt.get("axis"), opt.get("point")
+    if axis is None:
+        if b is None:
+            raise DeckError("equilibrium method 'steady' needs 'body' (spinning on a revolute or "
+                            "cylindrical joint to ground) or 'axis' and 'point'")
+        q = model.q0
+        st = eq.State(model, q)
+        for it in model.items:
+            if it.kind == "joint" and it.type in ("revolute", "cylindrical") and \
+                    {it.bi, it.bj} >= {b} and model.is_ground[it.bi if it.bj == b else it.bj]:
+                gb = it.bi if it.bj == b else it.bj
+                Pg, Cg = (it.P_i, it.C_i) if gb == it.bi else (it.P_j, it.C_j)
+                axis = st.A[gb] @ Cg[:, 0]
+                point = st.r[gb] + st.A[gb] @ Pg if point is None else point
+                break
+        else:
+            raise DeckError(f"equilibrium: body {model.body_names[b]!r} has no revolute or "
+                            "cylindrical joint to ground; give 'axis' and 'point'")
+    axis = np.asarray(axis, float)
+    axis = axis / np.linalg.norm(axis)
+    point = np.zeros(3) if point is None else np.asarray(point, float)
+    return axis, point, b
+
+
+def steady(model, opt) -> Result:
+    """Steady spin: configuration for a given speed, or the speed for a given configuration."""
+    t = float(opt["t"])
+    axis, c, b = _spin_axis(model, opt)
+    bodies = [k for k in range(model.nb) if not model.is_ground[k]]
+    if opt.get("bodies") is not None:
+        bodies = [model.body_index(n) for n in opt["bodies"]]
+    q0 = model.q0 if opt.get("q0") is None else np.asarray(opt["q0"], float)
+    asm = assemble(model, q0, t, tol=opt["phi_tol"])
+    rows = asm.active_rows
+
+    def q_eff(q, Omega):
+        qd, qdd = spin_field(model, q, Omega, c, bodies)
+        return eq.applied_forces(model, q, qd, t)[0] - eq.mass_matrix(model, q) @ qdd, qd, qdd
+
+    def tangent(q):
+        return spin_field(model, q, axis, c, bodies)[0]
+
+    J0 = eq.phi_q(model, asm.q, t)[rows]
+    t0 = tangent(asm.q)
+    symmetric = np.linalg.norm(J0 @ t0) <= 1e-8 * max(1.0, np.linalg.norm(J0)) * np.linalg.norm(t0)
+    tan = tangent if symmetric else None
+    if not symmetric:
+        raise ModelError("equilibrium 'steady': the constraints do not allow the rigid rotation "
+                         f"about axis {np.round(axis, 6).tolist()} through "
+                         f"{np.round(c, 6).tolist()} (a driver or a joint to ground holds it)")
+    extra = {"axis": axis.tolist(), "point": c.tolist(), "dof": asm.dof}
+    if opt.get("omega") is not None:
+        w = float(opt["omega"])
+        Omega = w * axis
+
+        def energy(q):
+            qd, _ = spin_field(model, q, Omega, c, bodies)
+            st = eq.State(model, q, qd)
+            rot = np.einsum("bi,bij,bj->b", st.omega_local, model.J_local, st.omega_local)
+            kin = model.mass * np.sum(st.rd ** 2, 1) + rot
+            return eq.potential_energy(model, q) - 0.5 * float(kin[bodies].sum())
+
+        prob = Problem(model, t, rows, lambda q: q_eff(q, Omega)[0], energy, tan)
+        sol = stationary_point(prob, asm.q, opt)
+        _, qd, qdd = q_eff(sol.q, Omega)
+        extra.update(omega=w, holding_torque=_holding_torque(model, sol.q, q_eff(sol.q, Omega)[0],
+                                                             sol.lam, tangent, t))
+        return _result(model, "steady", t, sol.q, qd, qdd, sol.lam, sol, extra)
+    # the speed for the given configuration
+    q = asm.q
+    g0 = q_eff(q, 0.0 * axis)[0]
+    g1 = q_eff(q, axis)[0] - g0
+    J = eq.phi_q(model, q, t)[rows]
+    N = null_basis(np.vstack([J, tangent(q)[None, :]]))
+    a, r0 = N.T @ g1, N.T @ g0
+    if np.abs(a).max(initial=0.0) == 0:
+        raise ModelError("equilibrium 'steady': spinning exerts no force along the free "
+                         "coordinates, so no speed balances this configuration")
+    w2 = -float(a @ r0) / float(a @ a)
+    scale = max(1.0, float(np.abs(g0).max()))
+    resid = float(np.abs(r0 + w2 * a).max())
+    if w2 < 0:
+        raise ModelError(f"equilibrium 'steady': this configuration would need omega^2 = "
+                         f"{w2:.6g} < 0 (no real speed balances it)")
+    w = float(np.sqrt(w2))
+    g = q_eff(q, w * axis)[0]
+    lam = np.zeros(model.m)
+    lam[rows] = la.lstsq(J.T, g)[0]
+    _, qd, qdd = q_eff(q, w * axis)
+    extra.update(omega=w, speed_residual=resid, holding_torque=_holding_torque(
+        model, q, g, lam, tangent, t))
+    res = _result(model, "steady-speed", t, q, qd, qdd, lam, None, extra)
+    if resid > opt["tol"] * 1e3 * scale:
+        res.status = STATUS_INCOMPLETE
+        res.message = (f"no speed makes this configuration steady: best omega = {w:.6g} rad/s "
+                       f"leaves a reduced force {resid:.3g}; residual forces at "
+                       f"{worst_coordinates(model, g - J.T @ lam[rows])}")
+    return res
+
+
+def _holding_torque(model, q, g, lam, tangent, t):
+    """Torque about the spin axis needed to keep the speed constant (0 when none is)."""
+    J = eq.phi_q(model, q, t)
+    return float(-(tangent(q) @ (g - J.T @ lam)))
+
+
+METHODS = {"minimum": minimum, "settle": settle, "steady": steady}
+
+
+def equilibrium(model, options=None) -> Result:
+    """Run the equilibrium method named by ``options['method']`` (see the module doc)."""
+    opt = _options(model, options)
+    wall0 = _time.perf_counter()
+    fn = METHODS.get(opt["method"])
+    if fn is None:
+        raise DeckError(f"unknown equilibrium method {opt['method']!r}; choose one of "
+                        f"{', '.join(METHODS)}")
+    res = fn(model, opt)
+    res.settings = {k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
+                        else v) for k, v in opt.items()
+                    if v is not None and not isinstance(v, np.ndarray)}
+    res.wall_time = _time.perf_counter() - wall0
+    return res
