@@ -99,7 +99,7 @@ def null_basis(C, rtol=1e-10):
 def worst_coordinates(model, g, n=2) -> str:
     """Name the bodies and coordinates where the residual generalized force g is largest."""
     labels = ("x", "y", "z", "e0", "e1", "e2", "e3")
-    order = np.argsort(-np.abs(g))[:n]
+    order = [k for k in np.argsort(-np.abs(g))[:n] if abs(g[k]) > 1e-3 * np.abs(g).max()]
     return ", ".join(f"{model.body_names[k // 7]}.{labels[k % 7]} ({g[k]:.3g})" for k in order)
 
 
@@ -240,9 +240,11 @@ def stationary_point(prob: Problem, q0, opt) -> Stationary:
     if not converged and not message:
         resid = g - J.T @ lam_a
         cause = ""
-        if consistent and V < V_start - 1e3 * scale:
-            cause = (f"; the potential energy kept falling (from {V_start:.6g} to {V:.6g} J): "
-                     "it may have no minimum (an unsupported body or an unbounded load?)")
+        curv = float(r @ H @ r) / max(float(r @ r), 1e-300) if H.size else 0.0
+        if consistent and V < V_start and curv <= 1e-6 * max(1.0, float(np.abs(w).max())):
+            cause = (f"; the potential energy keeps falling (from {V_start:.6g} to {V:.6g} J) "
+                     "with no restoring stiffness along the force: there is no minimum "
+                     "(an unsupported body or an unbounded load?)")
         message = (f"equilibrium did not converge in {it} iterations: reduced force "
                    f"{np.abs(r).max():.3g} (tolerance {opt['tol'] * scale:.3g}), largest "
                    f"residual forces at {worst_coordinates(model, resid)}{cause}")
@@ -275,7 +277,8 @@ def _result(model, mode_method, t, q, qd, qdd, lam, sol: Stationary | None, extr
                  reduced_force=sol.reduced_force, eigenvalues=sol.eigenvalues.tolist(),
                  stability=classify(sol.eigenvalues),
                  stable=classify(sol.eigenvalues) == "stable",
-                 potential_energy=sol.energy)
+                 **{"effective_potential" if mode_method == "steady" else
+                    "potential_energy": sol.energy})
         if sol.frequencies is not None:
             s["frequencies"] = sol.frequencies.tolist()
         if sol.warnings:

@@ -1,4 +1,4 @@
-"""Consistent initial conditions for a dynamic analysis (Haug Sec. 11.4 and 12.x).
+"""Consistent initial conditions for a dynamic analysis (positions, velocities, accelerations).
 
 1. Positions: :func:`mbsim.analyses.assembly.assemble` (redundant rows dropped: ``active``).
 2. Velocities: the constraints Phi_q qd = nu (hard) plus the velocities the deck gives
@@ -112,17 +112,24 @@ def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
     if labels:
         dev = C @ qd - c
         scale = max(1.0, float(np.abs(c).max()), float(np.abs(h).max(initial=0.0)))
-        bad = np.abs(dev) > 1e3 * rtol * scale
+        thr = 1e3 * rtol * scale
+        bad = np.abs(dev) > thr
         if bad.any():
             changed: dict[str, dict[str, np.ndarray]] = {}
-            for (name, key, k), d, b in zip(labels, dev, bad):
+            for (name, key, k), d in zip(labels, dev):
                 changed.setdefault(name, {}).setdefault(key, np.zeros(3))[k] = d
-            info["changed"] = changed
+            named = {(n, key) for (n, key, _), b in zip(labels, bad) if b}
+            info["changed"] = {
+                n: {k: v for k, v in ks.items() if (n, k) in named}
+                for n, ks in changed.items()
+                if any(n == m for m, _ in named)
+            }
             parts = []
-            for name, keys in changed.items():
+            for name, keys in info["changed"].items():
                 for key, d in keys.items():
                     unit = "m/s" if key == "rdot" else "rad/s"
-                    parts.append(f"{name} {key} by ({', '.join(f'{x:.4g}' for x in d)}) {unit}")
+                    comps = ", ".join(f"{x:.4g}" if abs(x) > thr else "0" for x in d)
+                    parts.append(f"{name} {key} by ({comps}) {unit}")
             msg = (
                 "the given initial velocities conflict with the constraints (or each other); "
                 "least-squares compromise changed: " + "; ".join(parts)

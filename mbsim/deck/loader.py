@@ -83,7 +83,29 @@ def load_deck_text(
         apply_scene(root, scene, file)
     for key, value in (overrides or {}).items():
         apply_override(root, key, value, file)
+    _drop_inactive(root, file)
     return _build(root, Reader(file), text, scene)
+
+
+def _drop_inactive(root: Node, file: str) -> None:
+    """Items with ``active: false`` are left out of the model (a scene or --set may switch
+    them on or off: ``--set joints.BC.active=true``); ``active`` itself must be a boolean."""
+    for section in ("bodies", "joints", "drivers", "forces"):
+        sec = root.value.get(section)
+        if sec is None or sec.kind != "map":
+            continue
+        for name in list(sec.value):
+            item = sec.value[name]
+            if item.kind != "map" or "active" not in item.value:
+                continue
+            flag = item.value["active"]
+            if flag.kind != "scalar" or not isinstance(flag.value, bool):
+                raise DeckError(f"expected true or false, got {flag.text or describe(flag)}",
+                                Where(file, f"{section}.{name}.active",
+                                      item.key_lines.get("active")))
+            del item.value["active"]
+            if not flag.value:
+                del sec.value[name]
 
 
 # -- the deck -----------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ TOP_KEYS = (
 )  # fmt: skip
 BODY_KEYS = (
     "ground", "mass", "inertia", "r", "p", "euler_deg", "axis_angle", "omega", "omega_local",
-    "rdot",
+    "rdot", "active",
 )  # fmt: skip
 ORIENTATION_KEYS = ("p", "euler_deg", "axis_angle")  # at most one per body
 AXIS_ANGLE_KEYS = ("axis", "angle")
@@ -90,7 +90,7 @@ JOINT_TYPES = {
     "fixed": JointType(6, "PQR", "PQR"),
     "absolute": JointType(1, "P", None, ("axis", "value")),
 }
-JOINT_KEYS = ("type", "bodies", "points", "distance", "axis", "value")
+JOINT_KEYS = ("type", "bodies", "points", "distance", "axis", "value", "active")
 
 
 class DriverType(NamedTuple):
@@ -108,7 +108,8 @@ DRIVER_TYPES = {
     "distance": DriverType(("bodies", "points"), (), "length"),
     "absolute": DriverType(("body", "point", "axis"), (), "length"),
 }
-DRIVER_KEYS = ("type", "function", "joint", "bodies", "points", "body", "point", "axis")
+DRIVER_KEYS = ("type", "function", "joint", "bodies", "points", "body", "point", "axis",
+               "active")
 
 # Function-of-time forms: the one key of a mapping (besides table's `interpolation`).
 FUNCTION_FORMS = ("expression", "polynomial", "table", "harmonic")
@@ -209,7 +210,7 @@ FORCE_BODY_KEYS = {
 def force_keys(kind: str) -> tuple[str, ...]:
     """All keys a force of type ``kind`` may have."""
     ftype = FORCE_TYPES[kind]
-    return ("type",) + FORCE_BODY_KEYS[ftype.bodies] + tuple(ftype.fields)
+    return ("type", "active") + FORCE_BODY_KEYS[ftype.bodies] + tuple(ftype.fields)
 
 
 def can_add(segs: list[str | int]) -> bool:

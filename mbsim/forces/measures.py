@@ -31,6 +31,7 @@ import numpy as np
 from mbsim.deck.spec import PointSet
 from mbsim.errors import DeckError, Where
 from mbsim.model import _frame as joint_frame  # the same f, g, h as the joints and drivers
+from mbsim.rotations import skew
 
 TWO_PI = 2.0 * np.pi
 
@@ -138,6 +139,7 @@ class _One(Measure):
         (name,) = ms.bodies
         self.b = _index(name, body_index, ms.where)
         self.s = _point(ms, name)
+        self.S = skew(self.s)  # s'~: a matvec is ~40 times faster than np.cross on 3-vectors
         self.u = _unit(ms.data.get("axis", (0.0, 0.0, 1.0)), ms.where)
         self.local = ms.data.get("frame", "global") == "local"
 
@@ -156,7 +158,7 @@ class Velocity(_One):
 
     def value(self, st, t):
         b = self.b
-        v = st.rd[b] + st.A[b] @ np.cross(st.omega_local[b], self.s)
+        v = st.rd[b] - st.A[b] @ (self.S @ st.omega_local[b])  # w' x s' = -s'~ w'
         return float(self.axis(st) @ v)
 
 
@@ -192,6 +194,7 @@ class Angle(Measure):
     def __init__(self, bi: int, bj: int, frames_i: dict, frames_j: dict, theta0: float):
         self.bi, self.bj = bi, bj
         self.gi, self.hi, self.gj = frames_i["g"], frames_i["h"], frames_j["g"]
+        self.Sgj = skew(self.gj)
         self.theta0 = float(theta0)
 
     @classmethod
@@ -213,7 +216,8 @@ class Angle(Measure):
         c, s = gi @ gj, hi @ gj
         rho = c * c + s * s
         theta = self.theta0 + (np.arctan2(s, c) - self.theta0 + np.pi) % TWO_PI - np.pi
-        a = (c * np.cross(gj, hi) - s * np.cross(gj, gi)) / rho if rho > 0 else np.zeros(3)
+        # a = g_j x (c h_i - s g_i) / rho, the cross product taken in body j's frame
+        a = Aj @ (self.Sgj @ (Aj.T @ (c * hi - s * gi))) / rho if rho > 0 else np.zeros(3)
         return float(theta), a
 
     def rate(self, st, a) -> float:
