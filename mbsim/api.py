@@ -74,4 +74,4 @@ def output_path(template: str | None, deck: str | Path, mode: str, parameters: d
                         f"available: {', '.join(sorted(fields))}") from exc
 
 
-__all__ = ["ANALYSES", "load_model", "run_model", "output_path", "MbsimError", "STATUS_INCOMPLETE"]
+__all__ = ["ANALYSES", "STATUS_INCOMPLETE", "MbsimError", "load_model", "output_path", "run_model"]

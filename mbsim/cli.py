@@ -248,7 +248,7 @@ def plot(files, ys, x, output, labels, title, list_only):
             for f in files:
                 click.echo(f"{f}:")
                 for name, shape, unit, desc in list_channels(f):
-                    click.echo(f"  {name.replace('/', '.'):<44} {str(shape):<10} {unit:<8} {desc}")
+                    click.echo(f"  {name.replace('/', '.'):<44} {shape!s:<10} {unit:<8} {desc}")
             return
         if not ys:
             raise click.UsageError("name at least one channel with -y (see --list)")

@@ -25,7 +25,7 @@ from mbsim.rotations import G as rot_G
 class State:
     """Per-evaluation body quantities: r, p (nb, 3/4), rd, pd, A (nb, 3, 3), omega(_local)."""
 
-    __slots__ = ("r", "p", "rd", "pd", "A", "_G", "_om")
+    __slots__ = ("A", "_G", "_om", "p", "pd", "r", "rd")
 
     def __init__(self, model, q, qd=None):
         qq = np.asarray(q, dtype=float).reshape(model.nb, 7)
@@ -61,7 +61,7 @@ class State:
 class Terms:
     """What :func:`constraints` computed: phi (m,), jac (m, nq) dense or csr, nu, gamma."""
 
-    __slots__ = ("phi", "jac", "nu", "gamma")
+    __slots__ = ("gamma", "jac", "nu", "phi")
 
 
 def constraints(model, q, t=0.0, qd=None, phi=True, jac=True, gamma=False, nu=False,
@@ -188,18 +188,26 @@ def kinetic_energy(model, q, qd) -> float:
     return float(0.5 * np.sum(model.mass * np.sum(st.rd ** 2, 1)) + 0.5 * rot)
 
 
-def accelerations(model, q, qd, t=0.0, Q=None):
+def accelerations(model, q, qd, t=0.0, Q=None, rows=None):
     """Solve the KKT system for (qdd, lam) (Haug eq. 11.1.x). Dense LU; see the integrators
-    for the sparse path."""
+    for the sparse path.  ``rows``: the constraint rows to use (e.g. an assembly's
+    ``active_rows``, without redundant ones); lam is returned for all rows, 0 for the others."""
     T = constraints(model, q, t, qd=qd, phi=False, gamma=True)
     if Q is None:
         Q = applied_forces(model, q, qd, t)[0]
     M = mass_matrix(model, q)
-    n, m = model.nq, model.m
+    J, g = T.jac, T.gamma
+    if rows is not None:
+        J, g = J[rows], g[rows]
+    n, m = model.nq, J.shape[0]
     K = np.zeros((n + m, n + m))
     K[:n, :n] = M
-    K[:n, n:] = T.jac.T
-    K[n:, :n] = T.jac
-    rhs = np.concatenate([Q, T.gamma])
+    K[:n, n:] = J.T
+    K[n:, :n] = J
+    rhs = np.concatenate([Q, g])
     sol = la.solve(K, rhs)
-    return sol[:n], sol[n:]
+    lam = sol[n:]
+    if rows is not None:
+        lam = np.zeros(model.m)
+        lam[rows] = sol[n:]
+    return sol[:n], lam

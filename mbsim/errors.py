@@ -14,7 +14,7 @@ class Where:
     path: str = ""
     line: int | None = None
 
-    def child(self, key: str | int, line: int | None = None) -> "Where":
+    def child(self, key: str | int, line: int | None = None) -> Where:
         key = f"[{key}]" if isinstance(key, int) else str(key)
         if self.path and not key.startswith("["):
             path = f"{self.path}.{key}"

@@ -3,7 +3,7 @@ derivatives (drivers need f, f' and f'' for Phi, nu and gamma; Haug eqs. 9.5.x).
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from scipy.interpolate import CubicSpline, PchipInterpolator
@@ -120,7 +120,7 @@ def expression(expr) -> TimeFunction:
     return tf
 
 
-def from_spec(spec: FunctionSpec | float | int) -> TimeFunction:
+def from_spec(spec: FunctionSpec | float) -> TimeFunction:
     """Build the TimeFunction a deck's FunctionSpec describes."""
     if isinstance(spec, (int, float)):
         return constant(spec)

@@ -86,7 +86,7 @@ class Model:
         return seen
 
 
-def _frame(ps: PointSet | None) -> dict[str, np.ndarray]:
+def joint_frame(ps: PointSet | None) -> dict[str, np.ndarray]:
     """P and unit vectors f (P->Q), g (P->R orthogonalised against f), h = f x g."""
     out = {"P": np.zeros(3) if ps is None else np.asarray(ps.P, float)}
     if ps is None or ps.Q is None:
@@ -105,8 +105,8 @@ def _frame(ps: PointSet | None) -> dict[str, np.ndarray]:
 
 
 def _frames_of(bi_name, bj_name, points) -> dict[str, np.ndarray]:
-    fi = _frame(points.get(bi_name))
-    fj = _frame(points.get(bj_name)) if bj_name is not None else _frame(None)
+    fi = joint_frame(points.get(bi_name))
+    fj = joint_frame(points.get(bj_name)) if bj_name is not None else joint_frame(None)
     fr = {f"{k}_i": v for k, v in fi.items()}
     fr.update({f"{k}_j": v for k, v in fj.items()})
     return fr
@@ -252,7 +252,7 @@ def compile_model(spec: DeckSpec) -> Model:
             item_rows.append(r)
         items.append(_item(dn, "driver", ds.type, item_rows, bi, bj, fr, ds.where, cls, func))
 
-    fr0 = _frame(None)
+    fr0 = joint_frame(None)
     for k, n in enumerate(names):
         if ground[k]:
             frg = {"P_i": fr0["P"]}

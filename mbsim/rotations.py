@@ -48,7 +48,7 @@ def A(p: np.ndarray) -> np.ndarray:
 def _quadratic_tensor() -> np.ndarray:
     """S (3, 4, 4, 3), symmetric in its middle axes, with (A(p) a')_i = S_ikml p_k p_m a_l."""
     S = np.zeros((3, 4, 4, 3))
-    eye4, eye3 = np.eye(4), np.eye(3)
+    eye4 = np.eye(4)
     for k in range(4):
         for m in range(4):
             for l_ in range(3):

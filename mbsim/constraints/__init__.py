@@ -4,4 +4,4 @@ composed from them (:mod:`.joints`)."""
 from mbsim.constraints.basic import KERNELS, Block
 from mbsim.constraints.joints import DRIVERS, JOINTS
 
-__all__ = ["KERNELS", "Block", "JOINTS", "DRIVERS"]
+__all__ = ["DRIVERS", "JOINTS", "KERNELS", "Block"]

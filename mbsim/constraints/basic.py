@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-
 @dataclass(frozen=True)
 class Block:
     """k constraints of one kernel. Arrays are read-only after compile."""
@@ -48,7 +47,7 @@ class Vec:
     B(p, a') = T p, a = A(p) a' = B p / 2, ad = B pd and bdot = B(pd, a') pd are four
     contractions (see :func:`mbsim.rotations.B_tensor`)."""
 
-    __slots__ = ("val", "jac", "vel", "bdot")
+    __slots__ = ("bdot", "jac", "val", "vel")
 
     def __init__(self, st, b: np.ndarray, T: np.ndarray, vel: bool):
         p = st.p[b]

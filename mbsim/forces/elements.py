@@ -5,7 +5,9 @@ Sign conventions (docs/deck.md, forces):
 - ``tsda``: tension f > 0 pulls P_i and P_j together; f = k (l - L0) + c ldot - actuator,
   so a positive actuator pushes the points apart (Haug Sec. 11.3).
 - ``rsda``: torque n > 0 opposes theta growing; n = k (theta - theta0) + c thetadot -
-  actuator, so a positive actuator turns body j forward about the joint axis f_i.
+  actuator, so a positive actuator turns body j forward about the joint axis f_i.  The
+  torque axis is the exact gradient of theta(q) (= f_i where the joint holds), so the spring
+  stays conservative even when the constraints drift.
 - ``force``/``torque``: the vector acts on the (last listed) body; a torque pair puts
   the opposite torque on the first body.
 
@@ -23,7 +25,7 @@ from mbsim.forces import register
 from mbsim.forces.base import ForceElement
 from mbsim.forces.laws import compile_law, compile_optional
 from mbsim.forces.measures import Angle, compile_measures
-from mbsim.model import _frame as joint_frame
+from mbsim.model import joint_frame
 from mbsim.rotations import skew as rot_skew
 
 

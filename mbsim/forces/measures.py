@@ -30,7 +30,7 @@ import numpy as np
 
 from mbsim.deck.spec import PointSet
 from mbsim.errors import DeckError, Where
-from mbsim.model import _frame as joint_frame  # the same f, g, h as the joints and drivers
+from mbsim.model import joint_frame  # the same f, g, h as the joints and drivers
 from mbsim.rotations import skew
 
 TWO_PI = 2.0 * np.pi

@@ -1,0 +1,197 @@
+"""Generalized coordinate partitioning (Wehage & Haug 1982; Haug Sec. 11.4).
+
+The coordinates split into dependent u (one per independent constraint row) and
+independent v, chosen by Gaussian elimination with column pivoting of Phi_q (partial
+pivoting of Phi_q^T): the pivot columns form the best-conditioned square block Phi_u.
+An explicit RK pair integrates only y = (v, vd, w); at every stage
+
+1. u solves Phi(u, v, t) = 0 by Newton from a second-order predictor,
+2. ud solves Phi_u ud = nu - Phi_v vd,
+3. qdd, lam solve the equations of motion; the stage derivative is (vd, vdd, power).
+
+The constraints therefore hold to the Newton tolerance at every output.  When the
+condition number of Phi_u grows past ``repartition_ratio`` times its value at the last
+partition (or a stage fails), the coordinates are partitioned again at the current state.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as la
+import scipy.sparse.linalg as spla
+
+from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
+
+
+class Partition:
+    """iv: (nv,) independent coordinates; iu: (m_a,) dependent ones; cond0: cond(Phi_u)."""
+
+    __slots__ = ("iv", "iu", "cond0")
+
+    def __init__(self, iv, iu, cond0):
+        self.iv, self.iu, self.cond0 = iv, iu, cond0
+
+
+class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
+    formulation = "gcp"
+    repartition_ratio = 10.0
+    max_newton = 8
+
+    def __init__(self, system, t0, q0, qd0, t_bound, options=None):
+        super().__init__(system, t0, q0, qd0, t_bound, options)
+        self.n = system.nq
+        self.ratio = float(self.options.get("repartition_ratio", self.repartition_ratio))
+        self.newton_tol = float(self.options.get(
+            "newton_tol", min(1e-9, max(1e-13, 1e-3 * self.atol))))
+        self.counters["repartitions"] = 0
+        qdd, _, _ = system.accelerations(self.q, self.qd, self.t)
+        self._ref = (self.t, self.q.copy(), self.qd.copy(), qdd)  # Newton predictor data
+        self._last = None  # (t, y, q, qd, qdd, power, factor) of the latest stage
+        self.part = self._partition(self.t, self.q)
+        self._start()
+
+    # -- partitioning ----------------------------------------------------------------------
+    def _partition(self, t, q):
+        s = self.system
+        J = s.terms(q, t, phi=False).jac
+        Jd = J.toarray() if s.sparse else J
+        perm, _, U = la.lu(Jd.T, p_indices=True, check_finite=False)
+        m = Jd.shape[0]
+        d = np.abs(np.diag(U))
+        if d.size and d.min() <= 1e-12 * d.max():
+            raise StageFailure("the constraint Jacobian lost rank: no set of dependent "
+                               "coordinates (a lock-up or a bifurcation)")
+        iu = np.flatnonzero(perm < m)
+        iv = np.flatnonzero(perm >= m)
+        return Partition(iv, iu, self._cond(self._factor(J, iu)))
+
+    def _factor(self, J, iu):
+        self.system.counters["factorizations"] += 1
+        if self.system.sparse:
+            try:
+                return spla.splu(J[:, iu].tocsc())
+            except RuntimeError as exc:
+                raise StageFailure(f"singular Phi_u ({exc})") from exc
+        Ju = J[:, iu]
+        lu = la.lu_factor(Ju, check_finite=False)
+        return (lu, float(np.abs(Ju).sum(axis=0).max()))
+
+    def _cond(self, fac):
+        """Condition estimate of Phi_u: LAPACK dgecon (1-norm) or the sparse U diagonal."""
+        if self.system.sparse:
+            d = np.abs(fac.U.diagonal())
+            return float(d.max() / max(d.min(), 1e-300))
+        (lu, piv), anorm = fac
+        rcond, _ = la.lapack.dgecon(lu, anorm, norm="1")
+        return 1.0 / max(rcond, 1e-300)
+
+    def _solve(self, fac, b):
+        if self.system.sparse:
+            return fac.solve(b)
+        return la.lu_solve(fac[0], b, check_finite=False)
+
+    # -- the stage function ----------------------------------------------------------------
+    def _complete(self, t, v, vd, part):
+        """q from Newton on Phi(u, v, t) = 0, qd from the velocity equations."""
+        s, (iv, iu) = self.system, (part.iv, part.iu)
+        t0, q0, qd0, qdd0 = self._ref
+        tau = t - t0
+        q = q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
+        q[iv] = v
+        for _ in range(self.max_newton):
+            T = s.terms(q, t, jac=True, nu=s.rheonomic)
+            fac = self._factor(T.jac, iu)
+            du = self._solve(fac, T.phi)
+            q[iu] -= du
+            s.counters["newton_iterations"] += 1
+            if np.abs(du).max(initial=0.0) <= self.newton_tol:
+                break
+        else:
+            worst = np.argsort(-np.abs(T.phi))[:3]
+            names = s.model.items_of_rows(s.rows[worst])
+            raise StageFailure(f"Newton iteration for the dependent coordinates did not "
+                               f"converge at t = {t:.6g} s (max |Phi| = "
+                               f"{np.abs(T.phi).max():.3g}); constraints: {', '.join(names)}")
+        qd = np.empty(self.n)
+        qd[iv] = vd
+        rhs = -(T.jac[:, iv] @ vd)
+        if s.rheonomic:
+            rhs += T.nu
+        qd[iu] = self._solve(fac, rhs)
+        return q, qd, fac
+
+    def _rhs(self, t, y, ctx=None):
+        part = ctx or self.part
+        k = part.iv.size
+        q, qd, fac = self._complete(t, y[:k], y[k:2 * k], part)
+        qdd, _, power = self.system.accelerations(q, qd, t)
+        self._last = (t, y, q, qd, qdd, fac)
+        out = np.empty_like(y)
+        out[:k], out[k:2 * k], out[-1] = y[k:2 * k], qdd[part.iv], power
+        return out
+
+    # -- the RK family hooks -----------------------------------------------------------------
+    def _context(self):
+        return self.part
+
+    def _y_from_state(self):
+        iv = self.part.iv
+        return np.concatenate([self.q[iv], self.qd[iv], [self.w]])
+
+    def _state_from_y(self, t, y, ctx=None):
+        last = self._last
+        if last is not None and last[0] == t and last[1] is y:
+            return last[2], last[3], float(y[-1])
+        part = ctx or self.part
+        k = part.iv.size
+        q, qd, _ = self._complete(t, y[:k], y[k:2 * k], part)
+        return q, qd, float(y[-1])
+
+    def _accept(self, t, y, f):
+        lt, ly, q, qd, qdd, fac = self._last  # the FSAL stage: the accepted state
+        self._ref = (t, q, qd, qdd)
+        if self._cond(fac) > self.ratio * self.part.cond0:
+            self.part = self._partition(t, q)
+            self.counters["repartitions"] += 1
+            iv = self.part.iv
+            y = np.concatenate([q[iv], qd[iv], y[-1:]])
+            f = np.concatenate([qd[iv], qdd[iv], f[-1:]])
+            self._last = (t, y, q, qd, qdd, fac)
+        return y, f
+
+    def _recover(self):
+        """After a failed stage: partition again at the start of the step."""
+        t0, q0, qd0, qdd0 = self._ref
+        try:
+            part = self._partition(t0, q0)
+        except StageFailure:
+            return False
+        if np.array_equal(part.iu, self.part.iu):
+            return False
+        self.part = part
+        self.counters["repartitions"] += 1
+        iv = part.iv
+        self.y = np.concatenate([q0[iv], qd0[iv], self.y[-1:]])
+        self.f = np.concatenate([qd0[iv], qdd0[iv], self.f[-1:]])
+        return True
+
+
+class GcpRK45(GeneralizedCoordinatePartitioning):
+    name = "gcp-rk45"
+    description = "coordinate partitioning (Wehage-Haug), Dormand-Prince 5(4) on (v, vd)"
+    order = 5
+
+
+class GcpDop853(GeneralizedCoordinatePartitioning):
+    name = "gcp-dop853"
+    description = "coordinate partitioning (Wehage-Haug), DOP853 (order 8) on (v, vd)"
+    order = 8
+    tableau = Dop853
+
+
+class GcpRK4(GeneralizedCoordinatePartitioning):
+    name = "gcp-rk4"
+    description = "coordinate partitioning (Wehage-Haug), classic fixed-step RK4 (needs --step)"
+    order = 4
+    adaptive = False
+    tableau = ClassicRK4

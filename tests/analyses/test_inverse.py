@@ -1,0 +1,185 @@
+"""Inverse dynamics: driver torques against hand formulas and the power balance, joint
+reactions against Newton's third law, forward -> inverse round trip, singular extremes."""
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from mbsim import equations as eq
+from mbsim.analyses.inverse import inverse
+from mbsim.deck.spec import ForceSpec, FunctionSpec
+from mbsim.errors import ModelError
+from mbsim.expr import parse_expression
+from mbsim.model import compile_model
+from tests.analyses.test_kinematic_slider_crank import slider_crank_spec
+from tests.helpers import body, driver, func, joint, pts, spec
+
+# pendulum: arm of mass m, centroid a distance l below the pivot at theta = 0, revolute axis x
+M_ARM, L_ARM, JXX, G = 2.0, 0.5, 0.3, 9.81
+THETA = "0.5*sin(3*t) + 2*t"
+
+
+def pendulum_spec(theta=THETA, drivers=True, forces=()):
+    bodies = [body("arm", M_ARM, (JXX, 0.1, 0.3), (0, 0, -L_ARM)), body("ground", ground=True)]
+    joints = [joint("pivot", "revolute", "ground", "arm",
+                    {"ground": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)),
+                     "arm": pts((0, 0, L_ARM), (1, 0, L_ARM), (0, 1, L_ARM))})]
+    drv = []
+    if drivers:
+        fn = theta if isinstance(theta, FunctionSpec) else func(
+            "expression", expr=parse_expression(theta))
+        drv = [driver("motor", "rotation", fn, joint="pivot")]
+    return spec(bodies, joints, drv, forces=forces, gravity=(0, 0, -G))
+
+
+def power_terms(model, res):
+    """dT/dt and the power of gravity from the body channels alone (no multipliers):
+    dT/dt = sum m rd.rdd + omega'.J' omegad'  (d/dt of T = 1/2 m rd^2 + 1/2 w'.J'w'),
+    P_g = sum m g.rd."""
+    dT = np.zeros(len(res.t))
+    Pg = np.zeros(len(res.t))
+    for b, name in enumerate(model.body_names):
+        ch = lambda k: res.channel(f"bodies/{name}/{k}").data  # noqa: E731
+        m, J = model.mass[b], model.J_local[b]
+        dT += m * np.sum(ch("rd") * ch("rdd"), 1)
+        dT += np.einsum("ti,ij,tj->t", ch("omega_local"), J, ch("omegad_local"))
+        Pg += m * ch("rd") @ model.gravity
+    return dT, Pg
+
+
+def test_pendulum_torque_matches_hand_formula_and_power():
+    model = compile_model(pendulum_spec())
+    res = inverse(model, {"t_end": 2.0, "step": 0.01})
+    assert res.complete, res.message
+    t = res.t
+    th = 0.5 * np.sin(3 * t) + 2 * t
+    thdd = -4.5 * np.sin(3 * t)
+    # torque on the arm about +x: (Jxx + m l^2) thdd + m g l sin(theta) (moment about the pivot)
+    tau = (JXX + M_ARM * L_ARM**2) * thdd + M_ARM * G * L_ARM * np.sin(th)
+    got = res.channel("drivers/motor/torque").data
+    # kinematics to Newton tol 1e-10 and an exact square solve: round-off level, 1e-9 relative
+    assert np.abs(got - tau).max() < 1e-9 * np.abs(tau).max()
+    dT, Pg = power_terms(model, res)
+    P = got * (1.5 * np.cos(3 * t) + 2)  # torque x driver rate f'(t)
+    assert np.abs(P - (dT - Pg)).max() < 1e-8 * np.abs(P).max()
+    np.testing.assert_allclose(res.channel("drivers/motor/power").data, P, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("ell", [0.3, 0.27])
+def test_slider_crank_power_balance(ell):
+    """Driver torque x crank rate = dT/dt - P_gravity at every output time (the joints are
+    ideal, so the driver is the only other source of work); dT/dt and P_gravity come from
+    the kinematic channels, independently of lam.  1e-8 of the peak power: the identity
+    holds exactly for the computed (q, qd, qdd); only round-off times cond(Phi_q) < 1e3
+    remains."""
+    model = compile_model(slider_crank_spec(ell))
+    res = inverse(model, {"t_end": 1.0, "step": 0.01})
+    assert res.complete, res.message
+    tau = res.channel("drivers/crank/torque").data
+    P = tau * (-2 * np.pi)
+    dT, Pg = power_terms(model, res)
+    assert np.abs(P - (dT - Pg)).max() < 1e-8 * np.abs(P).max()
+    assert np.abs(P).max() > 1.0  # the check is not vacuous (peak ~1.9 W for ell = 0.3)
+
+
+def test_slider_crank_reactions_obey_third_law():
+    """Loads of a joint on its two bodies are equal and opposite (global), torques about the
+    common joint point too (spherical, revolute, universal: P_i = P_j)."""
+    model = compile_model(slider_crank_spec(0.3))
+    res = inverse(model, {"t_end": 0.5, "step": 0.05})
+    for name in ("A", "B", "C"):
+        Fi = res.channel(f"joints/{name}/force_i").data
+        Fj = res.channel(f"joints/{name}/force_j").data
+        Ti = res.channel(f"joints/{name}/torque_i").data
+        Tj = res.channel(f"joints/{name}/torque_j").data
+        scale = np.abs(Fi).max()
+        assert scale > 1.0
+        assert np.abs(Fi + Fj).max() < 1e-10 * scale, name
+        assert np.abs(Ti + Tj).max() < 1e-10 * max(1.0, np.abs(Ti).max()), name
+    # a spherical joint transmits no torque; a revolute none about its axis f
+    assert np.abs(res.channel("joints/B/torque_i").data).max() < 1e-10
+    assert np.abs(res.channel("joints/A/torque_j_local").data[:, 0]).max() < 1e-10
+    # the slider's translational joint carries the slider's weight (2 kg x 9.81) and the
+    # vertical load of the rod at C; no force along the slide direction f
+    ft = res.channel("joints/T/force_i_local").data
+    assert np.abs(ft[:, 0]).max() < 1e-10
+
+
+def test_forward_then_inverse_recovers_the_applied_torque():
+    """Forward dynamics of the free pendulum under a known torque (scipy DOP853 on
+    equations.accelerations, rtol 1e-11), then inverse dynamics with the computed angle as a
+    cubic-spline driver: the driver torque equals the applied torque.  Error budget: the
+    spline's second derivative (h = 1e-3, error ~ h^2 theta''''/12 ~ 1e-6 rad/s^2, times
+    J_pivot 0.8) and constraint drift (< 1e-9): 1e-5 of the peak torque, away from the
+    spline's end intervals."""
+    law = ["1 + 2*sin(3*t)", 0, 0]
+    fwd = compile_model(pendulum_spec(drivers=False, forces=[
+        ForceSpec("push", "torque", ("arm",), {}, {"law": law, "frame": "global"})]))
+    q0 = fwd.q0.copy()
+
+    def rhs(t, y):
+        q, qd = y[: fwd.nq], y[fwd.nq:]
+        return np.concatenate([qd, eq.accelerations(fwd, q, qd, t)[0]])
+
+    sol = solve_ivp(rhs, (0, 1), np.concatenate([q0, np.zeros(fwd.nq)]), method="DOP853",
+                    rtol=1e-11, atol=1e-12, dense_output=True)
+    assert sol.success
+    tt = np.linspace(0, 1, 1001)
+    p = sol.sol(tt)[3:7].T  # arm Euler parameters
+    theta = np.unwrap(2 * np.arctan2(p[:, 1], p[:, 0]))
+    table = FunctionSpec("table", {"t": tt, "value": theta, "interpolation": "cubic"})
+    inv = compile_model(pendulum_spec(theta=table))
+    res = inverse(inv, {"t_start": 0.05, "t_end": 0.95, "step": 0.01})
+    assert res.complete, res.message
+    applied = 1 + 2 * np.sin(3 * res.t)
+    got = res.channel("drivers/motor/torque").data
+    assert np.abs(got - applied).max() < 1e-5 * np.abs(applied).max()
+
+
+def test_near_singular_slider_crank_resolves_the_torque_spike():
+    """ell = 0.24 passes within 0.0425 m of the crank plane at t = 0.110 s (reference §1.1):
+    cond(Phi_q) peaks there and the torque swings from +0.99 to -0.7 N m within 0.05 s.
+    The run completes, the power balance holds through the spike, and the extreme torques
+    agree between output steps 1e-3 and 5e-4 (sampling error of a smooth peak ~ h^2)."""
+    model = compile_model(slider_crank_spec(0.24))
+    out = {}
+    for h in (1e-3, 5e-4):
+        res = inverse(model, {"t_end": 0.2, "step": h})
+        assert res.complete, res.message
+        tau = res.channel("drivers/crank/torque").data
+        dT, Pg = power_terms(model, res)
+        assert np.abs(-2 * np.pi * tau - (dT - Pg)).max() < 1e-8 * np.abs(2 * np.pi * tau).max()
+        cond = res.channel("constraints/condition").data
+        out[h] = (tau.max(), tau.min(), res.t[np.argmax(cond)], cond.max())
+    (mx1, mn1, tc1, c1), (mx2, mn2, tc2, c2) = out[1e-3], out[5e-4]
+    assert abs(mx1 - mx2) < 1e-4 * abs(mx2) and abs(mn1 - mn2) < 1e-4 * abs(mn2)
+    assert 0.105 <= tc2 <= 0.115  # the near-singular point
+    assert 50 < c2 < 1e3  # ill-conditioned but far from singular (101 at t = 0.11)
+    assert mx2 > 0.9 and mn2 < -0.6  # the spike (0.3 m rod: |torque| < 0.3 N m)
+
+
+def test_locked_slider_crank_stops_with_a_named_error_and_keeps_the_data():
+    """ell = 0.2362 < sqrt(0.1^2 + 0.12^2) + 0.08 = 0.236205: the rod cannot reach the
+    slider axis when the crank pin is farthest from it (crank angle 50.2 deg, t = 0.1106 s).
+    The run stops at the first output time past that point, naming time and joints."""
+    model = compile_model(slider_crank_spec(0.2362))
+    res = inverse(model, {"t_end": 1.0, "step": 0.01})
+    assert res.status == "incomplete"
+    assert "t = 0.11 s" in res.message and "B" in res.message and "C" in res.message
+    assert "\n" not in res.message
+    assert len(res.t) == 11 and res.t[-1] == pytest.approx(0.10)
+    assert res.channel("drivers/crank/torque").data.shape == (11,)
+    assert res.channel("joints/A/force_i").data.shape == (11, 3)
+
+
+def test_inverse_needs_dof_zero():
+    model = compile_model(pendulum_spec(drivers=False))
+    with pytest.raises(ModelError) as err:
+        inverse(model, {"t_end": 0.1})
+    msg = str(err.value)
+    assert "DOF = 1" in msg and "none" in msg and "\n" not in msg
+    model = compile_model(slider_crank_spec(0.3))
+    free = compile_model(spec(list(slider_crank_spec(0.3).bodies.values()),
+                              list(model.spec.joints.values()), gravity=(0, 0, -9.81)))
+    with pytest.raises(ModelError, match="DOF = 1"):
+        inverse(free, {"t_end": 0.1})
