@@ -32,8 +32,20 @@ class Assembly:
 
 
 def worst_constraints(model, ph, n=5) -> str:
+    """'REV2 dot1 = 0.226, ...': the n largest residuals, leaving out those below 1e-6 of
+    the largest (round-off does not help the reader)."""
     order = np.argsort(-np.abs(ph))[:n]
-    return ", ".join(f"{model.row_label[r]} = {ph[r]:.3g}" for r in order if abs(ph[r]) > 0)
+    big = np.abs(ph).max(initial=0.0)
+    return ", ".join(f"{model.row_label[r]} = {ph[r]:.3g}" for r in order
+                     if abs(ph[r]) > 1e-6 * big and ph[r] != 0)
+
+
+def culprits(model, rows) -> list[str]:
+    """Items owning the rows, joints and drivers first (normalisation rows are never the cause
+    a user can act on, so they are named only when nothing else is involved)."""
+    names = model.items_of_rows(rows)
+    user = [n for n in names if not n.startswith(("norm:", "ground:"))]
+    return user or names
 
 
 def normalize_q(model, q):
@@ -128,7 +140,7 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembl
         J = eq.phi_q(model, qs, t)
         rank, red = rank_and_redundant(model, J)
         if red.size:
-            names = model.items_of_rows(red)
+            names = culprits(model, red)
             raise ModelError(f"{exc}; Phi_q is rank deficient (rank {rank} of {model.m} rows), "
                              f"conflicting or redundant: {', '.join(names)}", tuple(names)) from exc
         raise
@@ -136,7 +148,7 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembl
     rank, red = rank_and_redundant(model, J)
     warnings = []
     active = np.setdiff1d(np.arange(model.m), red)
-    red_items = model.items_of_rows(red) if red.size else []
+    red_items = culprits(model, red) if red.size else []
     if red.size:
         # Consistent redundancy: Phi still vanishes after solving with the independent rows.
         qa, _, _ = newton(model, q, t, tol, max_iter, rows=active)

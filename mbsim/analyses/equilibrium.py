@@ -139,6 +139,8 @@ class Problem:
         """H = -N^T d(g - Phi_q^T lam)/dq N by central differences along the columns of N."""
         def resid(x):
             return self.force(x) - eq.phi_q(self.model, x, self.t)[self.rows].T @ lam
+        if N.shape[1] == 0:
+            return np.zeros((0, 0))
         KN = np.column_stack([(resid(q + h * n) - resid(q - h * n)) / (2 * h) for n in N.T])
         H = -N.T @ KN
         return 0.5 * (H + H.T)

@@ -14,43 +14,16 @@ import numpy as np
 
 from mbsim import equations as eq
 from mbsim.analyses.assembly import assemble
-from mbsim.forces.base import ForceElement
+from mbsim.deck.spec import ForceSpec
 from mbsim.model import compile_model
 from mbsim.rotations import from_axis_angle, omega_to_pd
 from tests.helpers import body, joint, pts, spec
 
 
-class Tsda(ForceElement):
-    """Spring-damper between points s_i' (body i) and s_j' (body j): f = k (L - L0) + c Ld,
-    pulling the points together for f > 0 (Haug eq. 11.5.x)."""
-
-    type = "tsda-test"
-
-    def __init__(self, bi, bj, si, sj, k, c, L0, name="tsda"):
-        self.bi, self.bj, self.k, self.c, self.L0, self.name = bi, bj, k, c, L0, name
-        self.si, self.sj = np.asarray(si, float), np.asarray(sj, float)
-
-    def _geom(self, st):
-        si, sj = st.A[self.bi] @ self.si, st.A[self.bj] @ self.sj
-        d = st.r[self.bj] + sj - st.r[self.bi] - si
-        return si, sj, d
-
-    def apply(self, st, t, F, n_local):
-        si, sj, d = self._geom(st)
-        L = np.sqrt(d @ d)
-        u = d / L
-        w = st.omega
-        vd = st.rd[self.bj] + np.cross(w[self.bj], sj) - st.rd[self.bi] - np.cross(w[self.bi], si)
-        f = self.k * (L - self.L0) + self.c * (u @ vd)
-        Fj = -f * u  # force on body j, towards i when stretched
-        F[self.bj] += Fj
-        F[self.bi] -= Fj
-        n_local[self.bj] += np.cross(self.sj, st.A[self.bj].T @ Fj)
-        n_local[self.bi] += np.cross(self.si, st.A[self.bi].T @ -Fj)
-
-    def potential(self, st):
-        L = np.linalg.norm(self._geom(st)[2])
-        return 0.5 * self.k * (L - self.L0) ** 2
+def tsda(name, bi, bj, si=(0, 0, 0), sj=(0, 0, 0), k=0.0, c=0.0, L0=0.0):
+    """A registry ``tsda`` force element spec between body points (Haug Sec. 11.3)."""
+    return ForceSpec(name, "tsda", (bi, bj), {bi: pts(si), bj: pts(sj)},
+                     {"k": float(k), "c": float(c), "L0": float(L0)})
 
 
 def with_forces(model, *forces):
@@ -187,8 +160,8 @@ def governor(g=9.80, k=1000.0, c=30.0, L0=0.15):
         joint("TRANS1", "translational", "spindle", "collar",
               {"spindle": pts(P0, (0, 1, 0), (0, 0, 1)), "collar": pts(P0, (0, 1, 0), (0, 0, 1))}),
     ]
-    model = compile_model(spec(bodies, joints, gravity=(0, -g, 0)))
-    return with_forces(model, Tsda(1, 4, P0, P0, k, c, L0, name="spring"))
+    forces = [tsda("spring", "spindle", "collar", k=k, c=c, L0=L0)]
+    return compile_model(spec(bodies, joints, forces=forces, gravity=(0, -g, 0)))
 
 
 def governor_state(model, omega=GOVERNOR_OMEGA):

@@ -1,0 +1,32 @@
+"""Integrators for the constrained equations of motion, one file per method family.
+
+``INTEGRATORS`` maps the ``--integrator`` name to the class; the contract every class
+follows is in :class:`mbsim.integrators.base.Integrator`.
+
+- gcp.py: generalized coordinate partitioning (Wehage & Haug 1982) with explicit RK pairs
+- index1.py: index-1 ODE with Baumgarte stabilisation or with projection
+- genalpha.py: implicit index-3 generalized-alpha and HHT (Arnold & Bruls 2007)
+- rk.py: the RK tableaus and the step loop they share; system.py: the equations of motion
+"""
+
+from __future__ import annotations
+
+from mbsim.integrators.base import Integrator
+from mbsim.integrators.gcp import GcpDop853, GcpRK4, GcpRK45
+from mbsim.integrators.genalpha import HHT, GeneralizedAlpha
+from mbsim.integrators.index1 import Baumgarte, Projection, ProjectionDop853, RK4Projection
+from mbsim.integrators.system import System
+
+INTEGRATORS: dict[str, type[Integrator]] = {
+    c.name: c
+    for c in (GcpRK45, GcpDop853, GcpRK4, GeneralizedAlpha, HHT, Baumgarte, Projection,
+              ProjectionDop853, RK4Projection)
+}
+
+ALIASES = {"rk45": "gcp-rk45", "dop853": "gcp-dop853", "generalized-alpha": "genalpha",
+           "hht-alpha": "hht"}
+"""Other names a deck may use (e.g. ``integrator: dop853``)."""
+
+DEFAULT = "gcp-dop853"
+
+__all__ = ["ALIASES", "DEFAULT", "INTEGRATORS", "Integrator", "System"]

@@ -1,0 +1,234 @@
+"""Implicit index-3 generalized-alpha (Arnold & Bruls 2007, "Convergence of the
+generalized-alpha scheme for constrained mechanical systems", Multibody Syst. Dyn. 18).
+
+Step n -> n+1 with the acceleration-like variable a:
+
+    q1  = q + h qd + h^2 (1/2 - beta) a + h^2 beta a1
+    qd1 = qd + h (1 - gam) a + h gam a1
+    (1 - am) a1 + am a = (1 - af) qdd1 + af qdd
+    M(q1) qdd1 + Phi_q(q1)^T lam1 = Q(q1, qd1, t1),   Phi(q1, t1) = 0   (index 3)
+
+solved for (q1, lam1) by Newton with the iteration matrix (scaled by 1/beta'):
+
+    [ M + gam'/beta' C + K/beta'   Phi_q^T ] [dq ]   [ -r / beta' ]
+    [ Phi_q                        0       ] [dmu] = [ -Phi       ],   lam += beta' dmu
+
+beta' = (1 - am) / (beta h^2 (1 - af)), gam' = gam / (beta h); K = -dQ/dq, C = -dQ/dqd by
+finite differences when the model has force elements (stiff springs), refreshed when Newton
+stalls.  The Euler-parameter normalisation rows are part of Phi, so |p| = 1 at every step.
+Local error estimate (Zienkiewicz & Xie 1991): (beta - 1/6) h^2 (qdd1 - qdd), controlled
+with the exponent -1/3.  HHT-alpha is the member am = 0, af = alpha.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as la
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from mbsim import equations as eq
+from mbsim.integrators.base import Integrator, hermite, rms_norm
+
+
+class GeneralizedAlpha(Integrator):
+    name = "genalpha"
+    description = ("implicit index-3 generalized-alpha (Arnold-Bruls), rho_inf = 0.8, "
+                   "Newton on (q, lam), error-controlled step")
+    order = 2
+    formulation = "index-3"
+    rho_inf = 0.8
+    max_newton = 10
+
+    @classmethod
+    def coefficients(cls, rho):
+        """(am, af, gamma, beta) of Chung & Hulbert (1993) for spectral radius rho."""
+        am = (2 * rho - 1) / (rho + 1)
+        af = rho / (rho + 1)
+        gam = 0.5 + af - am
+        return am, af, gam, 0.25 * (gam + 0.5) ** 2
+
+    def __init__(self, system, t0, q0, qd0, t_bound, options=None):
+        super().__init__(system, t0, q0, qd0, t_bound, options)
+        s = system
+        self.coef = self.coefficients(float(self.options.get("rho_inf", self.rho_inf)))
+        self.qdd, self.lam, self.power = s.accelerations(self.q, self.qd, self.t)
+        self.a = self.qdd.copy()
+        jac = self.options.get("jacobian", "auto")
+        self.use_fd = (jac == "fd") or (jac == "auto" and len(s.model.forces) > 0)
+        self.KC = None  # (K, C) finite-difference force Jacobians
+        self.counters["jacobian_evaluations"] = 0
+        b, i, j = np.meshgrid(np.arange(s.nb), np.arange(7), np.arange(7), indexing="ij")
+        self._bi, self._bj = (7 * b + i).reshape(-1), (7 * b + j).reshape(-1)  # block scatter
+        self.newton_tol = float(self.options.get("newton_tol", 1e-3))
+        if self.h_fixed is not None:
+            self.h_abs = self.h_fixed
+        elif self.h0 is not None:
+            self.h_abs = float(self.h0)
+        else:  # second-order start: h^2 |qdd| ~ tolerance
+            scale = self.atol + self.rtol * np.abs(self.q)
+            d = rms_norm(self.qdd, scale)
+            self.h_abs = min(self.h_max, 0.1 * (t_bound - t0), np.sqrt(1.0 / max(d, 1e-12)))
+        self._dense = None
+
+    # -- model terms --------------------------------------------------------------------------
+    def _mass_blocks(self, st):
+        B = np.zeros((self.system.nb, 7, 7))
+        B[:, 0, 0] = B[:, 1, 1] = B[:, 2, 2] = self.system.model.mass
+        B[:, 3:, 3:] = 4 * np.matmul(np.matmul(st.G.transpose(0, 2, 1), self.system.model.J_local),
+                                     st.G)
+        return B
+
+    def _forces(self, q, qd, t):
+        return eq.applied_forces(self.system.model, q, qd, t)[0]
+
+    def _force_jacobians(self, q, qd, t):
+        """K = -dQ/dq, C = -dQ/dqd by forward differences (non-ground coordinates only)."""
+        self.counters["jacobian_evaluations"] += 1
+        n = q.size
+        Q0 = self._forces(q, qd, t)
+        K, C = np.zeros((n, n)), np.zeros((n, n))
+        cols = [j for j in range(n) if not self.system.model.is_ground[j // 7]]
+        for j in cols:
+            for x, out in ((q, K), (qd, C)):
+                d = 1.5e-8 * max(1.0, abs(x[j]))
+                xs = x.copy()
+                xs[j] += d
+                Qp = self._forces(xs, qd, t) if out is K else self._forces(q, xs, t)
+                out[:, j] = -(Qp - Q0) / d
+        return K, C
+
+    def _iteration_matrix(self, Mb, J, bp, gp):
+        s = self.system
+        n, m = s.nq, s.m
+        self.system.counters["factorizations"] += 1
+        if s.sparse:
+            A = sp.csr_matrix((Mb.reshape(-1), (self._bi, self._bj)), shape=(n, n))
+            if self.KC is not None:
+                A = A + sp.csr_matrix(gp / bp * self.KC[1] + self.KC[0] / bp)
+            S = sp.bmat([[A, J.T], [J, None]], format="csc")
+            lu = spla.splu(S)
+            return lu.solve
+        S = np.zeros((n + m, n + m))
+        S[self._bi, self._bj] = Mb.reshape(-1)
+        if self.KC is not None:
+            S[:n, :n] += gp / bp * self.KC[1] + self.KC[0] / bp
+        S[:n, n:] = J.T
+        S[n:, :n] = J
+        lu = la.lu_factor(S, check_finite=False)
+        return lambda b: la.lu_solve(lu, b, check_finite=False)
+
+    # -- one step ---------------------------------------------------------------------------
+    def _newton(self, h):
+        s = self.system
+        am, af, gam, beta = self.coef
+        t1 = self.t + h
+        n = s.nq
+        qdd = self.qdd.copy()
+        lam = self.lam.copy()
+        a1 = (af * self.qdd - am * self.a + (1 - af) * qdd) / (1 - am)
+        q = self.q + h * self.qd + h * h * ((0.5 - beta) * self.a + beta * a1)
+        qd = self.qd + h * ((1 - gam) * self.a + gam * a1)
+        bp = (1 - am) / (beta * h * h * (1 - af))
+        gp = gam / (beta * h)
+        prev = np.inf
+        for it in range(self.max_newton):
+            T = s.terms(q, t1, jac=True, nu=s.rheonomic)
+            st = eq.State(s.model, q, qd)
+            Q = eq.applied_forces(s.model, q, qd, t1, st=st)[0]
+            Mb = self._mass_blocks(st)
+            r = np.einsum("bij,bj->bi", Mb, qdd.reshape(-1, 7)).reshape(-1) + T.jac.T @ lam - Q
+            try:
+                solve = self._iteration_matrix(Mb, T.jac, bp, gp)
+                dx = solve(np.concatenate([-r / bp, -T.phi]))
+            except (la.LinAlgError, RuntimeError, ValueError):
+                return None
+            if not np.all(np.isfinite(dx)):
+                return None
+            dq = dx[:n]
+            q += dq
+            qd += gp * dq
+            qdd += bp * dq
+            lam += bp * dx[n:]
+            s.counters["newton_iterations"] += 1
+            err = rms_norm(dq, self.atol + self.rtol * np.abs(q))
+            if err <= self.newton_tol:
+                break
+            if it >= 2 and err > 0.9 * prev:
+                return None  # not contracting
+            prev = err
+        else:
+            return None
+        power = float(Q @ qd) - (float(lam @ T.nu) if s.rheonomic else 0.0)
+        a1 = (af * self.qdd - am * self.a + (1 - af) * qdd) / (1 - am)
+        return q, qd, qdd, lam, a1, power
+
+    def _step_impl(self):
+        rejected = False
+        refreshed = False
+        h_abs = self.h_abs
+        am, af, gam, beta = self.coef
+        while True:
+            h = self._clip(h_abs)
+            if h < self._min_step() and h < self.t_bound - self.t:
+                return self._fail(f"{self.TOO_SMALL_STEP} ({h:.3g} s): Newton iteration of "
+                                  f"the implicit step does not converge")
+            if self.use_fd and self.KC is None:
+                self.KC = self._force_jacobians(self.q, self.qd, self.t)
+            res = self._newton(h)
+            if res is None:
+                self.counters["rejected_steps"] += 1
+                if self.use_fd and not refreshed:
+                    self.KC = self._force_jacobians(self.q, self.qd, self.t)
+                    refreshed = True
+                    continue
+                if self.h_fixed is not None:
+                    return self._fail(f"Newton iteration of the implicit step (h = {h:.3g} s) "
+                                      f"does not converge")
+                h_abs = 0.25 * h
+                rejected = True
+                continue
+            q, qd, qdd, lam, a1, power = res
+            if self.h_fixed is not None:
+                h_next = self.h_fixed
+                break
+            est = (beta - 1.0 / 6.0) * h * h * (qdd - self.qdd)
+            err = rms_norm(est, self.atol + self.rtol * np.maximum(np.abs(q), np.abs(self.q)))
+            factor = self._step_factor(err, -1.0 / 3.0, rejected)
+            h_next = h * factor
+            if err <= 1:
+                break
+            h_abs = h_next
+            rejected = True
+            self.counters["rejected_steps"] += 1
+        t0 = self.t
+        self._dense = (t0, t0 + h, self.q, q, self.qd, qd, self.qdd, qdd, self.w)
+        self.w += 0.5 * h * (self.power + power)
+        self.t, self.q, self.qd, self.qdd, self.lam, self.a = t0 + h, q, qd, qdd, lam, a1
+        self.power, self.h_last, self.h_abs = power, h, h_next
+        return True, ""
+
+    def _dense_output_impl(self):
+        t0, t1, q0, q1, v0, v1, a0, a1, w0 = self._dense
+        gq = hermite(t0, t1, q0, q1, v0, v1)
+        gv = hermite(t0, t1, v0, v1, a0, a1)
+        w1 = self.w
+
+        def out(t):
+            x = (t - t0) / (t1 - t0)
+            return gq(t), gv(t), (1 - x) * w0 + x * w1
+
+        return out
+
+
+class HHT(GeneralizedAlpha):
+    name = "hht"
+    description = ("implicit index-3 HHT-alpha (generalized-alpha with am = 0), "
+                   "rho_inf = 0.8, error-controlled step")
+
+    @classmethod
+    def coefficients(cls, rho):
+        """HHT (Hilber, Hughes & Taylor 1977): alpha = (1 - rho)/(1 + rho) in [0, 1/3]."""
+        alpha = min(1.0 / 3.0, max(0.0, (1 - rho) / (1 + rho)))
+        gam = 0.5 + alpha
+        return 0.0, alpha, gam, 0.25 * (1 + alpha) ** 2
