@@ -81,14 +81,17 @@ MODES = ["kinematic", "equilibrium", "inverse", "dynamic"]
 @click.option("--method", help="Equilibrium method: minimum | settle | steady.")
 @click.option("--plot", "make_plot", is_flag=True, help="Also write a PNG of the main outputs.")
 @click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
+@click.option("--progress/--no-progress", default=None,
+              help="Progress line on stderr (default: when stderr is a terminal and not -q).")
 def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, method, make_plot,
-        quiet):
+        quiet, progress):
     """Run an analysis of DECK and write the results to HDF5.
 
     Example: mbsim run models/governor.yaml --mode dynamic --t-end 2 -o gov.h5
     """
     from mbsim.api import output_path, run_model
     from mbsim.output import write_result
+    from mbsim.progress import terminal_progress
 
     try:
         spec, model = _load(deck, sets, scene)
@@ -96,7 +99,16 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, me
         opts = {"t_end": t_end, "step": step, "integrator": integrator, "rtol": rtol,
                 "atol": atol, "method": method}
         opts = {k: v for k, v in opts.items() if v is not None}
-        result = run_model(model, mode, opts)
+        prog = terminal_progress(sys.stderr, False if quiet and progress is None else progress,
+                                 label=mode)
+        if prog is not None:
+            opts["progress"] = prog  # progress(t, t_end) per output step (mbsim.progress)
+        try:
+            result = run_model(model, mode, opts)
+        finally:
+            if prog is not None:
+                prog.close()
+        result.settings.pop("progress", None)  # an analysis that stored it as a setting
         result.settings.setdefault("overrides", _parse_sets(sets))
         if scene:
             result.settings.setdefault("scene", scene)
@@ -369,7 +381,8 @@ def export(file, csv_path, channels):
 
 def _register_optional() -> None:
     """Commands contributed by other modules (kept out of this file's import cost)."""
-    for mod, attr in (("mbsim.cli_dynamic", "bench_command"),):
+    for mod, attr in (("mbsim.cli_dynamic", "bench_command"), ("mbsim.cli_sweep", "sweep_command"),
+                      ("mbsim.cli_study", "study_command"), ("mbsim.cli_study", "animate_command")):
         try:
             module = __import__(mod, fromlist=[attr])
         except ImportError:

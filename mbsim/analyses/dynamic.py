@@ -167,5 +167,5 @@ def _explain(model, system, solver, msg):
         cond = s[0] / s[-1] if s[-1] > 0 else np.inf
         return (f"{msg} (last accepted state t = {solver.t:.6g} s; Phi_q condition "
                 f"{cond:.3g}; constraints nearest to singular: {', '.join(names)})")
-    except Exception:  # noqa: BLE001 - the explanation must never hide the failure itself
+    except (np.linalg.LinAlgError, ValueError):  # the explanation must not hide the failure
         return msg

@@ -24,7 +24,8 @@ Methods (``METHODS``, option ``method``):
     are reported too.  Other estimates reach other minima.
 
 ``settle``
-    A damped dynamic run (:func:`mbsim.analyses.dynamic.dynamic`) until the largest body
+    A damped dynamic run (:func:`mbsim.analyses.dynamic.dynamic`), released at rest from the
+    estimates (``from_rest: false``: the deck's initial velocities), until the largest body
     velocity and acceleration stay below ``settle_tol``; optional artificial damping
     ``damping`` (1/s): F = -c m rd and n' = -c J' omega' on every body.  Reports the settled
     state, the settling time, and the reduced force and Hessian there.
@@ -77,6 +78,7 @@ DEFAULTS = {
     "step": 0.01,
     "damping": 0.0,
     "settle_tol": 1e-6,
+    "from_rest": True,  # False: start from the deck's initial velocities
     # steady
     "body": None,
     "omega": None,
@@ -261,7 +263,9 @@ def _options(model, options):
 
 
 def _configuration(model, q):
-    qq = np.asarray(q).reshape(model.nb, 7)
+    """{body: {'r': [3], 'p': [4]}}, round-off below 1e-13 shown as 0 (for the summary)."""
+    qq = np.asarray(q, float).reshape(model.nb, 7)
+    qq = np.where(np.abs(qq) < 1e-13, 0.0, qq) + 0.0
     return {n: {"r": qq[b, :3].tolist(), "p": qq[b, 3:].tolist()}
             for b, n in enumerate(model.body_names)}
 
@@ -337,9 +341,14 @@ def settle(model, opt) -> Result:
         run_model = dataclasses.replace(
             model, forces=tuple(model.forces) + (ArtificialDamping(model, opt["damping"]),))
     dyn_opt = {k: opt[k] for k in ("t_end", "step") if opt.get(k) is not None}
-    for k in ("integrator", "rtol", "atol", "max_steps", "t_start"):
+    for k in ("integrator", "rtol", "atol", "max_steps", "t_start", "progress"):
         if opt.get(k) is not None:
             dyn_opt[k] = opt[k]
+    if opt["from_rest"]:  # released at rest from the (assembled) estimates
+        q0 = model.q0 if opt.get("q0") is None else np.asarray(opt["q0"], float)
+        dyn_opt["q0"] = assemble(model, q0, float(opt.get("t_start") or 0.0),
+                                 tol=opt["phi_tol"]).q
+        dyn_opt["qd0"] = np.zeros(model.nq)
     res = dynamic(run_model, dyn_opt)
     res.mode = "equilibrium"
     nt = len(res.t)
@@ -452,9 +461,7 @@ def steady(model, opt) -> Result:
 
     J0 = eq.phi_q(model, asm.q, t)[rows]
     t0 = tangent(asm.q)
-    symmetric = np.linalg.norm(J0 @ t0) <= 1e-8 * max(1.0, np.linalg.norm(J0)) * np.linalg.norm(t0)
-    tan = tangent if symmetric else None
-    if not symmetric:
+    if np.linalg.norm(J0 @ t0) > 1e-8 * max(1.0, np.linalg.norm(J0)) * np.linalg.norm(t0):
         raise ModelError("equilibrium 'steady': the constraints do not allow the rigid rotation "
                          f"about axis {np.round(axis, 6).tolist()} through "
                          f"{np.round(c, 6).tolist()} (a driver or a joint to ground holds it)")
@@ -470,11 +477,10 @@ def steady(model, opt) -> Result:
             kin = model.mass * np.sum(st.rd ** 2, 1) + rot
             return eq.potential_energy(model, q) - 0.5 * float(kin[bodies].sum())
 
-        prob = Problem(model, t, rows, lambda q: q_eff(q, Omega)[0], energy, tan)
+        prob = Problem(model, t, rows, lambda q: q_eff(q, Omega)[0], energy, tangent)
         sol = stationary_point(prob, asm.q, opt)
-        _, qd, qdd = q_eff(sol.q, Omega)
-        extra.update(omega=w, holding_torque=_holding_torque(model, sol.q, q_eff(sol.q, Omega)[0],
-                                                             sol.lam, tangent, t))
+        g, qd, qdd = q_eff(sol.q, Omega)
+        extra.update(omega=w, holding_torque=_holding_torque(model, sol.q, g, sol.lam, tangent, t))
         return _result(model, "steady", t, sol.q, qd, qdd, sol.lam, sol, extra)
     # the speed for the given configuration
     q = asm.q
@@ -493,10 +499,9 @@ def steady(model, opt) -> Result:
         raise ModelError(f"equilibrium 'steady': this configuration would need omega^2 = "
                          f"{w2:.6g} < 0 (no real speed balances it)")
     w = float(np.sqrt(w2))
-    g = q_eff(q, w * axis)[0]
+    g, qd, qdd = q_eff(q, w * axis)
     lam = np.zeros(model.m)
     lam[rows] = la.lstsq(J.T, g)[0]
-    _, qd, qdd = q_eff(q, w * axis)
     extra.update(omega=w, speed_residual=resid, holding_torque=_holding_torque(
         model, q, g, lam, tangent, t))
     res = _result(model, "steady-speed", t, q, qd, qdd, lam, None, extra)
@@ -520,12 +525,13 @@ METHODS = {"minimum": minimum, "settle": settle, "steady": steady}
 def equilibrium(model, options=None) -> Result:
     """Run the equilibrium method named by ``options['method']`` (see the module doc)."""
     opt = _options(model, options)
+    progress = opt.pop("progress", None)  # passed on to the dynamic run of 'settle'
     wall0 = _time.perf_counter()
     fn = METHODS.get(opt["method"])
     if fn is None:
         raise DeckError(f"unknown equilibrium method {opt['method']!r}; choose one of "
                         f"{', '.join(METHODS)}")
-    res = fn(model, opt)
+    res = fn(model, dict(opt, progress=progress) if opt["method"] == "settle" else opt)
     res.settings = {k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
                         else v) for k, v in opt.items()
                     if v is not None and not isinstance(v, np.ndarray)}

@@ -47,7 +47,9 @@ def states_from_result(model, res: Result):
     qd = np.zeros((nt, nb, 7))
     qdd = np.zeros((nt, nb, 7))
     for b, name in enumerate(model.body_names):
-        ch = lambda key: res.channel(f"bodies/{name}/{key}").data  # noqa: E731
+        def ch(key, name=name):
+            return res.channel(f"bodies/{name}/{key}").data
+
         p = ch("p")
         Gm = rot_G(p)  # (nt, 3, 4)
         pd = 0.5 * np.einsum("tji,tj->ti", Gm, ch("omega_local"))
@@ -86,6 +88,7 @@ def inverse(model, options=None) -> Result:
     """
     opt = dict(DEFAULTS, **(model.spec.analysis.get("inverse", {}) if model.spec else {}))
     opt.update({k: v for k, v in (options or {}).items() if v is not None})
+    progress = opt.pop("progress", None)  # progress(t, t_end) per output step (mbsim.progress)
     wall0 = _time.perf_counter()
     asm = assemble(model, t=float(opt["t_start"]), tol=opt["tol"])
     if asm.dof != 0:
@@ -93,7 +96,10 @@ def inverse(model, options=None) -> Result:
         raise ModelError(
             f"inverse dynamics needs DOF = 0, but the drivers ({', '.join(drivers) or 'none'}) "
             f"leave DOF = {asm.dof}: add {asm.dof} driver(s), or run --mode dynamic")
-    res = kinematic(model, {k: opt[k] for k in KIN_DEFAULTS})
+    kin_opt = {k: opt[k] for k in KIN_DEFAULTS}
+    if progress is not None:
+        kin_opt["progress"] = progress
+    res = kinematic(model, kin_opt)
     res.mode = "inverse"
     status, message = res.status, res.message
     q, qd, qdd = states_from_result(model, res)

@@ -46,6 +46,7 @@ def kinematic(model, options=None):
     """Run a kinematic analysis; returns a Result (status incomplete on failure)."""
     opt = dict(DEFAULTS, **(model.spec.analysis.get("kinematic", {}) if model.spec else {}))
     opt.update({k: v for k, v in (options or {}).items() if v is not None})
+    progress = opt.pop("progress", None)  # progress(t, t_end) per output step (mbsim.progress)
     wall0 = _time.perf_counter()
     times = output_times(float(opt["t_start"]), float(opt["t_end"]), float(opt["step"]))
     asm = assemble(model, t=times[0], tol=opt["tol"])
@@ -88,6 +89,8 @@ def kinematic(model, options=None):
             break
         rec.add(t, q, qd, qdd, residual=np.abs(T.phi).max())
         qd_prev, qdd_prev = qd, qdd
+        if progress is not None:
+            progress(t, times[-1])
     res = rec.result("kinematic")
     if len(rec):
         res.add("constraints/residual", rec.extra["residual"], "", "max |Phi| after Newton")

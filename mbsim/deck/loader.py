@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -27,7 +28,16 @@ from mbsim.deck.spec import (
     OutputSpec,
     PointSet,
 )  # fmt: skip
-from mbsim.deck.tree import Node, apply_override, apply_scene, compose, scene_names, to_plain
+from mbsim.deck.tree import (
+    Node,
+    PathError,
+    apply_override,
+    apply_scene,
+    compose,
+    scene_names,
+    set_path,
+    to_plain,
+)  # fmt: skip
 from mbsim.deck.values import NAME_RE, Reader, describe
 from mbsim.errors import DeckError, Where
 from mbsim.expr import FUNCTIONS, RESERVED
@@ -79,12 +89,13 @@ def load_deck_text(
     for name in scene_names(root):  # every scene must apply, not only the one asked for
         if name != scene:
             apply_scene(copy.deepcopy(root), name, file)
-    if scene is not None:
+    base = copy.deepcopy(root) if "studies" in root.value else None  # cases apply to the deck
+    if scene is not None:                                           # as written
         apply_scene(root, scene, file)
     for key, value in (overrides or {}).items():
         apply_override(root, key, value, file)
     _drop_inactive(root, file)
-    return _build(root, Reader(file), text, scene)
+    return _build(root, Reader(file), text, scene, base)
 
 
 def _drop_inactive(root: Node, file: str) -> None:
@@ -109,7 +120,8 @@ def _drop_inactive(root: Node, file: str) -> None:
 
 
 # -- the deck -----------------------------------------------------------------------------------
-def _build(root: Node, rd: Reader, text: str, scene: str | None) -> DeckSpec:
+def _build(root: Node, rd: Reader, text: str, scene: str | None,
+           base: Node | None = None) -> DeckSpec:  # fmt: skip
     top = rd.fields(root, Where(rd.file, "", root.line), schema.TOP_KEYS, ("bodies",), "a deck")
     title = ""
     if "title" in top:
@@ -136,10 +148,15 @@ def _build(root: Node, rd: Reader, text: str, scene: str | None) -> DeckSpec:
     if "scenes" in top:
         for name, node, w in rd.items(*top["scenes"]):
             rd.fields(node, w, schema.SCENE_KEYS, what="a scene")
+    studies = {}
+    if "studies" in top and not (top["studies"][0].kind == "scalar"
+                                 and top["studies"][0].value is None):  # fmt: skip
+        studies = _studies(rd, *top["studies"], base if base is not None else root)
     return DeckSpec(
         title=title, file=rd.file, text=text, gravity=gravity, parameters=dict(rd.params),
         bodies=bodies, joints=joints, drivers=drivers, forces=forces, outputs=outputs,
         analysis=analysis, raw=to_plain(root), warnings=rd.warnings, scene=scene,
+        studies=studies,
     )  # fmt: skip
 
 
@@ -439,3 +456,143 @@ def _analysis(rd: Reader, node: Node, where: Where) -> dict[str, dict]:
         }
         for mode in got
     }
+
+
+# -- studies ------------------------------------------------------------------------------------
+STUDY_NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]*")  # also a file/folder name
+
+
+def _studies(rd: Reader, node: Node, where: Where, base: Node) -> dict[str, dict]:
+    """``studies:`` -> {name: {'description', 'cases', 'figures', 'numbers', 'where'}}.
+
+    Plain data for :mod:`mbsim.study` (format: docs/studies.md).  Each case's scene and
+    ``set`` paths are applied to a copy of the deck as written (``base``), so a path that
+    does not exist is an error here, for every study, as for scenes.
+    """
+    out = {}
+    for name, child, w in rd.items(node, where):
+        if not STUDY_NAME_RE.fullmatch(name) or name == "all":
+            why = "is reserved (`mbsim study DECK all` runs every study)" if name == "all" \
+                else "is not a name (letters, digits, _ . + -)"
+            raise rd.error(w, f"study name {name!r} {why}")
+        got = rd.fields(child, w, schema.STUDY_KEYS, ("cases",), "a study")
+        seq = _sequence(rd, *got["cases"])
+        if not seq:
+            raise rd.error(got["cases"][1], "expected at least one case")
+        cases = [_study_case(rd, c, cw, base) for c, cw in seq]
+        _unique(rd, cases, [cw for _, cw in seq], "label")
+        _unique(rd, cases, [cw for _, cw in seq], "name")
+        known = {c["label"]: c["name"] for c in cases} | {c["name"]: c["name"] for c in cases}
+        seq = _sequence(rd, *got["figures"]) if "figures" in got else []
+        figures = [_study_figure(rd, f, fw, known) for f, fw in seq]
+        _unique(rd, figures, [fw for _, fw in seq], "name")
+        seq = _sequence(rd, *got["numbers"]) if "numbers" in got else []
+        numbers = [_study_number(rd, n, nw, known) for n, nw in seq]
+        out[name] = {
+            "description": _text(rd, *got["description"]) if "description" in got else "",
+            "cases": cases, "figures": figures, "numbers": numbers, "where": str(w),
+        }  # fmt: skip
+    return out
+
+
+def _sequence(rd: Reader, node: Node, where: Where) -> list[tuple[Node, Where]]:
+    if node.kind == "scalar" and node.value is None:
+        return []
+    if node.kind != "seq":
+        raise rd.error(where, f"expected a list, got {describe(node)}", node)
+    return [(child, rd.item(where, i, child)) for i, child in enumerate(node.value)]
+
+
+def _text(rd: Reader, node: Node, where: Where) -> str:
+    text = node.name()
+    if text is None:
+        raise rd.error(where, f"expected a text, got {describe(node)}", node)
+    return str(text)
+
+
+def _unique(rd: Reader, items: list[dict], wheres: list[Where], key: str) -> None:
+    seen = set()
+    for item, where in zip(items, wheres):
+        if item[key] in seen:
+            hint = " (give the cases different `name`s)" if key == "name" else ""
+            raise rd.error(where, f"{key} {item[key]!r} is used twice{hint}")
+        seen.add(item[key])
+
+
+def _slug(text: str) -> str:
+    """A file name from a case label: 'k = 1000' -> 'k_1000'."""
+    return re.sub(r"[^A-Za-z0-9.+-]+", "_", text).strip("_.") or "case"
+
+
+def _study_case(rd: Reader, node: Node, where: Where, base: Node) -> dict:
+    got = rd.fields(node, where, schema.STUDY_CASE_KEYS, ("label", "mode"), "a study case")
+    case = {"label": _text(rd, *got["label"]), "where": str(where)}
+    case["name"] = _text(rd, *got["name"]) if "name" in got else _slug(case["label"])
+    if not STUDY_NAME_RE.fullmatch(case["name"]):
+        raise rd.error(got["name"][1], f"case name {case['name']!r} is not a name "
+                       "(letters, digits, _ . + -)")  # fmt: skip
+    case["mode"] = rd.choice(*got["mode"], schema.STUDY_MODES, "mode")
+    trial = copy.deepcopy(base)
+    case["scene"] = None
+    if "scene" in got:
+        case["scene"] = rd.name(*got["scene"], scene_names(base), "scene")
+        apply_scene(trial, case["scene"], rd.file)
+    case["set"] = {}
+    if "set" in got:
+        for path, value, w in rd.items(*got["set"]):
+            try:
+                set_path(trial, path, copy.deepcopy(value), schema.can_add)
+            except PathError as exc:
+                raise rd.error(w, f"cannot set {path}: {exc.message}") from None
+            case["set"][path] = to_plain(value)
+    case["options"] = {}
+    if "options" in got:
+        case["options"] = {
+            key: rd.setting(child, w, schema.ANALYSIS_DIMENSIONS.get(key))
+            for key, child, w in rd.items(*got["options"])
+        }
+    return case
+
+
+def _case_list(rd: Reader, node: Node, where: Where, known: dict[str, str]) -> list[str]:
+    names = []
+    for child, w in _sequence(rd, node, where):
+        names.append(known[rd.name(child, w, known, "case (label or name)")])
+    return names
+
+
+def _channels(rd: Reader, node: Node, where: Where) -> list[str]:
+    if node.kind == "seq":
+        return [_text(rd, c, w) for c, w in _sequence(rd, node, where)]
+    return [_text(rd, node, where)]
+
+
+def _study_figure(rd: Reader, node: Node, where: Where, known: dict[str, str]) -> dict:
+    got = rd.fields(node, where, schema.STUDY_FIGURE_KEYS, ("name", "y"), "a study figure")
+    fig = {"name": _text(rd, *got["name"]), "where": str(where)}
+    if not STUDY_NAME_RE.fullmatch(fig["name"]):
+        raise rd.error(got["name"][1], f"figure name {fig['name']!r} is not a file name "
+                       "(letters, digits, _ . + -)")  # fmt: skip
+    fig["y"] = _channels(rd, *got["y"])
+    fig["x"] = _text(rd, *got["x"]) if "x" in got else "time"
+    for key in ("title", "xlabel", "ylabel", "caption"):
+        fig[key] = _text(rd, *got[key]) if key in got else ""
+    for key in ("scale", "xscale"):
+        fig[key] = rd.number(*got[key]) if key in got else 1.0
+    fig["cases"] = _case_list(rd, *got["cases"], known) if "cases" in got else []
+    return fig
+
+
+def _study_number(rd: Reader, node: Node, where: Where, known: dict[str, str]) -> dict:
+    got = rd.fields(node, where, schema.STUDY_NUMBER_KEYS, ("name", "y"), "a study number")
+    num = {"name": _text(rd, *got["name"]), "y": _text(rd, *got["y"]), "where": str(where)}
+    num["stat"] = rd.choice(*got["stat"], schema.STUDY_STATS, "stat") if "stat" in got \
+        else "final"
+    num["scale"] = rd.number(*got["scale"]) if "scale" in got else 1.0
+    num["unit"] = _text(rd, *got["unit"]) if "unit" in got else ""
+    num["cases"] = _case_list(rd, *got["cases"], known) if "cases" in got else []
+    num["from"] = rd.number(*got["from"], "time") if "from" in got else None
+    num["band"] = rd.number(*got["band"]) if "band" in got else 0.02
+    if not 0 < num["band"] < 1:
+        raise rd.error(got["band"][1], f"band must be between 0 and 1, got {num['band']:g}")
+    return num

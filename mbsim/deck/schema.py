@@ -11,7 +11,7 @@ from typing import Any, NamedTuple
 
 TOP_KEYS = (
     "title", "units", "gravity", "parameters", "bodies", "joints", "drivers", "forces",
-    "outputs", "analysis", "scenes",
+    "outputs", "analysis", "scenes", "studies",
 )  # fmt: skip
 BODY_KEYS = (
     "ground", "mass", "inertia", "r", "p", "euler_deg", "axis_angle", "omega", "omega_local",
@@ -24,6 +24,18 @@ OUTPUT_KEYS = ("points",)
 OUTPUT_POINT_KEYS = ("body", "point")
 SCENE_KEYS = ("description", "set", "remove", "analysis")
 ANALYSIS_MODES = ("assembly", "kinematic", "dynamic", "inverse", "equilibrium")
+
+# Studies (`studies:`; run by `mbsim study`, mbsim/study.py): a list of cases, the figures
+# drawn from them and the key numbers tabulated.  STUDY_STATS is implemented by
+# mbsim.study.STATS (same names, checked by the tests).
+STUDY_KEYS = ("description", "cases", "figures", "numbers")
+STUDY_CASE_KEYS = ("label", "name", "scene", "set", "mode", "options")
+STUDY_FIGURE_KEYS = ("name", "title", "y", "x", "xlabel", "ylabel", "scale", "xscale",
+                     "cases", "caption")
+STUDY_NUMBER_KEYS = ("name", "y", "stat", "scale", "unit", "cases", "from", "band")
+STUDY_MODES = ("kinematic", "equilibrium", "inverse", "dynamic")
+STUDY_STATS = ("final", "initial", "max", "min", "absmax", "mean", "range", "t_max", "t_min",
+               "t_absmax", "period", "settle", "growth")
 AXES = ("x", "y", "z")
 
 # Physical dimensions: name -> (SI unit, as mbsim.units spells it; words for messages).
@@ -197,6 +209,19 @@ FORCE_TYPES = {
             "measures": _MEASURES,
         },
         one_of=(("vector", "law"),),
+    ),
+    "tire": ForceType(  # mbsim/forces/tire.py (Haug Sec. 12.5.1)
+        "one",
+        {
+            "kt": Field("number", "stiffness", required=True),
+            "radius": Field("number", "length", required=True),  # unloaded
+            "c": Field("number", "damping", default=0.0),
+            "c_alpha": Field("number", required=True),  # N/rad, cornering stiffness
+            "mu": Field("number", default=0.8),
+            "rolling": Field("number", default=0.0),  # rolling-resistance coefficient
+            "v_min": Field("number", "velocity", default=0.5),  # lateral force fades below
+            "forward": Field("vector"),  # body-frame heading axis, default y'
+        },
     ),
 }
 FORCE_BODY_KEYS = {

@@ -134,3 +134,6 @@ class DeckSpec:
     raw: dict[str, Any] = field(default_factory=dict)  # the YAML tree after overrides
     warnings: list[str] = field(default_factory=list)  # 'file:line: key.path: message'
     scene: str | None = None  # the scene applied, if any
+    # studies: name -> {'description': str, 'cases': [case], 'figures': [figure],
+    # 'numbers': [number]}, plain validated data read by mbsim.study (docs/studies.md)
+    studies: dict[str, dict[str, Any]] = field(default_factory=dict)

@@ -26,4 +26,4 @@ def compile_forces(spec, body_index) -> tuple:
     return tuple(out)
 
 
-from mbsim.forces import elements  # noqa: F401  (registers the built-in types)
+from mbsim.forces import elements, tire  # noqa: E402, F401  (register the built-in types, the tire)

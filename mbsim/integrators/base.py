@@ -50,6 +50,8 @@ class Integrator:
     adaptive = True
     formulation = ""
 
+    pi_beta = 0.04  # step-size controller memory (Hairer's DOPRI5/DOP853 default)
+
     TOO_SMALL_STEP = "step size fell below h_min"
 
     def __init__(self, system, t0, q0, qd0, t_bound, options=None):
@@ -71,6 +73,7 @@ class Integrator:
         self.h_last = 0.0
         self.options = opt
         self.status = "running"
+        self._err_old = 1e-4
         self.counters = {"steps": 0, "rejected_steps": 0}
 
     # -- what the driver calls ------------------------------------------------------------
@@ -112,17 +115,19 @@ class Integrator:
         return h
 
     def _step_factor(self, err, exponent, rejected):
-        """Step-size factor from the scaled error norm err (<= 1 accepted)."""
-        if err == 0:
-            factor = MAX_FACTOR
-        else:
-            factor = SAFETY * err ** exponent
+        """Step-size factor from the scaled error norm err (<= 1 accepted) and the exponent
+        -1/k (k: order of the error estimate + 1), with Hairer's stabilised (PI) controller
+        of DOPRI5/DOP853: h_new = h safety err^(-1/k + 0.75 beta) err_old^beta."""
+        beta = self.pi_beta
         if err <= 1:
+            e = max(err, 1e-10)
+            factor = SAFETY * e ** (exponent + 0.75 * beta) * self._err_old ** beta
             factor = min(MAX_FACTOR, factor)
             if rejected:
                 factor = min(1.0, factor)
+            self._err_old = max(err, 1e-4)
         else:
-            factor = max(MIN_FACTOR, factor)
+            factor = max(MIN_FACTOR, SAFETY * err ** (exponent + 0.75 * beta))
         return factor
 
     def _fail(self, message):

@@ -34,7 +34,7 @@ class Partition:
 
 class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
     formulation = "gcp"
-    repartition_ratio = 10.0
+    repartition_ratio = 1.0
     max_newton = 8
 
     def __init__(self, system, t0, q0, qd0, t_bound, options=None):
@@ -42,12 +42,14 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self.n = system.nq
         self.ratio = float(self.options.get("repartition_ratio", self.repartition_ratio))
         self.newton_tol = float(self.options.get(
-            "newton_tol", min(1e-9, max(1e-13, 1e-3 * self.atol))))
+            "newton_tol", min(1e-9, max(1e-12, 1e-2 * self.atol))))
         self.counters["repartitions"] = 0
+        self._pred = None  # the full q predicted for the next stage (see _trial)
         qdd, _, _ = system.accelerations(self.q, self.qd, self.t)
         self._ref = (self.t, self.q.copy(), self.qd.copy(), qdd)  # Newton predictor data
         self._last = None  # (t, y, q, qd, qdd, power, factor) of the latest stage
         self.part = self._partition(self.t, self.q)
+        self.n_err = 2 * self.part.iv.size  # (v, vd); the work integral is not controlled
         self._start()
 
     # -- partitioning ----------------------------------------------------------------------
@@ -55,14 +57,19 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         s = self.system
         J = s.terms(q, t, phi=False).jac
         Jd = J.toarray() if s.sparse else J
-        perm, _, U = la.lu(Jd.T, p_indices=True, check_finite=False)
         m = Jd.shape[0]
-        d = np.abs(np.diag(U))
-        if d.size and d.min() <= 1e-12 * d.max():
+        # null-space basis N of Phi_q; the independent coordinates are the k rows of N that
+        # span the largest volume (QR with column pivoting of N^T), so that the map from the
+        # degrees of freedom to v is as well conditioned as the model allows
+        Qf, R = la.qr(Jd.T, check_finite=False)
+        r = np.abs(np.diag(R))
+        if r.size and r.min() <= 1e-12 * r.max():
             raise StageFailure("the constraint Jacobian lost rank: no set of dependent "
                                "coordinates (a lock-up or a bifurcation)")
-        iu = np.flatnonzero(perm < m)
-        iv = np.flatnonzero(perm >= m)
+        k = self.n - m
+        _, piv = la.qr(Qf[:, m:].T, mode="r", pivoting=True, check_finite=False)
+        iv = np.sort(piv[:k])
+        iu = np.setdiff1d(np.arange(self.n), iv)
         return Partition(iv, iu, self._cond(self._factor(J, iu)))
 
     def _factor(self, J, iu):
@@ -92,11 +99,17 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
 
     # -- the stage function ----------------------------------------------------------------
     def _complete(self, t, v, vd, part):
-        """q from Newton on Phi(u, v, t) = 0, qd from the velocity equations."""
+        """q from Newton on Phi(u, v, t) = 0, qd from the velocity equations.
+
+        The start is the RK combination of the full stage velocities (``_trial``), exact to
+        the local error, so that two Newton steps (correct, confirm) usually suffice."""
         s, (iv, iu) = self.system, (part.iv, part.iu)
-        t0, q0, qd0, qdd0 = self._ref
-        tau = t - t0
-        q = q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
+        if self._pred is not None:
+            q, self._pred = self._pred, None
+        else:  # second-order Taylor predictor from the last accepted state
+            t0, q0, qd0, qdd0 = self._ref
+            tau = t - t0
+            q = q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
         q[iv] = v
         for _ in range(self.max_newton):
             T = s.terms(q, t, jac=True, nu=s.rheonomic)
@@ -105,7 +118,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             q[iu] -= du
             s.counters["newton_iterations"] += 1
             if np.abs(du).max(initial=0.0) <= self.newton_tol:
-                break
+                break  # Phi_q of this iterate is within newton_tol of Phi_q(q): keep it
         else:
             worst = np.argsort(-np.abs(T.phi))[:3]
             names = s.model.items_of_rows(s.rows[worst])
@@ -118,19 +131,39 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         if s.rheonomic:
             rhs += T.nu
         qd[iu] = self._solve(fac, rhs)
+        self._jac = T.jac
         return q, qd, fac
 
     def _rhs(self, t, y, ctx=None):
         part = ctx or self.part
         k = part.iv.size
         q, qd, fac = self._complete(t, y[:k], y[k:2 * k], part)
-        qdd, _, power = self.system.accelerations(q, qd, t)
+        qdd, _, power = self.system.accelerations(q, qd, t, jac=self._jac)
         self._last = (t, y, q, qd, qdd, fac)
         out = np.empty_like(y)
         out[:k], out[k:2 * k], out[-1] = y[k:2 * k], qdd[part.iv], power
         return out
 
     # -- the RK family hooks -----------------------------------------------------------------
+    def _trial(self, h):
+        """The RK step of the base class, with the full q of each stage predicted by the same
+        RK combination of the full stage velocities (q' = qd)."""
+        tab, K, t, y = self.tableau, self.K, self.t, self.y
+        q0 = self._ref[1]
+        QD = np.empty((tab.n_stages, self.n))
+        QD[0] = self._ref[2]
+        K[0] = self.f
+        for s in range(1, tab.n_stages):
+            a = tab.A[s, :s]
+            self._pred = q0 + h * (QD[:s].T @ a)
+            K[s] = self._rhs(t + tab.C[s] * h, y + h * (K[:s].T @ a))
+            QD[s] = self._last[3]
+        y_new = y + h * (K[:-1].T @ tab.B)
+        self._pred = q0 + h * (QD.T @ tab.B)
+        f_new = self._rhs(t + h, y_new)
+        K[-1] = f_new
+        return y_new, f_new
+
     def _context(self):
         return self.part
 
@@ -150,13 +183,18 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
     def _accept(self, t, y, f):
         lt, ly, q, qd, qdd, fac = self._last  # the FSAL stage: the accepted state
         self._ref = (t, q, qd, qdd)
-        if self._cond(fac) > self.ratio * self.part.cond0:
-            self.part = self._partition(t, q)
-            self.counters["repartitions"] += 1
-            iv = self.part.iv
-            y = np.concatenate([q[iv], qd[iv], y[-1:]])
-            f = np.concatenate([qd[iv], qdd[iv], f[-1:]])
-            self._last = (t, y, q, qd, qdd, fac)
+        cond = self._cond(fac)
+        if cond > self.ratio * self.part.cond0:
+            part = self._partition(t, q)
+            if np.array_equal(part.iu, self.part.iu):
+                self.part.cond0 = max(cond, part.cond0)  # the same set is still the best
+            else:
+                self.part = part
+                self.counters["repartitions"] += 1
+                iv = part.iv
+                y = np.concatenate([q[iv], qd[iv], y[-1:]])
+                f = np.concatenate([qd[iv], qdd[iv], f[-1:]])
+                self._last = (t, y, q, qd, qdd, fac)
         return y, f
 
     def _recover(self):

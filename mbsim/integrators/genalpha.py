@@ -39,6 +39,7 @@ class GeneralizedAlpha(Integrator):
     formulation = "index-3"
     rho_inf = 0.8
     max_newton = 10
+    pi_beta = 0.2
 
     @classmethod
     def coefficients(cls, rho):
@@ -133,6 +134,7 @@ class GeneralizedAlpha(Integrator):
         gp = gam / (beta * h)
         prev = np.inf
         for it in range(self.max_newton):
+            s.counters["function_evaluations"] += 1  # one residual: Phi, Phi_q, M, Q
             T = s.terms(q, t1, jac=True, nu=s.rheonomic)
             st = eq.State(s.model, q, qd)
             Q = eq.applied_forces(s.model, q, qd, t1, st=st)[0]

@@ -123,18 +123,20 @@ class System:
         return X, lambda b: la.cho_solve(c, b, check_finite=False)
 
     # -- accelerations -------------------------------------------------------------------------
-    def accelerations(self, q, qd, t, baumgarte=None):
+    def accelerations(self, q, qd, t, baumgarte=None, jac=None):
         """Solve the equations of motion at (q, qd, t); returns (qdd, lam, power).
 
         lam: (m_a,) multipliers of the active rows; power = Q.qd - lam.nu, the rate of
         work of applied and driving forces (the kinetic energy's rate, see module doc).
         baumgarte: (alpha, beta) replaces gamma by gamma - 2 alpha Phi_dot - beta^2 Phi
-        (Baumgarte 1972).
+        (Baumgarte 1972).  jac: Phi_q at q when the caller has it (coordinate partitioning).
         """
         self.counters["function_evaluations"] += 1
         stab = baumgarte is not None
-        T = self.terms(q, t, qd=qd, phi=stab, jac=True, gamma=True, nu=stab or self.rheonomic)
-        J, g = T.jac, T.gamma
+        T = self.terms(q, t, qd=qd, phi=stab, jac=jac is None, gamma=True,
+                       nu=stab or self.rheonomic)
+        J = T.jac if jac is None else jac
+        g = T.gamma
         if stab:
             a, b = baumgarte
             g = g - 2 * a * (J @ qd - T.nu) - b * b * T.phi

@@ -1,0 +1,127 @@
+"""``mbsim study`` and ``mbsim animate``: the click layer over :mod:`mbsim.study` and
+:mod:`mbsim.animate` (registered by ``mbsim.cli._register_optional``).
+
+Exit codes as for every command: 0 every case complete and every figure made; 1 a case
+failed or stopped part-way (the others are still run, drawn and tabulated); 2 bad input.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from mbsim.cli import EXIT_FAILED, _fail, _warn
+from mbsim.errors import DeckError, MbsimError
+
+VIEWS = ("iso", "xy", "xz", "yz")
+
+
+def _table(header: list[str], rows: list[list[str]], indent: str = "  ") -> None:
+    widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
+    for row in [header, *rows]:
+        click.echo(indent + "  ".join(str(c).ljust(w) for c, w in zip(row, widths)).rstrip())
+
+
+@click.command("study")
+@click.argument("deck", type=click.Path(dir_okay=False))
+@click.argument("name", required=False)
+@click.option("-o", "--output", "out_dir", default=None,
+              help="Output folder; each study writes into <folder>/<study>/. "
+                   "Default: <deck stem>_studies")
+@click.option("-j", "--jobs", type=int, default=1, show_default=True,
+              help="Cases run at once (processes).")
+@click.option("--list", "list_only", is_flag=True, help="List the deck's studies.")
+@click.option("--dpi", type=float, default=110, show_default=True, help="Figure resolution.")
+@click.option("-q", "--quiet", is_flag=True, help="Print only errors and the tables.")
+def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
+    """Run study NAME of DECK (`all`: every study): every case to HDF5, every figure to PNG,
+    and a table of the key numbers.
+
+    Example: mbsim study models/slider_crank.yaml inverse_rod_length -o out
+    """
+    from mbsim.study import list_studies, load_studies, run_study, study_names
+
+    try:
+        spec = load_studies(deck)
+        if list_only or not name:
+            studies = list_studies(spec)
+            if not studies:
+                click.echo(f"{deck}: no studies")
+            for sname, desc, modes in studies:
+                n = len(spec.studies[sname]["cases"])
+                click.echo(f"{sname:<28} {n} case{'s' * (n != 1)} ({', '.join(modes)})  {desc}")
+            if not name and not list_only:
+                raise click.UsageError("name a study (or `all`); the deck's studies are above")
+            return
+        names = study_names(spec, name)
+    except MbsimError as exc:
+        _fail(exc, deck)
+    _warn(spec.warnings)
+    folder = Path(out_dir) if out_dir else Path(f"{Path(deck).stem}_studies")
+    failed = False
+    seen_warnings: set[str] = set(spec.warnings)
+
+    def progress(case):
+        new = [w for w in case.warnings if w not in seen_warnings]
+        seen_warnings.update(new)
+        _warn(new)
+        if not quiet:
+            where = case.path if case.path else case.message
+            click.echo(f"  {case.label}: {case.mode} {case.status} in {case.wall_time:.3g} s"
+                       f" -> {where}")
+
+    for sname in names:
+        if not quiet:
+            click.echo(f"study {sname}: {spec.studies[sname]['description']}")
+        try:
+            outcome = run_study(deck, sname, folder, jobs=jobs, spec=spec, on_case=progress,
+                                dpi=dpi)
+        except MbsimError as exc:
+            _fail(exc, deck)
+        for case in outcome.cases:
+            if case.status != "complete":
+                click.echo(f"error: {deck}: study {sname}, case {case.label}: {case.status}: "
+                           f"{case.message}", err=True)
+        for problem in outcome.problems:
+            click.echo(f"error: {problem}", err=True)
+        if not quiet:
+            for fig in outcome.figures:
+                click.echo(f"  figure -> {fig}")
+        _table(*outcome.table)
+        click.echo(f"  study {sname}: {len(outcome.cases)} cases, wall {outcome.wall_time:.3g} s"
+                   f" -> {outcome.out_dir}")
+        failed = failed or not outcome.ok
+    if failed:
+        sys.exit(EXIT_FAILED)
+
+
+@click.command("animate")
+@click.argument("file", type=click.Path(exists=True, dir_okay=False))
+@click.option("-o", "--output", default=None, help="GIF file (default: FILE with .gif).")
+@click.option("--fps", type=float, default=20, show_default=True, help="Frames per second.")
+@click.option("--view", type=click.Choice(VIEWS), default="iso", show_default=True,
+              help="Projection: isometric or onto a coordinate plane.")
+@click.option("--every", type=int, default=1, show_default=True,
+              help="Draw every N-th output time.")
+@click.option("--dpi", type=float, default=80, show_default=True, help="Frame resolution.")
+@click.option("--size", type=float, default=5.0, show_default=True,
+              help="Frame size, inches (square).")
+def animate_command(file, output, fps, view, every, dpi, size):
+    """Draw the mechanism of a results FILE moving: bodies as lines between their joint
+    points, massless links dashed, springs dotted, ground points fixed, a time stamp.
+
+    Example: mbsim animate slider.h5 -o slider.gif --view iso --every 2
+    """
+    from mbsim.animate import animate_file
+
+    out = Path(output) if output else Path(file).with_suffix(".gif")
+    if every < 1 or fps <= 0:
+        _fail(DeckError("--every must be >= 1 and --fps > 0"))
+    try:
+        path, nframes = animate_file(file, out, fps=fps, view=view, every=every, dpi=dpi,
+                                     size=size)
+    except (MbsimError, KeyError, ValueError, OSError) as exc:
+        _fail(exc if isinstance(exc, MbsimError) else DeckError(str(exc).strip("'\"")))
+    click.echo(f"animation: {nframes} frames at {fps:g} fps -> {path}")

@@ -1,0 +1,117 @@
+"""``mbsim sweep``: the click layer over :mod:`mbsim.sweep` (parse -> plan -> run -> lines ->
+exit code). Registered by ``mbsim.cli._register_optional``; it imports ``mbsim.cli`` only
+inside the command, so importing this module first does not loop.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import click
+
+from mbsim.api import ANALYSES
+
+
+@click.command("sweep")
+@click.argument("deck", type=click.Path(dir_okay=False))
+@click.option("--param", "params", multiple=True, metavar="NAME=V1,V2,...",
+              help="Values of a deck parameter (k=1000,2000) or key path "
+                   "(forces.spring.c=10,20); repeatable: the cases are the product.")
+@click.option("--zip", "zip_", is_flag=True,
+              help="Take the --param lists element by element (equal lengths), not the product.")
+@click.option("--mode", "-m", type=click.Choice(list(ANALYSES)), required=True,
+              help="Analysis to run for every case.")
+@click.option("-j", "--jobs", type=click.IntRange(min=1),
+              help="Parallel processes (default: min(CPUs, cases)); ignored with --scheduler.")
+@click.option("-o", "--output", "out_dir",
+              help="Folder for the case files and the index (default <deck>_<mode>_sweep).")
+@click.option("--summary", "summaries", multiple=True, metavar="CHANNEL:NAME",
+              help="A value per case in the index, e.g. bodies.collar.r.y:final; NAME is "
+                   "final, min, max, mean, peak or settle_time (repeatable).")
+@click.option("--set", "sets", multiple=True, metavar="PATH=VALUE",
+              help="Override a deck value in every case (repeatable).")
+@click.option("--scene", help="Apply a named scene of the deck to every case.")
+@click.option("--t-end", type=float, help="End time, s.")
+@click.option("--step", type=float, help="Output step, s.")
+@click.option("--integrator", help="Integrator name (dynamic mode).")
+@click.option("--rtol", type=float, help="Relative tolerance (dynamic mode).")
+@click.option("--atol", type=float, help="Absolute tolerance (dynamic mode).")
+@click.option("--method", help="Equilibrium method: minimum | settle | steady.")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="Run on a Dask cluster, e.g. tcp://host:8786 (pip install 'mbsim[cluster]').")
+@click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
+def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scene, t_end, step,
+                  integrator, rtol, atol, method, scheduler, quiet):
+    """Run DECK once per combination of --param values, in parallel; one HDF5 file per case
+    and an index (index.csv, index.h5) in the output folder. Re-running the same command
+    runs only the cases that are missing, failed or incomplete.
+
+    Example: mbsim sweep models/governor.yaml --mode dynamic --param k=1000,2000,3000
+    --summary bodies.collar.r.y:settle_time -o gov_k
+    """
+    from mbsim.cli import EXIT_FAILED, EXIT_OK, EXIT_USAGE, _fail, _parse_sets, _warn
+    from mbsim.errors import MbsimError
+    from mbsim.sweep import (
+        STATUS_COMPLETE,
+        default_out_dir,
+        parse_param,
+        parse_summary,
+        plan_sweep,
+        run_sweep,
+    )
+
+    options = {"t_end": t_end, "step": step, "integrator": integrator, "rtol": rtol,
+               "atol": atol, "method": method}
+    try:
+        plan = plan_sweep(
+            deck, mode, [parse_param(p) for p in params],
+            out_dir or default_out_dir(deck, mode, scene), zip_=zip_,
+            overrides=_parse_sets(sets), scene=scene, options=options,
+            summaries=[parse_summary(s) for s in summaries])
+    except MbsimError as exc:
+        _fail(exc, deck)
+    ncases = len(plan.cases)
+    done = 0
+
+    def on_case(rec) -> None:
+        nonlocal done
+        done += 1
+        if quiet:
+            return
+        how = f"{rec.status} (kept: up to date)" if rec.skipped else rec.status
+        wall = "wall -" if math.isnan(rec.wall_time) else f"wall {rec.wall_time:.3g} s"
+        line = f"[{done}/{ncases}] {rec.case.name}: {how}, {wall}"
+        if rec.message:
+            line += f": {rec.message}"
+        click.echo(line)
+
+    if not quiet:
+        where = f"Dask scheduler {scheduler}" if scheduler else \
+            f"{jobs or 'min(CPUs, cases)'} process(es)"
+        click.echo(f"sweep: {ncases} case(s) of {mode} on {where} -> {plan.out_dir}")
+    try:
+        outcome = run_sweep(plan, on_case=on_case, jobs=jobs, scheduler=scheduler)
+    except KeyboardInterrupt:
+        click.echo(f"error: interrupted after {done} of {ncases} case(s); finished files kept, "
+                   f"index written to {plan.out_dir}/index.csv (re-run the same command to "
+                   "continue)", err=True)
+        sys.exit(EXIT_FAILED)
+    except MbsimError as exc:
+        _fail(exc, deck)
+    counts = {s: outcome.count(s) for s in ("complete", "incomplete", "failed", "cancelled")}
+    skipped = sum(r.skipped for r in outcome.records)
+    if not quiet:
+        listed = ", ".join(f"{n} {s}" for s, n in counts.items() if n)
+        click.echo(f"sweep: {listed} ({skipped} kept from an earlier run) -> "
+                   f"{outcome.index_csv}, {outcome.index_h5.name}")
+    _warn([e + " (value left empty)" for e in outcome.summary_errors])
+    if outcome.summary_errors:
+        sys.exit(EXIT_USAGE)
+    bad = ncases - counts[STATUS_COMPLETE]
+    if bad:
+        click.echo(f"error: {deck}: {bad} of {ncases} case(s) not complete "
+                   f"(see {outcome.index_csv})", err=True)
+        sys.exit(EXIT_FAILED)
+    sys.exit(EXIT_OK)
+

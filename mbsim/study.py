@@ -1,0 +1,518 @@
+"""Studies: the runs, figures and key numbers that a deck's ``studies:`` section defines.
+
+A study (format: ``docs/studies.md``; validated by the deck loader into plain data,
+``DeckSpec.studies``) is a list of *cases*, each one analysis of the deck with a scene,
+``--set`` overrides, a mode and options; *figures*, each one or more channels drawn with one
+curve per case; and *numbers*, statistics of channels tabulated per case (peak torque,
+period, transition time, ...).  ``mbsim study DECK NAME`` (:mod:`mbsim.cli_study`) comes
+here as::
+
+    outcome = run_study("models/slider_crank.yaml", "inverse_rod_length", out_dir="out")
+    outcome.cases      # one CaseOutcome per case: status, message, file, wall time
+    outcome.figures    # the PNG files written
+    outcome.table      # (header, rows) of the key numbers
+
+Each case writes ``<out_dir>/<study>/<case name>.h5`` (the result, with the study, case,
+scene and overrides in its ``settings``); each figure ``<out_dir>/<study>/<figure>.png``.
+A case that raises (a bad value, an analysis error) is ``failed`` with the message and the
+others go on; an analysis that stops part-way is ``incomplete``, as for ``mbsim run``.
+
+``STATS`` maps a statistic name to ``f(t, y, number) -> float`` over the output times
+``t`` (nt,) and one scalar column ``y`` (nt,); ``number`` is the deck's entry (keys
+``from``: start of the window in s, ``band``: relative settling band).  The names are
+``mbsim.deck.schema.STUDY_STATS``.
+
+:func:`threshold` finds by bisection the value of one deck setting at which a case turns
+from one behaviour to another (the governor's feedback gain at which it becomes unstable).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mbsim.errors import DeckError, MbsimError
+from mbsim.result import STATUS_COMPLETE, Result
+
+log = logging.getLogger(__name__)
+
+STATUS_FAILED = "failed"  # the case raised: no file (or an older one) on disk
+
+
+# --------------------------------------------------------------------------- statistics
+
+
+def _window(t: np.ndarray, y: np.ndarray, number: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The samples at t >= number['from'] (all samples when it is None)."""
+    start = number.get("from")
+    if start is None:
+        return t, y
+    keep = t >= start - 1e-12
+    return t[keep], y[keep]
+
+
+def upcrossings(t: np.ndarray, y: np.ndarray, level: float) -> np.ndarray:
+    """Times at which y crosses `level` upwards, by linear interpolation (s)."""
+    d = y - level
+    k = np.nonzero((d[:-1] < 0) & (d[1:] >= 0))[0]
+    return t[k] - d[k] * (t[k + 1] - t[k]) / (d[k + 1] - d[k])
+
+
+def period(t: np.ndarray, y: np.ndarray, number: dict | None = None) -> float:
+    """Mean time between upward crossings of the mean of y over the window (s); NaN with
+    fewer than two crossings.  For a periodic signal with one maximum and one minimum per
+    cycle this is its period."""
+    t, y = _window(t, y, number or {})
+    if len(y) < 3:
+        return float("nan")
+    times = upcrossings(t, y, float(np.mean(y)))
+    return float(np.mean(np.diff(times))) if len(times) >= 2 else float("nan")
+
+
+def settle(t: np.ndarray, y: np.ndarray, number: dict | None = None) -> float:
+    """Transition time: from the window's start t0 until y enters, for good, the band
+    ``|y - y_end| <= band |y_end - y(t0)|`` around its final value (the 2 % settling time
+    with the default band 0.02).  0 when y never leaves it; the run must be long enough for
+    ``y_end`` to be the new steady state."""
+    number = number or {}
+    t, y = _window(t, y, number)
+    change = abs(y[-1] - y[0])
+    if change == 0.0:
+        return 0.0
+    outside = np.nonzero(np.abs(y - y[-1]) > number.get("band", 0.02) * change)[0]
+    if len(outside) == 0:
+        return 0.0
+    k = outside[-1]
+    return float(t[min(k + 1, len(t) - 1)] - t[0])
+
+
+def growth(t: np.ndarray, y: np.ndarray, number: dict | None = None) -> float:
+    """Growth of an oscillation: peak-to-peak range of y in the last quarter of the window
+    over that in the third quarter.  Below 1 the motion dies out (stable), above 1 it grows
+    (unstable); a constant-amplitude oscillation gives 1.  The quarters must span at least
+    one period of the oscillation."""
+    t, y = _window(t, y, number or {})
+    q = np.linspace(t[0], t[-1], 5)
+    third = y[(t >= q[2]) & (t <= q[3])]
+    last = y[t >= q[3]]
+    if len(third) < 2 or len(last) < 2:
+        return float("nan")
+    r3, r4 = float(np.ptp(third)), float(np.ptp(last))
+    return r4 / r3 if r3 > 0 else (1.0 if r4 == 0 else float("inf"))
+
+
+def _at(t, y, number, pick):
+    t, y = _window(t, y, number)
+    return float(t[pick(y)])
+
+
+STATS: dict[str, Callable[[np.ndarray, np.ndarray, dict], float]] = {
+    "final": lambda t, y, n: float(_window(t, y, n)[1][-1]),
+    "initial": lambda t, y, n: float(_window(t, y, n)[1][0]),
+    "max": lambda t, y, n: float(np.max(_window(t, y, n)[1])),
+    "min": lambda t, y, n: float(np.min(_window(t, y, n)[1])),
+    "absmax": lambda t, y, n: float(np.max(np.abs(_window(t, y, n)[1]))),
+    "mean": lambda t, y, n: float(np.mean(_window(t, y, n)[1])),
+    "range": lambda t, y, n: float(np.ptp(_window(t, y, n)[1])),
+    "t_max": lambda t, y, n: _at(t, y, n, np.argmax),
+    "t_min": lambda t, y, n: _at(t, y, n, np.argmin),
+    "t_absmax": lambda t, y, n: _at(t, y, n, lambda v: np.argmax(np.abs(v))),
+    "period": period,
+    "settle": settle,
+    "growth": growth,
+}
+TIME_STATS = ("t_max", "t_min", "t_absmax", "period", "settle")  # results in s
+RATIO_STATS = ("growth",)  # dimensionless
+
+
+# --------------------------------------------------------------------------- data
+
+
+@dataclass
+class CaseOutcome:
+    """What one case of a study gave."""
+
+    name: str  # file stem
+    label: str  # curve label
+    mode: str
+    status: str  # 'complete' | 'incomplete' | 'failed'
+    message: str = ""
+    path: Path | None = None  # the HDF5 file (None when the case failed)
+    wall_time: float = 0.0  # s, load + analysis + write
+    warnings: list[str] = field(default_factory=list)
+    result: Result | None = None  # kept in memory for the figures and numbers
+
+
+@dataclass
+class StudyOutcome:
+    name: str
+    description: str
+    out_dir: Path
+    cases: list[CaseOutcome]
+    figures: list[Path]
+    table: tuple[list[str], list[list[str]]]  # header, rows (case label first)
+    values: dict[str, dict[str, float]]  # case name -> {number column: value}
+    wall_time: float = 0.0
+    problems: list[str] = field(default_factory=list)  # figures/numbers that could not be made
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems and all(c.status == STATUS_COMPLETE for c in self.cases)
+
+
+def load_studies(deck: str | Path):
+    """The deck's validated spec (``DeckSpec.studies`` holds the studies)."""
+    from mbsim.deck import load_deck
+
+    return load_deck(deck)
+
+
+def list_studies(spec) -> list[tuple[str, str, list[str]]]:
+    """(name, description, modes of its cases) of every study of a loaded deck."""
+    return [
+        (name, st["description"], sorted({c["mode"] for c in st["cases"]}))
+        for name, st in spec.studies.items()
+    ]
+
+
+def study_names(spec, name: str) -> list[str]:
+    """``[name]``, or every study for ``all``; an unknown name is a DeckError that lists
+    the deck's studies."""
+    if name == "all":
+        return list(spec.studies)
+    if name not in spec.studies:
+        import difflib
+
+        close = difflib.get_close_matches(name, list(spec.studies), n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        listed = ", ".join(spec.studies) or "the deck has none"
+        raise DeckError(f"unknown study {name!r}{hint} (studies: {listed})", _where(spec))
+    return [name]
+
+
+def _where(spec):
+    from mbsim.errors import Where
+
+    return Where(spec.file, "studies")
+
+
+# --------------------------------------------------------------------------- running
+
+
+def overrides_of(case: dict) -> dict[str, str]:
+    """A case's ``set`` as ``--set`` texts (JSON is YAML flow text)."""
+    return {path: json.dumps(value) for path, value in case["set"].items()}
+
+
+def run_case(deck: str, study: str, case: dict, path: str | Path) -> CaseOutcome:
+    """Load the deck with the case's scene and overrides, run its analysis, write `path`.
+
+    Never raises for an MbsimError: the case is then ``failed`` with the message.
+    Module-level so that a process pool can run it.
+    """
+    from mbsim.api import load_model, run_model
+    from mbsim.output import write_result
+
+    t0 = time.perf_counter()
+    out = CaseOutcome(case["name"], case["label"], case["mode"], STATUS_FAILED)
+    overrides = overrides_of(case)
+    try:
+        spec, model = load_model(deck, overrides=overrides, scene=case["scene"])
+        out.warnings = list(spec.warnings)
+        result = run_model(model, case["mode"], case["options"])
+        result.settings.setdefault("overrides", overrides)
+        if case["scene"]:
+            result.settings.setdefault("scene", case["scene"])
+        result.settings["study"] = {"study": study, "case": case["name"], "label": case["label"]}
+        write_result(result, path)
+    except MbsimError as exc:
+        out.message = str(exc)
+        out.wall_time = time.perf_counter() - t0
+        return out
+    out.status, out.message, out.path, out.result = result.status, result.message, Path(path), result
+    out.wall_time = time.perf_counter() - t0
+    return out
+
+
+def _run_in_pool(deck: str, study: str, case: dict, path: str) -> CaseOutcome:
+    out = run_case(deck, study, case, path)
+    out.result = None  # the parent reads the file back (cheaper than pickling the Result)
+    return out
+
+
+def run_cases(deck: str | Path, study: str, cases: Sequence[dict], out_dir: Path,
+              jobs: int = 1,
+              on_case: Callable[[CaseOutcome], None] | None = None) -> list[CaseOutcome]:
+    """Run `cases` (``jobs`` > 1: in that many processes) into ``out_dir/<name>.h5``."""
+    from mbsim.output import read_result
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    deck = str(deck)
+    paths = [str(out_dir / f"{c['name']}.h5") for c in cases]
+    if jobs <= 1 or len(cases) == 1:
+        outcomes = []
+        for case, path in zip(cases, paths):
+            outcomes.append(run_case(deck, study, case, path))
+            if on_case:
+                on_case(outcomes[-1])
+        return outcomes
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")  # no forked copies of the parent's state
+    outcomes: list[CaseOutcome | None] = [None] * len(cases)
+    with cf.ProcessPoolExecutor(max_workers=min(jobs, len(cases)), mp_context=ctx) as ex:
+        futures = {ex.submit(_run_in_pool, deck, study, c, p): i
+                   for i, (c, p) in enumerate(zip(cases, paths))}  # fmt: skip
+        for fut in cf.as_completed(futures):
+            i = futures[fut]
+            out = fut.result()
+            if out.path is not None:
+                out.result = read_result(out.path)
+            outcomes[i] = out
+            if on_case:
+                on_case(out)
+    return [o for o in outcomes if o is not None]
+
+
+def run_study(deck: str | Path, name: str, out_dir: str | Path = ".", jobs: int = 1,
+              spec=None, on_case: Callable[[CaseOutcome], None] | None = None,
+              dpi: float = 110) -> StudyOutcome:  # fmt: skip
+    """Run every case of study `name` of `deck`, draw its figures, compute its numbers.
+
+    Parameters
+    ----------
+    deck : the deck file.
+    name : the study (a key of the deck's ``studies:``).
+    out_dir : files go to ``out_dir/<name>/``.
+    jobs : cases run at once (processes); 1 runs them here, one after the other.
+    spec : the deck already loaded (saves loading it again).
+    on_case : called with each CaseOutcome as it finishes (progress).
+    dpi : resolution of the PNG figures.
+    """
+    from mbsim.output import save_figure
+
+    t0 = time.perf_counter()
+    spec = spec if spec is not None else load_studies(deck)
+    study_names(spec, name)
+    st = spec.studies[name]
+    folder = Path(out_dir) / name
+    outcomes = run_cases(deck, name, st["cases"], folder, jobs, on_case)
+    by_name = {o.name: o for o in outcomes}
+    figures, problems = [], []
+    for fig in st["figures"]:
+        results = _results_for(st, fig["cases"], by_name)
+        if not results:
+            problems.append(f"{fig['where']}: figure {fig['name']}: no case gave results")
+            continue
+        try:
+            figure = study_figure(fig, results)
+        except (KeyError, IndexError, ValueError) as exc:
+            problems.append(f"{fig['where']}: figure {fig['name']}: {str(exc).strip(chr(34))}")
+            continue
+        figures.append(save_figure(figure, folder / f"{fig['name']}.png", dpi=dpi))
+    header, rows, values = number_table(st, outcomes, problems)
+    return StudyOutcome(name, st["description"], folder, outcomes, figures, (header, rows),
+                        values, time.perf_counter() - t0, problems)  # fmt: skip
+
+
+def _results_for(st: dict, names: list[str], by_name: dict[str, CaseOutcome]):
+    wanted = names or [c["name"] for c in st["cases"]]
+    return [(by_name[n].label, by_name[n].result) for n in wanted
+            if n in by_name and by_name[n].result is not None]  # fmt: skip
+
+
+# --------------------------------------------------------------------------- figures
+
+LINESTYLES = ("-", "--", "-.", ":")
+
+
+def study_figure(fig: dict, results: Sequence[tuple[str, Result]],
+                 figsize: tuple[float, float] = (6.4, 4.2)):  # fmt: skip
+    """One figure of a study: every channel of ``fig['y']`` from every case, one labelled
+    curve per case (and per component or channel when there are several), the y values
+    times ``fig['scale']``, x times ``fig['xscale']``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Axes labelled with the deck's ``xlabel``/``ylabel`` (default ``name [unit]``).
+
+    Raises
+    ------
+    KeyError, IndexError
+        A channel or component a result does not have (the message suggests close names).
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from mbsim.output.export import header_name, select_columns
+
+    figure = Figure(figsize=figsize, layout="constrained")
+    FigureCanvasAgg(figure)
+    ax = figure.add_subplot()
+    colors = [f"C{i}" for i in range(10)]
+    ylabel, xlabel = "", "time [s]"
+    many = len(fig["y"]) > 1
+    for ci, (label, result) in enumerate(results):
+        mark = "" if result.complete else " (incomplete)"
+        if fig["x"] == "time":
+            xdata = result.t
+        else:
+            xcols = select_columns(result, fig["x"])
+            if len(xcols) != 1:
+                raise ValueError(f"x {fig['x']!r} has {len(xcols)} components; name one")
+            xdata, xlabel = xcols[0].data, header_name(xcols[0].name, xcols[0].unit)
+        k = 0
+        for sel in fig["y"]:
+            cols = select_columns(result, sel)
+            ylabel = ylabel or header_name(cols[0].channel if len(cols) > 1 else cols[0].name,
+                                           cols[0].unit)
+            for col in cols:
+                extra = (col.label or sel.rsplit(".", 1)[-1]) if (many or len(cols) > 1) else ""
+                ax.plot(np.asarray(xdata) * fig["xscale"], col.data * fig["scale"],
+                        color=colors[ci % len(colors)], linestyle=LINESTYLES[k % 4],
+                        label=f"{label} {extra}".strip() + mark)  # fmt: skip
+                k += 1
+    ax.set_xlabel(fig["xlabel"] or xlabel)
+    ax.set_ylabel(fig["ylabel"] or ylabel)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize="small")
+    if fig["title"]:
+        ax.set_title(fig["title"])
+    return figure
+
+
+# --------------------------------------------------------------------------- numbers
+
+
+def summary_value(result: Result, key: str) -> Any:
+    """``summary.a.b`` -> result.summary['a']['b'] (KeyError naming the keys there)."""
+    value: Any = result.summary
+    for part in key.split(".")[1:]:
+        if isinstance(value, dict) and part in value:
+            value = value[part]
+        elif isinstance(value, list) and part.isdigit() and int(part) < len(value):
+            value = value[int(part)]
+        else:
+            have = ", ".join(value) if isinstance(value, dict) else type(value).__name__
+            raise KeyError(f"no {key!r} in the result's summary (there: {have})")
+    return value
+
+
+def number_values(result: Result, number: dict) -> list[tuple[str, Any]]:
+    """[(column, value)] of one number for one result: one column per component of the
+    selected channel (``name.x`` when it has several), or the summary value."""
+    from mbsim.output.export import select_columns
+
+    if number["y"].startswith("summary."):
+        return [(number["name"], summary_value(result, number["y"]))]
+    stat = STATS[number["stat"]]
+    cols = select_columns(result, number["y"])
+    out = []
+    for col in cols:
+        name = number["name"] if len(cols) == 1 else f"{number['name']}.{col.label}"
+        out.append((name, stat(result.t, col.data * number["scale"], number)))
+    return out
+
+
+def _format(value: Any) -> str:
+    if isinstance(value, (bool, np.bool_)):
+        return str(bool(value))
+    if isinstance(value, (int, float, np.floating, np.integer)):
+        return f"{float(value):.6g}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_format(v) for v in value) + "]"
+    return str(value)
+
+
+def number_table(st: dict, outcomes: Sequence[CaseOutcome], problems: list[str] | None = None):
+    """(header, rows, values): one row per case (label, status, wall time, then one column
+    per number and component), values as text; `values` holds the raw values per case
+    name.  Numbers that cannot be computed for a case are left blank and reported in
+    `problems`."""
+    problems = problems if problems is not None else []
+    columns: list[str] = []
+    values: dict[str, dict[str, Any]] = {o.name: {} for o in outcomes}
+    for number in st["numbers"]:
+        for o in outcomes:
+            if o.result is None or (number["cases"] and o.name not in number["cases"]):
+                continue
+            try:
+                pairs = number_values(o.result, number)
+            except (KeyError, IndexError, ValueError) as exc:
+                problems.append(f"{number['where']}: number {number['name']} for case "
+                                f"{o.label}: {str(exc).strip(chr(34))}")  # fmt: skip
+                continue
+            for col, value in pairs:
+                unit = "s" if number["stat"] in TIME_STATS else number["unit"]
+                key = f"{col} [{unit}]" if unit else col
+                if key not in columns:
+                    columns.append(key)
+                values[o.name][key] = value
+    header = ["case", "mode", "status", "wall [s]"] + columns
+    rows = [[o.label, o.mode, o.status, f"{o.wall_time:.3g}"]
+            + [_format(values[o.name][c]) if c in values[o.name] else "" for c in columns]
+            for o in outcomes]  # fmt: skip
+    return header, rows, values
+
+
+# --------------------------------------------------------------------------- thresholds
+
+
+@dataclass
+class Threshold:
+    """Outcome of :func:`threshold`: the switch lies in [low, high]."""
+
+    low: float  # the largest value tried that behaves like `lo`
+    high: float  # the smallest value tried that behaves like `hi`
+    runs: list[tuple[float, bool, float]]  # (value, criterion, wall s) per run, in order
+
+    @property
+    def value(self) -> float:
+        return 0.5 * (self.low + self.high)
+
+
+def threshold(deck: str | Path, case: dict, path: str, lo: float, hi: float,
+              criterion: Callable[[Result], bool], rtol: float = 0.01,
+              max_runs: int = 30) -> Threshold:  # fmt: skip
+    """Bisection on one deck value (``path``, as for ``--set``) between `lo` and `hi`, at
+    which ``criterion(result)`` of `case` (a study case: scene, set, mode, options) turns
+    from False (at `lo`) to True (at `hi`), to a relative width `rtol`.
+
+    Raises
+    ------
+    MbsimError
+        A run that fails; ValueError when the criterion does not differ at lo and hi.
+    """
+    from mbsim.api import load_model, run_model
+
+    runs: list[tuple[float, bool, float]] = []
+
+    def judge(value: float) -> bool:
+        t0 = time.perf_counter()
+        overrides = overrides_of(case) | {path: json.dumps(float(value))}
+        _, model = load_model(deck, overrides=overrides, scene=case.get("scene"))
+        result = run_model(model, case["mode"], case.get("options", {}))
+        verdict = bool(criterion(result))
+        runs.append((float(value), verdict, time.perf_counter() - t0))
+        log.info("threshold %s = %g: %s", path, value, verdict)
+        return verdict
+
+    if judge(lo) or not judge(hi):
+        raise ValueError(f"{path}: the criterion must be False at {lo:g} and True at {hi:g} "
+                         f"(got {runs[0][1]} and {runs[-1][1] if len(runs) > 1 else '-'})")
+    while hi - lo > rtol * abs(hi) and len(runs) < max_runs:
+        mid = 0.5 * (lo + hi)
+        if judge(mid):
+            hi = mid
+        else:
+            lo = mid
+    return Threshold(lo, hi, runs)
