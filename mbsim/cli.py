@@ -53,7 +53,39 @@ def _load(deck, sets=(), scene=None):
     return spec, model
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class LazyGroup(click.Group):
+    """Commands contributed by other modules, imported only when listed or invoked (keeps
+    `mbsim --help` fast and avoids import cycles: those modules import helpers from here)."""
+
+    LAZY = {
+        "bench": ("mbsim.cli_dynamic", "bench_command"),
+        "sweep": ("mbsim.cli_sweep", "sweep_command"),
+        "study": ("mbsim.cli_study", "study_command"),
+        "animate": ("mbsim.cli_study", "animate_command"),
+    }
+
+    def list_commands(self, ctx):
+        return sorted(set(super().list_commands(ctx)) | set(self._available()))
+
+    def _available(self):
+        import importlib.util
+
+        return [n for n, (mod, _) in self.LAZY.items() if importlib.util.find_spec(mod)]
+
+    def get_command(self, ctx, name):
+        cmd = super().get_command(ctx, name)
+        if cmd is None and name in self.LAZY:
+            import importlib
+
+            mod, attr = self.LAZY[name]
+            try:
+                cmd = getattr(importlib.import_module(mod), attr)
+            except ImportError:
+                return None
+        return cmd
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="mbsim")
 @click.option("-v", "--verbose", count=True, help="Log progress (-vv for debug).")
 def main(verbose: int) -> None:
@@ -131,7 +163,9 @@ def _summary(result, out) -> None:
     span = f"t = {result.t[0]:.6g} .. {result.t[-1]:.6g} s, {nt} outputs" if nt else "no outputs"
     click.echo(f"{result.mode}: {result.status}; {span}; wall {result.wall_time:.3g} s -> {out}")
     for k, v in result.summary.items():
-        if isinstance(v, (list, tuple)) and len(v) > 8:
+        if isinstance(v, dict):
+            v = f"({len(v)} entries, stored in the file's summary attribute)"
+        elif isinstance(v, (list, tuple)) and len(v) > 8:
             v = f"[{len(v)} values]"
         click.echo(f"  {k}: {v}")
     if result.counters:
@@ -379,18 +413,9 @@ def export(file, csv_path, channels):
         click.echo(f"csv -> {p}")
 
 
-def _register_optional() -> None:
-    """Commands contributed by other modules (kept out of this file's import cost)."""
-    for mod, attr in (("mbsim.cli_dynamic", "bench_command"), ("mbsim.cli_sweep", "sweep_command"),
-                      ("mbsim.cli_study", "study_command"), ("mbsim.cli_study", "animate_command")):
-        try:
-            module = __import__(mod, fromlist=[attr])
-        except ImportError:
-            continue
-        main.add_command(getattr(module, attr))
-
-
-_register_optional()
-
 if __name__ == "__main__":  # pragma: no cover
-    main()
+    # `python -m mbsim.cli`: run the canonical module's group (the command modules import
+    # helpers from `mbsim.cli`, which must not be a second copy of this file as __main__).
+    from mbsim.cli import main as _main
+
+    _main()

@@ -6,6 +6,7 @@ inside the command, so importing this module first does not loop.
 from __future__ import annotations
 
 import math
+import os
 import sys
 
 import click
@@ -88,7 +89,7 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
 
     if not quiet:
         where = f"Dask scheduler {scheduler}" if scheduler else \
-            f"{jobs or 'min(CPUs, cases)'} process(es)"
+            f"up to {jobs or min(os.cpu_count() or 1, ncases)} process(es)"
         click.echo(f"sweep: {ncases} case(s) of {mode} on {where} -> {plan.out_dir}")
     try:
         outcome = run_sweep(plan, on_case=on_case, jobs=jobs, scheduler=scheduler)

@@ -215,8 +215,8 @@ def overrides_of(case: dict) -> dict[str, str]:
 def run_case(deck: str, study: str, case: dict, path: str | Path) -> CaseOutcome:
     """Load the deck with the case's scene and overrides, run its analysis, write `path`.
 
-    Never raises for an MbsimError: the case is then ``failed`` with the message.
-    Module-level so that a process pool can run it.
+    Never raises: a case whose loading or analysis raises is ``failed`` with the message
+    (the exception logged at DEBUG level).  Module-level so that a process pool can run it.
     """
     from mbsim.api import load_model, run_model
     from mbsim.output import write_result
@@ -233,8 +233,9 @@ def run_case(deck: str, study: str, case: dict, path: str | Path) -> CaseOutcome
             result.settings.setdefault("scene", case["scene"])
         result.settings["study"] = {"study": study, "case": case["name"], "label": case["label"]}
         write_result(result, path)
-    except MbsimError as exc:
-        out.message = str(exc)
+    except Exception as exc:  # noqa: BLE001 - a case that raises is reported, the others run
+        log.debug("study %s, case %s failed", study, case["name"], exc_info=True)
+        out.message = str(exc) if isinstance(exc, MbsimError) else f"{type(exc).__name__}: {exc}"
         out.wall_time = time.perf_counter() - t0
         return out
     out.status, out.message, out.path, out.result = result.status, result.message, Path(path), result

@@ -362,20 +362,20 @@ def plan_sweep(deck: str | Path, mode: str, params: Sequence[Param], out_dir: st
     """Check the sweep before anything runs and list its cases.
 
     The deck is loaded once with the ``--set`` overrides and the scene (a DeckError here is
-    a usage error of the whole sweep), the mode must exist, every ``--param`` path must exist
-    in the deck and a path may not be both ``--set`` and ``--param``. Values are not checked
-    here: a bad value fails its own case only.
+    a usage error of the whole sweep), the mode must be available, every ``--param`` path
+    must exist in the deck and a path may not be both ``--set`` and ``--param``. Values are
+    not checked here: a bad value fails its own case only.
 
     Raises
     ------
     DeckError, SweepError
         Exit code 2: nothing has run.
     """
-    from mbsim.api import ANALYSES
+    from mbsim.api import analysis_function
     from mbsim.deck import load_deck
+    from mbsim.model import compile_model  # noqa: F401 - forked workers inherit the import
 
-    if mode not in ANALYSES:
-        raise SweepError(f"unknown mode {mode!r}; choose one of {', '.join(ANALYSES)}")
+    analysis_function(mode)  # DeckError for a mode that does not exist or is not available
     overrides = dict(overrides or {})
     both = [p.label for p in params if p.path in overrides]
     if both:
@@ -493,7 +493,11 @@ def finish_case(sweep: Sweep, case: Case, run: CaseRun) -> CaseRecord:
         return CaseRecord(case, STATUS_FAILED, run.message, run.wall_time)
     result = run.result
     result.settings.update(_case_settings(sweep, case))
-    path = write_result(result, sweep.case_file(case))
+    try:
+        path = write_result(result, sweep.case_file(case))
+    except (OSError, ValueError) as exc:  # disk full, a channel name HDF5 cannot hold
+        return CaseRecord(case, STATUS_FAILED, f"cannot write {sweep.case_file(case)}: {exc}",
+                          run.wall_time)
     status = result.status if result.status in (STATUS_COMPLETE, STATUS_INCOMPLETE) \
         else STATUS_INCOMPLETE
     rec = CaseRecord(case, status, result.message, run.wall_time, path.name)
@@ -663,7 +667,7 @@ def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
                     for fut in futures:
                         fut.cancel()
                     raise
-    except KeyboardInterrupt:
+    except BaseException:  # Ctrl-C, or an error of this process: the index of what finished
         index_now(force=True)
         raise
     index_now(force=True)
