@@ -112,4 +112,26 @@ class Recorder:
             res.add(f"points/{name}/position", pos, "m", f"point {name}, global", XYZ)
             res.add(f"points/{name}/velocity", vel, "m/s", f"velocity of point {name}", XYZ)
             res.add(f"points/{name}/acceleration", acc, "m/s^2", f"acceleration of {name}", XYZ)
+        self._force_channels(res)
         return res
+
+    def _force_channels(self, res) -> None:
+        """forces/<name>/<quantity> from each element's ``channels(st, t)`` (length, force...)."""
+        model = self.model
+        if not model.forces:
+            return
+        from mbsim.equations import State
+
+        data: dict[str, list] = {}
+        units: dict[str, str] = {}
+        for t, q, v in zip(self.t, self.q, self.qd):
+            st = State(model, q, v)
+            for el in model.forces:
+                for key, (val, unit) in el.channels(st, t).items():
+                    name = f"forces/{el.name}/{key}"
+                    data.setdefault(name, []).append(np.asarray(val, dtype=float))
+                    units[name] = unit
+        for name, vals in data.items():
+            arr = np.array(vals)
+            res.add(name, arr, units[name], f"force element {name.split('/')[1]}: "
+                    f"{name.split('/')[2]}", XYZ if arr.ndim == 2 and arr.shape[1] == 3 else ())
