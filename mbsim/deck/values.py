@@ -331,8 +331,11 @@ class Reader:
             return self.function(node, where, dim)
         allowed = None if names is None else set(self.params) | {"t"} | set(names)
         expr = self.formula(text, node, where, allowed)
+        if not expr.names:  # folded to a constant once parameters are bound (e.g. 0 psi)
+            return FunctionSpec("constant", {"value": self._finite(float(expr({})), node, where,
+                                                                  text)}, where)
         if set(expr.names) <= {"t"}:
-            return self._scalar_function(node, where, dim, {"t"})
+            return FunctionSpec("expression", {"expr": expr}, where)
         return expr
 
     # -- points ---------------------------------------------------------------------------

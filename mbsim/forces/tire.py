@@ -30,7 +30,9 @@ slip uses the velocity of the point where the force acts, the lateral force neve
 positive work (its power is -F_lat v_lat with F_lat of the sign of v_lat).
 
 Channels: ``F_ver`` (N), ``F_lat`` (N, along -l), ``alpha`` (rad), ``saturated`` (1 where
-|C_alpha alpha| >= mu F_ver on the ground, else 0), ``deflection`` (m), ``force`` (global).
+|C_alpha alpha| >= mu F_ver on the ground, else 0), ``deflection`` (m), ``heading`` (psi of
+eq. 12.5.2 in (-pi, pi], from global y about z, rad), ``speed`` (|v_h|, the road speed of the
+contact point, m/s), ``force`` (global).
 """
 
 from __future__ import annotations
@@ -114,13 +116,14 @@ class Tire(_Element):
         f_ver = max(0.0, self.kt * defl - self.c * float(v[2])) if defl > 0 else 0.0
         limit = self.mu * f_ver
         f_lin = self.c_alpha * alpha
-        saturated = defl > 0 and abs(f_lin) >= limit
+        saturated = defl > 0 and f_lin != 0.0 and abs(f_lin) >= limit
         w = smoothstep(math.hypot(v_fwd, v_lat), self.v_min)
         f_lat = w * min(max(f_lin, -limit), limit)
         f_roll = self.rolling * f_ver * min(max(v_fwd / self.v_min, -1.0), 1.0)
         F = f_ver * Z - f_lat * lat - f_roll * u
         return dict(F=F, sc=sc, F_ver=f_ver, F_lat=f_lat, F_roll=f_roll, alpha=alpha,
-                    saturated=float(saturated), deflection=defl, v=v)  # fmt: skip
+                    saturated=float(saturated), deflection=defl, v=v, u=u,
+                    speed=math.hypot(v_fwd, v_lat))  # fmt: skip
 
     def apply(self, st, t, F, n_local):
         s = self.state(st, t)
@@ -141,5 +144,7 @@ class Tire(_Element):
             "alpha": (s["alpha"], "rad"),
             "saturated": (s["saturated"], ""),
             "deflection": (s["deflection"], "m"),
+            "heading": (math.atan2(-s["u"][0], s["u"][1]), "rad"),
+            "speed": (s["speed"], "m/s"),
             "force": (s["F"], "N"),
         }

@@ -68,7 +68,8 @@ class Integrator:
         self.h_fixed = opt.get("h")
         self.h_fixed = None if self.h_fixed is None else float(self.h_fixed)
         self.h_max = float(opt.get("h_max") or np.inf)
-        self.h_min = float(opt.get("h_min") or 0.0)
+        # default: steps below 1e-12 of the span mean a singularity, not accuracy
+        self.h_min = float(opt.get("h_min") or 1e-12 * max(1.0, abs(self.t_bound - self.t)))
         self.h0 = opt.get("h0")
         self.h_last = 0.0
         self.options = opt

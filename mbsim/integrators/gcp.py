@@ -1,17 +1,30 @@
 """Generalized coordinate partitioning (Wehage & Haug 1982; Haug Sec. 11.4).
 
 The coordinates split into dependent u (one per independent constraint row) and
-independent v, chosen by Gaussian elimination with column pivoting of Phi_q (partial
-pivoting of Phi_q^T): the pivot columns form the best-conditioned square block Phi_u.
-An explicit RK pair integrates only y = (v, vd, w); at every stage
+independent v.  An explicit RK pair integrates only y = (v, vd, w); at every stage
 
-1. u solves Phi(u, v, t) = 0 by Newton from a second-order predictor,
+1. u solves Phi(u, v, t) = 0 by Newton, started from the RK combination of the stage
+   velocities (exact to the local error: two Newton steps, correct and confirm),
 2. ud solves Phi_u ud = nu - Phi_v vd,
 3. qdd, lam solve the equations of motion; the stage derivative is (vd, vdd, power).
 
-The constraints therefore hold to the Newton tolerance at every output.  When the
-condition number of Phi_u grows past ``repartition_ratio`` times its value at the last
-partition (or a stage fails), the coordinates are partitioned again at the current state.
+The constraints therefore hold to the Newton tolerance at every output.
+
+Choice of v (``partition`` option).  ``lu``: Wehage & Haug's Gaussian elimination with
+column pivoting of Phi_q (partial pivoting of Phi_q^T; the pivot columns are u).
+``nullspace`` (default): QR with column pivoting of N^T, N an orthonormal basis of the null
+space of Phi_q; the k coordinates whose rows of N span the largest volume are v, so that the
+map from the degrees of freedom to v is as well conditioned as the model allows.  Measured
+on the governor, LU pivoting of the unscaled Phi_q picks pairs of Euler parameters of one
+ball that both follow the spin, and DOP853 then rejects half its steps; the null-space
+choice picks the spindle's spin parameter and a ball's swing parameter.
+
+Re-partitioning.  The sensitivity s = max |Phi_u^-1 Phi_v| (how far u moves per unit of v;
+Haug eq. 11.4.x, du = -Phi_u^-1 Phi_v dv) is checked after every accepted step; past
+``repartition_ratio`` times max(1, s at the last partition) the coordinates are chosen
+again at the current state.  (The condition number of Phi_u alone misses the classic case:
+for a free body Phi_u = 2 e0 is 1 x 1 with condition 1 while e0 -> 0.)  A failed stage also
+triggers a new partition at the start of the step.
 """
 
 from __future__ import annotations
@@ -24,30 +37,35 @@ from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, Stage
 
 
 class Partition:
-    """iv: (nv,) independent coordinates; iu: (m_a,) dependent ones; cond0: cond(Phi_u)."""
+    """iv: (nv,) independent coordinates; iu: (m_a,) dependent ones; s0: sensitivity."""
 
-    __slots__ = ("iv", "iu", "cond0")
+    __slots__ = ("iv", "iu", "s0")
 
-    def __init__(self, iv, iu, cond0):
-        self.iv, self.iu, self.cond0 = iv, iu, cond0
+    def __init__(self, iv, iu, s0):
+        self.iv, self.iu, self.s0 = iv, iu, s0
 
 
 class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
     formulation = "gcp"
-    repartition_ratio = 1.0
+    repartition_ratio = 1.2
+    partition_method = "nullspace"
     max_newton = 8
 
     def __init__(self, system, t0, q0, qd0, t_bound, options=None):
         super().__init__(system, t0, q0, qd0, t_bound, options)
         self.n = system.nq
         self.ratio = float(self.options.get("repartition_ratio", self.repartition_ratio))
+        self.method = self.options.get("partition", self.partition_method)
+        if self.method not in ("nullspace", "lu"):
+            raise ValueError(f"partition: expected nullspace | lu, got {self.method!r}")
         self.newton_tol = float(self.options.get(
-            "newton_tol", min(1e-9, max(1e-12, 1e-2 * self.atol))))
+            "newton_tol", 1e-12 if self.h_fixed else min(1e-9, max(1e-12, 1e-2 * self.atol))))
         self.counters["repartitions"] = 0
         self._pred = None  # the full q predicted for the next stage (see _trial)
         qdd, _, _ = system.accelerations(self.q, self.qd, self.t)
         self._ref = (self.t, self.q.copy(), self.qd.copy(), qdd)  # Newton predictor data
-        self._last = None  # (t, y, q, qd, qdd, power, factor) of the latest stage
+        self._last = None  # (t, y, q, qd, qdd, factor) of the latest stage
+        self._jac = None
         self.part = self._partition(self.t, self.q)
         self.n_err = 2 * self.part.iv.size  # (v, vd); the work integral is not controlled
         self._start()
@@ -58,19 +76,21 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         J = s.terms(q, t, phi=False).jac
         Jd = J.toarray() if s.sparse else J
         m = Jd.shape[0]
-        # null-space basis N of Phi_q; the independent coordinates are the k rows of N that
-        # span the largest volume (QR with column pivoting of N^T), so that the map from the
-        # degrees of freedom to v is as well conditioned as the model allows
-        Qf, R = la.qr(Jd.T, check_finite=False)
-        r = np.abs(np.diag(R))
-        if r.size and r.min() <= 1e-12 * r.max():
+        k = self.n - m
+        if self.method == "lu":
+            perm, _, U = la.lu(Jd.T, p_indices=True, check_finite=False)
+            d = np.abs(np.diag(U))
+            iu = np.flatnonzero(perm < m)
+        else:
+            Qf, R = la.qr(Jd.T, check_finite=False)
+            d = np.abs(np.diag(R))
+            _, piv = la.qr(Qf[:, m:].T, mode="r", pivoting=True, check_finite=False)
+            iu = np.setdiff1d(np.arange(self.n), piv[:k])
+        if d.size and d.min() <= 1e-12 * d.max():
             raise StageFailure("the constraint Jacobian lost rank: no set of dependent "
                                "coordinates (a lock-up or a bifurcation)")
-        k = self.n - m
-        _, piv = la.qr(Qf[:, m:].T, mode="r", pivoting=True, check_finite=False)
-        iv = np.sort(piv[:k])
-        iu = np.setdiff1d(np.arange(self.n), iv)
-        return Partition(iv, iu, self._cond(self._factor(J, iu)))
+        iv = np.setdiff1d(np.arange(self.n), iu)
+        return Partition(iv, iu, self._sensitivity(self._factor(J, iu), J, iv))
 
     def _factor(self, J, iu):
         self.system.counters["factorizations"] += 1
@@ -79,23 +99,18 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
                 return spla.splu(J[:, iu].tocsc())
             except RuntimeError as exc:
                 raise StageFailure(f"singular Phi_u ({exc})") from exc
-        Ju = J[:, iu]
-        lu = la.lu_factor(Ju, check_finite=False)
-        return (lu, float(np.abs(Ju).sum(axis=0).max()))
+        return la.lu_factor(J[:, iu], check_finite=False)
 
-    def _cond(self, fac):
-        """Condition estimate of Phi_u: LAPACK dgecon (1-norm) or the sparse U diagonal."""
-        if self.system.sparse:
-            d = np.abs(fac.U.diagonal())
-            return float(d.max() / max(d.min(), 1e-300))
-        (lu, piv), anorm = fac
-        rcond, _ = la.lapack.dgecon(lu, anorm, norm="1")
-        return 1.0 / max(rcond, 1e-300)
+    def _sensitivity(self, fac, J, iv):
+        """max |Phi_u^-1 Phi_v| (module doc)."""
+        Jv = J[:, iv]
+        Z = self._solve(fac, Jv.toarray() if self.system.sparse else Jv)
+        return float(np.abs(Z).max(initial=0.0))
 
     def _solve(self, fac, b):
         if self.system.sparse:
             return fac.solve(b)
-        return la.lu_solve(fac[0], b, check_finite=False)
+        return la.lu_solve(fac, b, check_finite=False)
 
     # -- the stage function ----------------------------------------------------------------
     def _complete(self, t, v, vd, part):
@@ -183,11 +198,11 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
     def _accept(self, t, y, f):
         lt, ly, q, qd, qdd, fac = self._last  # the FSAL stage: the accepted state
         self._ref = (t, q, qd, qdd)
-        cond = self._cond(fac)
-        if cond > self.ratio * self.part.cond0:
+        sens = self._sensitivity(fac, self._jac, self.part.iv)
+        if sens > self.ratio * max(1.0, self.part.s0):
             part = self._partition(t, q)
             if np.array_equal(part.iu, self.part.iu):
-                self.part.cond0 = max(cond, part.cond0)  # the same set is still the best
+                self.part.s0 = max(sens, part.s0)  # the same set is still the best
             else:
                 self.part = part
                 self.counters["repartitions"] += 1

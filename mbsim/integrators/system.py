@@ -22,17 +22,16 @@ coordinates), never the (nq + m) KKT matrix.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from mbsim import equations as eq
+from mbsim.integrators.fused import FusedConstraints
+from mbsim.integrators.kkt import BlockSchur, SolveError
 
-SPARSE_NQ = 700  # about 100 bodies' worth of coordinates: sparse Schur factorisation above
+__all__ = ["SolveError", "System"]
 
-
-class SolveError(Exception):
-    """A factorisation that failed inside a step (the integrator turns it into a message)."""
+SPARSE_NQ = 250  # sparse Phi_q (CSR) from about 35 bodies on (measured crossover, spherical chain)
 
 
 class System:
@@ -62,13 +61,22 @@ class System:
         self.c_norm = 4.0 * np.trace(model.J_local, axis1=1, axis2=2) / 3.0  # (nb,) scale of c
         self.counters = {"function_evaluations": 0, "constraint_evaluations": 0,
                          "factorizations": 0, "newton_iterations": 0}
+        fused = FusedConstraints(model, self.sparse)
+        self.fused = fused if fused.ok else None
+        # body-block Schur complement (kkt.py) where the fused evaluator applies
+        self.bs = BlockSchur(*fused.pieces(), self.rows, nb, model.m) if fused.ok else None
+        self.gravity_F = model.mass[:, None] * model.gravity[None, :]  # (nb, 3)
 
     # -- constraint terms on the active rows ------------------------------------------------
     def terms(self, q, t, qd=None, phi=True, jac=True, gamma=False, nu=False):
         """Phi, Phi_q (dense or csr), gamma, nu on the active rows (eq.Terms)."""
         self.counters["constraint_evaluations"] += 1
-        T = eq.constraints(self.model, q, t, qd=qd, phi=phi, jac=jac, gamma=gamma, nu=nu,
-                           sparse=self.sparse)
+        if self.fused is not None:
+            T = eq.Terms()
+            T.phi, T.jac, T.gamma, T.nu = self.fused(q, t, qd, jac=jac, gamma=gamma, nu=nu)
+        else:
+            T = eq.constraints(self.model, q, t, qd=qd, phi=phi, jac=jac, gamma=gamma, nu=nu,
+                               sparse=self.sparse)
         if not self.all_rows:
             r = self.rows
             T.phi = None if T.phi is None else T.phi[r]
@@ -84,12 +92,36 @@ class System:
             return np.zeros(self.m)
         return self.terms(q, t, phi=False, jac=False, nu=True).nu
 
+    # -- applied forces ---------------------------------------------------------------------------
+    _G_IDX = np.array([[1, 0, 3, 2], [2, 3, 0, 1], [3, 2, 1, 0]])
+    _G_SIGN = np.array([[-1.0, 1, 1, -1], [-1, -1, 1, 1], [-1, 1, -1, 1]])
+
+    def G(self, p):
+        """G(p) (nb, 3, 4) = [-e, -e~ + e0 I] (Haug eq. 6.3.18), one gather and one product."""
+        return p[:, self._G_IDX] * self._G_SIGN
+
+    def applied_forces(self, st, t):
+        """Q (nq,) as :func:`mbsim.equations.applied_forces` (gravity, force elements and
+        the gyroscopic term -2 G^T w'~ J' w'), with G computed once and shared through st."""
+        st._G = self.G(st.p)
+        F = self.gravity_F.copy()
+        n_local = np.zeros((self.nb, 3))
+        for el in self.model.forces:
+            el.apply(st, t, F, n_local)
+        w = 2 * np.matmul(st._G, st.pd[:, :, None])[:, :, 0]  # omega' = 2 G pd
+        st._om = w
+        Jw = np.matmul(self.model.J_local, w[:, :, None])[:, :, 0]
+        gyro = w[:, [1, 2, 0]] * Jw[:, [2, 0, 1]] - w[:, [2, 0, 1]] * Jw[:, [1, 2, 0]]
+        Q = np.empty((self.nb, 7))
+        Q[:, :3] = F
+        Q[:, 3:] = 2 * np.matmul((n_local - gyro)[:, None, :], st._G)[:, 0]
+        return Q.reshape(-1)
+
     # -- the modified mass matrix --------------------------------------------------------------
     def minv_blocks(self, p, G):
         """(nb, 7, 7) blocks of Mt^-1 (module docstring) for Euler parameters p (nb, 4)."""
-        s = np.einsum("bi,bi->b", p, p)
-        Gt = G.transpose(0, 2, 1)
-        Mp = 0.25 * np.matmul(np.matmul(Gt, self.J_inv), G)
+        s = (p * p).sum(1)
+        Mp = 0.25 * np.matmul(np.matmul(G.transpose(0, 2, 1), self.J_inv), G)
         Mp += p[:, :, None] * p[:, None, :] / self.c_norm[:, None, None]
         Mp /= (s * s)[:, None, None]
         B = np.zeros((self.nb, 7, 7))
@@ -98,10 +130,14 @@ class System:
         return B
 
     def _apply_blocks(self, B, x):
-        return np.einsum("bij,bj->bi", B, x.reshape(self.nb, 7)).reshape(-1)
+        return np.matmul(B, x.reshape(self.nb, 7, 1)).reshape(-1)
 
-    def schur(self, J, B):
-        """X = Phi_q Mt^-1 and a factorisation of S = X Phi_q^T; returns (X, solve)."""
+    def schur(self, J, B, rhs):
+        """X = Phi_q Mt^-1 and the solution x of S x = rhs, S = X Phi_q^T (SPD, m x m);
+        rhs: an array or a function of X.  Returns (X, x).  Dense: one LAPACK solve;
+        sparse: SuperLU."""
+        if not callable(rhs):
+            rhs = (lambda b: lambda X: b)(rhs)
         self.counters["factorizations"] += 1
         if self.sparse:
             Bm = sp.bsr_matrix((B, np.arange(self.nb), np.arange(self.nb + 1)),
@@ -109,18 +145,15 @@ class System:
             X = (J @ Bm).tocsr()
             S = (X @ J.T).tocsc()
             try:
-                lu = spla.splu(S, permc_spec="MMD_AT_PLUS_A")
+                return X, spla.splu(S, permc_spec="MMD_AT_PLUS_A").solve(rhs(X))
             except RuntimeError as exc:
                 raise SolveError(f"singular constraint Jacobian ({exc})") from exc
-            return X, lu.solve
-        X = np.einsum("rbi,bij->rbj", J.reshape(-1, self.nb, 7), B).reshape(J.shape)
+        X = np.matmul(J.reshape(-1, self.nb, 1, 7), B).reshape(J.shape)
         S = X @ J.T
         try:
-            c = la.cho_factor(S, check_finite=False)
-        except la.LinAlgError as exc:
-            raise SolveError("singular constraint Jacobian (Phi_q M^-1 Phi_q^T not positive "
-                             "definite)") from exc
-        return X, lambda b: la.cho_solve(c, b, check_finite=False)
+            return X, np.linalg.solve(S, rhs(X))
+        except np.linalg.LinAlgError as exc:
+            raise SolveError("singular constraint Jacobian (Phi_q M^-1 Phi_q^T)") from exc
 
     # -- accelerations -------------------------------------------------------------------------
     def accelerations(self, q, qd, t, baumgarte=None, jac=None):
@@ -133,29 +166,59 @@ class System:
         """
         self.counters["function_evaluations"] += 1
         stab = baumgarte is not None
-        T = self.terms(q, t, qd=qd, phi=stab, jac=jac is None, gamma=True,
-                       nu=stab or self.rheonomic)
+        nu_needed = stab or self.rheonomic
+        st = eq.State(self.model, q, qd)
+        Q = self.applied_forces(st, t)
+        if self.bs is not None:
+            return self._accelerations_blocks(q, qd, t, baumgarte, st, Q)
+        T = self.terms(q, t, qd=qd, phi=stab, jac=jac is None, gamma=True, nu=nu_needed)
         J = T.jac if jac is None else jac
         g = T.gamma
         if stab:
             a, b = baumgarte
             g = g - 2 * a * (J @ qd - T.nu) - b * b * T.phi
-        st = eq.State(self.model, q, qd)
-        Q = eq.applied_forces(self.model, q, qd, t, st=st)[0]
-        Qt = Q.copy()
-        k = self.norm_pos >= 0
-        if np.any(k):  # Qt_p = Q_p + c p gamma_norm / 2
-            Qt.reshape(self.nb, 7)[k, 3:] += (self.c_norm[k] * 0.5 * g[self.norm_pos[k]])[:, None] * st.p[k]
+        Qt = self._modified_forces(Q, g, st.p)
         B = self.minv_blocks(st.p, st.G)
-        try:
-            X, solve = self.schur(J, B)
-        except SolveError:
-            raise
-        lam = solve(X @ Qt - g)
+        X, lam = self.schur(J, B, lambda X: X @ Qt - g)
         qdd = self._apply_blocks(B, Qt) - X.T @ lam
         power = float(Q @ qd)
         if self.rheonomic:
             power -= float(lam @ T.nu)
+        return qdd, lam, power
+
+    def _modified_forces(self, Q, g, p):
+        """Qt = Q with Q_p + c p gamma_norm / 2 (module doc)."""
+        Qt = Q.copy()
+        k = self.norm_pos >= 0
+        if np.any(k):
+            c = self.c_norm[k] * 0.5 * g[self.norm_pos[k]]
+            Qt.reshape(self.nb, 7)[k, 3:] += c[:, None] * p[k]
+        return Qt
+
+    def _active(self, x):
+        return x if self.all_rows or x is None else x[self.rows]
+
+    def _accelerations_blocks(self, q, qd, t, baumgarte, st, Q):
+        """accelerations() through the fused evaluator and the body-block Schur complement."""
+        self.counters["constraint_evaluations"] += 1
+        self.counters["factorizations"] += 1
+        stab = baumgarte is not None
+        phi, vals, g, nu = self.fused(q, t, qd, jac="values", gamma=True,
+                                      nu=stab or self.rheonomic)
+        g, phi, nu = self._active(g), self._active(phi), self._active(nu)
+        bs = self.bs
+        Jb = bs.blocks(vals)
+        if stab:
+            a, b = baumgarte
+            g = g - 2 * a * (bs.jac_times(Jb, qd) - nu) - b * b * phi
+        Qt = self._modified_forces(Q, g, st.p)
+        B = self.minv_blocks(st.p, st.G)
+        y = np.matmul(B, Qt.reshape(self.nb, 7, 1))
+        lam = bs.solve(Jb, B, bs.jac_times(Jb, y.reshape(-1)) - g)
+        qdd = (y - np.matmul(B, bs.jac_t_times(Jb, lam)[:, :, None])).reshape(-1)
+        power = float(Q @ qd)
+        if self.rheonomic:
+            power -= float(lam @ nu)
         return qdd, lam, power
 
     def full_lam(self, lam):
@@ -171,6 +234,8 @@ class System:
         """Mass-weighted Newton projection of q onto Phi(q, t) = 0 (dq = -Mt^-1 Phi_q^T S^-1 Phi).
         Returns (q, converged, iterations, max|Phi|)."""
         q = np.array(q, dtype=float)
+        if self.bs is not None:
+            return self._project_positions_blocks(q, t, tol, max_iter)
         for it in range(max_iter + 1):
             T = self.terms(q, t)
             res = float(np.abs(T.phi).max(initial=0.0))
@@ -180,25 +245,55 @@ class System:
                 break
             self.counters["newton_iterations"] += 1
             p = q.reshape(self.nb, 7)[:, 3:]
-            from mbsim.rotations import G as rot_G
+            X, x = self.schur(T.jac, self.minv_blocks(p, self.G(p)), T.phi)
+            q = q - X.T @ x
+        return q, False, max_iter, res
 
-            X, solve = self.schur(T.jac, self.minv_blocks(p, rot_G(p)))
-            q = q - X.T @ solve(T.phi)
+    def _project_positions_blocks(self, q, t, tol, max_iter):
+        bs = self.bs
+        for it in range(max_iter + 1):
+            self.counters["constraint_evaluations"] += 1
+            phi, vals, _, _ = self.fused(q, t, jac="values")
+            phi = self._active(phi)
+            res = float(np.abs(phi).max(initial=0.0))
+            if res <= tol:
+                return q, True, it, res
+            if it == max_iter:
+                break
+            self.counters["newton_iterations"] += 1
+            self.counters["factorizations"] += 1
+            p = q.reshape(self.nb, 7)[:, 3:]
+            B = self.minv_blocks(p, self.G(p))
+            Jb = bs.blocks(vals)
+            x = bs.solve(Jb, B, phi)
+            q = q - np.matmul(B, bs.jac_t_times(Jb, x)[:, :, None]).reshape(-1)
         return q, False, max_iter, res
 
     def project_velocities(self, q, qd, t):
         """Mass-weighted projection of qd onto Phi_q qd = nu."""
+        if self.bs is not None:
+            bs = self.bs
+            self.counters["constraint_evaluations"] += 1
+            self.counters["factorizations"] += 1
+            _, vals, _, nu = self.fused(q, t, jac="values", nu=True)
+            p = q.reshape(self.nb, 7)[:, 3:]
+            B = self.minv_blocks(p, self.G(p))
+            Jb = bs.blocks(vals)
+            x = bs.solve(Jb, B, bs.jac_times(Jb, qd) - self._active(nu))
+            return qd - np.matmul(B, bs.jac_t_times(Jb, x)[:, :, None]).reshape(-1)
         T = self.terms(q, t, phi=False, jac=True, nu=True)
         p = q.reshape(self.nb, 7)[:, 3:]
-        from mbsim.rotations import G as rot_G
-
-        X, solve = self.schur(T.jac, self.minv_blocks(p, rot_G(p)))
-        return qd - X.T @ solve(T.jac @ qd - T.nu)
+        X, x = self.schur(T.jac, self.minv_blocks(p, self.G(p)), T.jac @ qd - T.nu)
+        return qd - X.T @ x
 
     def violations(self, q, qd, t):
         """(max |Phi|, max |Phi_q qd - nu|) over all rows."""
-        T = eq.constraints(self.model, q, t, nu=True, sparse=self.sparse)
-        return float(np.abs(T.phi).max(initial=0.0)), float(np.abs(T.jac @ qd - T.nu).max(initial=0.0))
+        if self.fused is not None:
+            phi, J, _, nu = self.fused(q, t, nu=True)
+        else:
+            T = eq.constraints(self.model, q, t, nu=True, sparse=self.sparse)
+            phi, J, nu = T.phi, T.jac, T.nu
+        return float(np.abs(phi).max(initial=0.0)), float(np.abs(J @ qd - nu).max(initial=0.0))
 
     def energy(self, q, qd):
         """(T, V): kinetic and potential energy (Haug eq. 11.x)."""

@@ -54,6 +54,10 @@ def _case(type_):
     if type_ == "torque":
         f = force("T", "torque", ("a", "b"), vector=rng.normal(size=3))
         return two_body_model([f], rng)
+    if type_ == "tire":  # at rest only the vertical spring acts (tests/forces/test_tire.py)
+        f = force("W", "tire", ("a",), {"a": rng.normal(size=3)}, kt=2e5, radius=10.0,
+                  c_alpha=5e4)  # fmt: skip
+        return two_body_model([f], rng)
     raise KeyError(f"no test case for force type {type_!r}: add one")
 
 

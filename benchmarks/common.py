@@ -1,0 +1,186 @@
+"""Shared pieces of the dynamics benchmarks: models, timing, the optional Exudyn twins.
+
+Single-threaded BLAS (set before numpy loads): the systems are small, threads only add
+overhead and noise, and Exudyn runs on one thread too.  Timings are medians of repeats of
+the process CPU time and of the wall time (on a shared machine the CPU time is the steadier
+of the two; both are printed).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from mbsim.deck.spec import BodySpec, DeckSpec, JointSpec, PointSet  # noqa: E402
+from mbsim.model import compile_model  # noqa: E402
+from mbsim.rotations import A as rot_A  # noqa: E402
+from mbsim.rotations import from_axis_angle  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def timed(fn, repeats=3):
+    """(result of the last call, median wall s, median CPU s) over `repeats` calls."""
+    walls, cpus, out = [], [], None
+    for _ in range(max(1, repeats)):
+        w0, c0 = time.perf_counter(), time.process_time()
+        out = fn()
+        walls.append(time.perf_counter() - w0)
+        cpus.append(time.process_time() - c0)
+    return out, float(np.median(walls)), float(np.median(cpus))
+
+
+def load(deck, scene=None, overrides=None):
+    from mbsim.api import load_model
+
+    return load_model(ROOT / "models" / deck, overrides=overrides, scene=scene)[1]
+
+
+# ------------------------------------------------------------------ the spherical chain
+def chain_spec(n, angle=0.3, g=9.81):
+    """Links of 1 kg, 0.5 m, body frame at the centre, rod axis y', J' = diag(1/48, 1e-4,
+    1/48), joints at (0, +-0.25, 0); link i turned `angle` about (cos phi_i, 0, sin phi_i),
+    phi_i = 2 pi i / n, hanging from a spherical joint at the origin; gravity (0, -g, 0)."""
+    def body(name, mass=1.0, J=(1.0, 1.0, 1.0), r=(0, 0, 0), p=(1, 0, 0, 0), ground=False):
+        return BodySpec(name, mass, np.diag(J), np.asarray(r, float), np.asarray(p, float),
+                        None, None, None, ground)
+
+    bodies, joints, top = [body("ground", ground=True)], [], np.zeros(3)
+    for i in range(n):
+        ph = 2 * np.pi * i / n
+        p = from_axis_angle((np.cos(ph), 0, np.sin(ph)), angle)
+        A = rot_A(p)
+        r = top - A @ np.array([0, 0.25, 0])
+        bodies.append(body(f"link{i}", 1.0, (1 / 48, 1e-4, 1 / 48), r, p))
+        prev = "ground" if i == 0 else f"link{i - 1}"
+        pp = (0, 0, 0) if i == 0 else (0, -0.25, 0)
+        joints.append(JointSpec(f"S{i}", "spherical", (prev, f"link{i}"),
+                                {prev: PointSet(np.array(pp, float)),
+                                 f"link{i}": PointSet(np.array([0, 0.25, 0]))}))
+        top = r + A @ np.array([0, -0.25, 0])
+    return DeckSpec(title=f"spherical chain of {n}", file=f"<chain {n}>", text="",
+                    gravity=np.array([0, -g, 0.0]), parameters={},
+                    bodies={b.name: b for b in bodies}, joints={j.name: j for j in joints},
+                    drivers={}, forces={}, outputs={}, analysis={})
+
+
+def chain_model(n):
+    return compile_model(chain_spec(n))
+
+
+def chain_tip(res, n):
+    """Bottom point (0, -0.25, 0) of the last link at the last output, global."""
+    r = res.channel(f"bodies/link{n - 1}/r").data[-1]
+    p = res.channel(f"bodies/link{n - 1}/p").data[-1]
+    return r + rot_A(p) @ np.array([0, -0.25, 0])
+
+
+# ------------------------------------------------------------------ Exudyn (optional)
+def exudyn_available():
+    try:
+        import exudyn  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _exudyn_settings(exu, steps, t_end):
+    ss = exu.SimulationSettings()
+    ss.timeIntegration.numberOfSteps = int(steps)
+    ss.timeIntegration.endTime = float(t_end)
+    ss.timeIntegration.verboseMode = 0
+    for path, value in (("solution.file.write", False), ("show.computationTime", False),
+                        ("show.statistics", False)):
+        obj = ss
+        try:
+            *head, last = path.split(".")
+            for h in head:
+                obj = getattr(obj, h)
+            setattr(obj, last, value)
+        except AttributeError:  # older Exudyn: the pre-1.12 names
+            pass
+    return ss
+
+
+def exudyn_rigid_system(model, q, qd):
+    """An Exudyn twin of an mbsim model made of rigid bodies joined by spherical, revolute,
+    translational and distance joints, with TSDA spring-dampers, started from the same
+    consistent state (positions from q; velocities rd and global omega from qd).
+    Returns (SystemContainer, mbs, {body name: ObjectIndex})."""
+    import exudyn as exu
+    from exudyn.utilities import RigidBodyInertia
+
+    from mbsim.rotations import E as rot_E
+
+    SC = exu.SystemContainer()
+    mbs = SC.AddSystem()
+    items = {}
+    Q, V = q.reshape(-1, 7), qd.reshape(-1, 7)
+    for b, name in enumerate(model.body_names):
+        A = rot_A(Q[b, 3:])
+        if model.is_ground[b]:
+            items[name] = mbs.CreateGround(referencePosition=list(Q[b, :3]),
+                                           referenceRotationMatrix=A)
+            continue
+        w = 2 * rot_E(Q[b, 3:]) @ V[b, 3:]
+        inertia = RigidBodyInertia(mass=float(model.mass[b]),
+                                   inertiaTensor=np.array(model.J_local[b]))
+        items[name] = mbs.CreateRigidBody(inertia=inertia, referencePosition=list(Q[b, :3]),
+                                          referenceRotationMatrix=A,
+                                          initialVelocity=list(V[b, :3]),
+                                          initialAngularVelocity=list(w),
+                                          gravity=list(model.gravity))
+    for it in model.items:
+        if it.kind != "joint":
+            continue
+        bi, bj = model.body_names[it.bi], model.body_names[it.bj]
+        Ai = rot_A(Q[it.bi, 3:])
+        P = Q[it.bi, :3] + Ai @ it.P_i
+        pair = [items[bi], items[bj]]
+        if it.type == "spherical":
+            mbs.CreateSphericalJoint(itemNumbers=pair, position=list(P))
+        elif it.type == "revolute":
+            mbs.CreateRevoluteJoint(itemNumbers=pair, position=list(P), axis=list(Ai @ it.C_i[:, 0]))
+        elif it.type == "translational":
+            mbs.CreatePrismaticJoint(itemNumbers=pair, position=list(P),
+                                     axis=list(Ai @ it.C_i[:, 0]))
+        elif it.type == "distance":
+            Pj = Q[it.bj, :3] + rot_A(Q[it.bj, 3:]) @ it.P_j
+            mbs.CreateDistanceConstraint(itemNumbers=pair, localPosition0=list(it.P_i),
+                                         localPosition1=list(it.P_j),
+                                         distance=float(np.linalg.norm(Pj - P)))
+        else:
+            raise NotImplementedError(f"no Exudyn twin for joint type {it.type}")
+    for el in model.forces:
+        if el.type != "tsda":
+            raise NotImplementedError(f"no Exudyn twin for force type {el.type}")
+        mbs.CreateSpringDamper(itemNumbers=[items[model.body_names[el.bi]],
+                                            items[model.body_names[el.bj]]],
+                               localPosition0=list(el.si), localPosition1=list(el.sj),
+                               referenceLength=el.L0, stiffness=el.k, damping=el.c)
+    mbs.Assemble()
+    return SC, mbs, items
+
+
+def exudyn_run(model, q, qd, steps, t_end, points):
+    """Exudyn's default implicit solver (generalized-alpha) with `steps` fixed steps; returns
+    ({name: (3,) global position at t_end} for points {name: (body, local point)}, wall s,
+    CPU s).  The build is not timed."""
+    import exudyn as exu
+
+    SC, mbs, items = exudyn_rigid_system(model, q, qd)
+    ss = _exudyn_settings(exu, steps, t_end)
+    w0, c0 = time.perf_counter(), time.process_time()
+    mbs.SolveDynamic(ss)
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    out = {k: np.array(mbs.GetObjectOutputBody(items[b], exu.OutputVariableType.Position,
+                                               localPosition=list(s)))
+           for k, (b, s) in points.items()}
+    return out, wall, cpu

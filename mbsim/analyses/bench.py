@@ -1,0 +1,155 @@
+"""Work-precision: every integrator over a ladder of tolerances (or steps) against a tight
+reference run, as a table and a log-log plot of error against wall time.
+
+Error of a run: the largest absolute difference, over the output times and the chosen
+channels (default: every body's centroid position ``bodies/*/r``), from the reference run
+(``projection-dop853`` at rtol 1e-12 unless told otherwise).  Constraint drift: the largest
+``monitors/position_violation``.  Wall time: the median of ``repeats`` runs, per simulated
+second.  ``cost_to_reach`` interpolates, per integrator, the wall time per simulated second
+needed for a target error (log-log between the two ladder points around it).
+"""
+
+from __future__ import annotations
+
+import fnmatch
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mbsim.analyses.dynamic import dynamic, integrator_class
+from mbsim.integrators import INTEGRATORS
+
+TOLERANCES = (1e-3, 1e-5, 1e-7, 1e-9, 1e-11)
+STEPS = (1e-2, 5e-3, 2.5e-3, 1.25e-3, 6.25e-4)  # fixed-step methods, s
+REFERENCE = {"integrator": "projection-dop853", "rtol": 1e-12, "atol": 1e-14}
+
+
+@dataclass
+class BenchRow:
+    integrator: str
+    setting: str  # 'rtol=1e-06' or 'h=0.001'
+    wall: float  # s per simulated second (median of the repeats)
+    steps: int
+    evaluations: int
+    error: float  # max abs error of the chosen outputs against the reference
+    drift: float  # max |Phi| over the run
+    status: str = "complete"
+
+
+@dataclass
+class Bench:
+    deck: str
+    t_end: float
+    outputs: list[str]
+    reference: dict
+    rows: list[BenchRow] = field(default_factory=list)
+
+    def table(self) -> str:
+        """Plain-text table, one line per run."""
+        head = (f"{'integrator':<18} {'setting':<11} {'wall s/s':>9} {'steps':>7} "
+                f"{'f-evals':>8} {'max error':>10} {'drift':>9}  status")
+        lines = [head, "-" * len(head)]
+        for r in self.rows:
+            lines.append(f"{r.integrator:<18} {r.setting:<11} {r.wall:9.4f} {r.steps:7d} "
+                         f"{r.evaluations:8d} {r.error:10.3e} {r.drift:9.2e}  {r.status}")
+        return "\n".join(lines)
+
+    def cost_to_reach(self, target: float) -> dict[str, float]:
+        """Wall s per simulated second to reach error `target`, per integrator (nan: not
+        reached by the ladder)."""
+        out = {}
+        for name in dict.fromkeys(r.integrator for r in self.rows):
+            rows = sorted((r for r in self.rows if r.integrator == name and r.status == "complete"
+                           and np.isfinite(r.error) and r.error > 0), key=lambda r: r.wall)
+            out[name] = _interpolate_cost(rows, target)
+        return out
+
+
+def _interpolate_cost(rows, target):
+    for a, b in zip(rows, rows[1:]):
+        if (a.error - target) * (b.error - target) <= 0 and a.error != b.error:
+            x = (np.log(target) - np.log(a.error)) / (np.log(b.error) - np.log(a.error))
+            return float(np.exp(np.log(a.wall) + x * (np.log(b.wall) - np.log(a.wall))))
+    ok = [r.wall for r in rows if r.error <= target]
+    return float(min(ok)) if ok else float("nan")
+
+
+def select_channels(result, patterns) -> list[str]:
+    """Channel names matching the glob patterns (dots or slashes)."""
+    names = []
+    for pat in patterns:
+        pat = pat.replace(".", "/")
+        hit = [n for n in result.channels if fnmatch.fnmatch(n, pat)]
+        if not hit:
+            result.channel(pat)  # raises KeyError with a suggestion
+        names += [h for h in hit if h not in names]
+    return names
+
+
+def _stack(result, names):
+    return np.hstack([result.channels[n].data.reshape(len(result.t), -1) for n in names])
+
+
+def work_precision(model, integrators=None, tolerances=TOLERANCES, steps=STEPS, t_end=1.0,
+                   outputs=("bodies/*/r",), output_step=None, repeats=1, reference=None,
+                   options=None, progress=None) -> Bench:
+    """Run the ladder (module doc).  integrators: names (default all); tolerances: rtol values
+    of the adaptive methods (atol = 1e-2 rtol); steps: h of the fixed-step ones; options:
+    extra dynamic options for every run (e.g. q0/qd0); progress: callback(row)."""
+    names = list(integrators or INTEGRATORS)
+    classes = {n: integrator_class(n) for n in names}
+    base = dict(options or {}, t_end=float(t_end),
+                step=float(output_step or t_end / 20.0))
+    ref_opts = dict(REFERENCE, **(reference or {}))
+    ref = dynamic(model, dict(base, **ref_opts))
+    if not ref.complete:
+        raise RuntimeError(f"the reference run failed: {ref.message}")
+    channels = [c for c in select_channels(ref, outputs) if not c.startswith("bodies/ground")]
+    yref = _stack(ref, channels)
+    bench = Bench(getattr(model, "file", ""), float(t_end), channels, ref_opts)
+    for name in names:
+        cls = classes[name]
+        ladder = ([("rtol", tol) for tol in tolerances] if cls.adaptive
+                  else [("h", h) for h in steps])
+        for key, value in ladder:
+            opts = dict(base, integrator=name)
+            opts.update({"rtol": value, "atol": 1e-2 * value} if key == "rtol" else {"h": value})
+            walls, res = [], None
+            for _ in range(max(1, int(repeats))):
+                res = dynamic(model, opts)
+                walls.append(res.wall_time)
+            n = min(len(res.t), len(ref.t))
+            err = (float(np.abs(_stack(res, channels)[:n] - yref[:n]).max())
+                   if n == len(ref.t) else float("nan"))
+            drift = float(res.channel("monitors/position_violation").data.max()) if n else np.nan
+            row = BenchRow(cls.name, f"{key}={value:g}", float(np.median(walls)) / t_end,
+                           int(res.counters.get("steps", 0)),
+                           int(res.counters.get("function_evaluations", 0)), err, drift,
+                           res.status)
+            bench.rows.append(row)
+            if progress is not None:
+                progress(row)
+    return bench
+
+
+def work_precision_figure(bench: Bench, title: str = ""):
+    """Log-log error against wall time per simulated second, one line per integrator
+    (a matplotlib Figure, no pyplot)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    for name in dict.fromkeys(r.integrator for r in bench.rows):
+        rows = [r for r in bench.rows if r.integrator == name and r.status == "complete"
+                and np.isfinite(r.error) and r.error > 0]
+        if rows:
+            ax.loglog([r.wall for r in rows], [r.error for r in rows], "o-", label=name)
+    ax.set_xlabel("wall time per simulated second (s)")
+    ax.set_ylabel("max error of " + (", ".join(bench.outputs[:3])
+                                     + (" ..." if len(bench.outputs) > 3 else "")))
+    ax.set_title(title or f"work-precision: {bench.deck} (t_end = {bench.t_end:g} s)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize="small")
+    return fig
