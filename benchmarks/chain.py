@@ -1,12 +1,14 @@
-"""Spherical chain of N = 4, 16, 64 links for 2 s (spec in benchmarks/common.py): wall time,
+"""Spherical chain of N = 4, 16, 64 links for 2 s (spec in benchmarks/common.py): time and
 error of the last link's bottom point against a tight reference, cost growth with N, and,
 when ``exudyn`` is installed, Exudyn's implicit solver side by side in the same run.
 
-    python benchmarks/chain.py [--sizes 4,16,64] [--repeats 3] [--rtol 1e-6]
+    python benchmarks/chain.py [--sizes 4,16,64] [--repeats 3]
 
-The reference is projection-dop853 at rtol 1e-11.  Exudyn (generalized-alpha, fixed step)
-runs over a halving ladder of steps until its error is at most mbsim's; both times are the
-median of the repeats, the ratio is Exudyn / mbsim.
+Reference: projection-dop853 at rtol 1e-11.  Each code runs a ladder (mbsim: rtol;
+Exudyn's generalized-alpha with its sparse linear solver: number of fixed steps); times
+are medians of the repeats; the CPU time per simulated second needed for a tip error of
+1e-3 and 1e-6 is interpolated log-log along each ladder, and the ratio Exudyn / mbsim is
+printed (> 1: mbsim faster).
 """
 
 from __future__ import annotations
@@ -18,12 +20,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np  # noqa: E402
-from common import (chain_model, chain_tip, exudyn_available, exudyn_run,  # noqa: E402
-                    timed)
+from common import chain_model, chain_tip, exudyn_available, exudyn_run, timed  # noqa: E402
 
 from mbsim.analyses.dynamic import dynamic  # noqa: E402
 
 T_END = 2.0
+TARGETS = (1e-3, 1e-6)
 
 
 def run_mbsim(model, n, integrator, rtol):
@@ -33,65 +35,82 @@ def run_mbsim(model, n, integrator, rtol):
     return res, chain_tip(res, n)
 
 
+def cost_at(points, target):
+    """(CPU s at error `target`, extrapolated?) by log-log interpolation over [(cpu, error),
+    ...]; past the ladder's end the last two points are extrapolated (flagged)."""
+    pts = sorted(p for p in points if p[1] > 0)
+    for (c0, e0), (c1, e1) in zip(pts, pts[1:]):
+        if (e0 - target) * (e1 - target) <= 0 and e0 != e1:
+            x = np.log(target / e0) / np.log(e1 / e0)
+            return float(np.exp(np.log(c0) + x * np.log(c1 / c0))), False
+    ok = [c for c, e in pts if e <= target]
+    if ok:
+        return min(ok), False
+    if len(pts) >= 2 and pts[-1][1] < pts[-2][1]:
+        (c0, e0), (c1, e1) = pts[-2], pts[-1]
+        x = np.log(target / e0) / np.log(e1 / e0)
+        return float(np.exp(np.log(c0) + x * np.log(c1 / c0))), True
+    return float("nan"), False
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="4,16,64")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--rtol", type=float, default=1e-6)
+    ap.add_argument("--rtols", default="1e-4,1e-6,1e-8")
+    ap.add_argument("--exudyn-steps", default="250,1000,4000,16000")
     ap.add_argument("--integrators", default="projection-dop853,gcp-dop853")
     ap.add_argument("--no-exudyn", action="store_true")
     a = ap.parse_args(argv)
     sizes = [int(x) for x in a.sizes.split(",")]
     names = a.integrators.split(",")
+    rtols = [float(x) for x in a.rtols.split(",")]
     use_exu = exudyn_available() and not a.no_exudyn
-    print(f"spherical chain, t_end = {T_END} s, rtol = {a.rtol:g}, medians of {a.repeats} "
-          f"(wall / CPU s); exudyn: {'yes' if use_exu else 'not installed'}")
-    head = (f"{'N':>3} {'code':<30} {'wall s':>8} {'CPU s':>8} {'s/s (CPU)':>10} "
-            f"{'tip error m':>12} {'steps':>7}")
+    print(f"spherical chain, t_end = {T_END} s; medians of {a.repeats}; "
+          f"exudyn: {'yes' if use_exu else 'not installed'}")
+    head = (f"{'N':>3} {'code':<22} {'setting':<12} {'wall s':>8} {'CPU s':>8} "
+            f"{'CPU s/s':>8} {'tip error m':>12} {'steps':>6}")
     print(head)
     print("-" * len(head))
-    rows = {}
+    ladders = {}
     for n in sizes:
         model = chain_model(n)
-        ref, tip_ref = run_mbsim(model, n, "projection-dop853", 1e-11)
+        _, tip_ref = run_mbsim(model, n, "projection-dop853", 1e-11)
         for name in names:
-            (res, tip), wall, cpu = timed(lambda: run_mbsim(model, n, name, a.rtol), a.repeats)
-            err = float(np.linalg.norm(tip - tip_ref))
-            rows[(n, name)] = (wall, cpu, err)
-            print(f"{n:3d} {'mbsim ' + name:<30} {wall:8.3f} {cpu:8.3f} {cpu / T_END:10.3f} "
-                  f"{err:12.2e} {res.counters['steps']:7d}  {res.status}")
+            for rtol in rtols:
+                (res, tip), wall, cpu = timed(run_mbsim, model, n, name, rtol, repeats=a.repeats)
+                err = float(np.linalg.norm(tip - tip_ref))
+                ladders.setdefault((n, name), []).append((cpu / T_END, err))
+                print(f"{n:3d} {'mbsim ' + name:<22} {'rtol=%g' % rtol:<12} {wall:8.3f} "
+                      f"{cpu:8.3f} {cpu / T_END:8.3f} {err:12.2e} {res.counters['steps']:6d}"
+                      + ("" if res.complete else f"  {res.status}: {res.message}"))
         if use_exu:
-            best = min(rows[(n, nm)][2] for nm in names)
             points = {"tip": (f"link{n - 1}", (0, -0.25, 0))}
-            steps = 250
-            while True:
-                (out, w1, c1), wall, cpu = timed(
-                    lambda: exudyn_run(model, model.q0.copy(), np.zeros(model.nq), steps, T_END,
-                                       points), a.repeats)
-                # exudyn_run times the solve alone: use its own medians
-                err = float(np.linalg.norm(out["tip"] - tip_ref))
-                if err <= max(best, 1e-9) or steps >= 64000:
-                    break
-                steps *= 2
-            ws = [exudyn_run(model, model.q0.copy(), np.zeros(model.nq), steps, T_END,
-                             points)[1:] for _ in range(a.repeats)]
-            wall, cpu = float(np.median([w for w, _ in ws])), float(np.median([c for _, c in ws]))
-            rows[(n, "exudyn")] = (wall, cpu, err)
-            print(f"{n:3d} {'exudyn genalpha, ' + str(steps) + ' steps':<30} {wall:8.3f} "
-                  f"{cpu:8.3f} {cpu / T_END:10.3f} {err:12.2e} {steps:7d}")
-    print("\ncost growth with N (CPU time ratio between consecutive sizes):")
-    for name in names + (["exudyn"] if use_exu else []):
-        ts = [rows[(n, name)][1] for n in sizes if (n, name) in rows]
-        growth = ", ".join(f"x{b / a_:.2f} for N x{sizes[i + 1] / sizes[i]:g}"
-                           for i, (a_, b) in enumerate(zip(ts, ts[1:])))
-        print(f"  {name:<20} {growth}")
-    if use_exu:
-        print("\nExudyn / mbsim CPU time at comparable or better error (>1: mbsim faster):")
-        for n in sizes:
+            for steps in (int(s) for s in a.exudyn_steps.split(",")):
+                runs = [exudyn_run(model, model.q0.copy(), np.zeros(model.nq), steps, T_END,
+                                   points) for _ in range(a.repeats)]
+                wall = float(np.median([r[1] for r in runs]))
+                cpu = float(np.median([r[2] for r in runs]))
+                err = float(np.linalg.norm(runs[-1][0]["tip"] - tip_ref))
+                ladders.setdefault((n, "exudyn"), []).append((cpu / T_END, err))
+                print(f"{n:3d} {'exudyn generalized-alpha':<22} {'%d steps' % steps:<12} "
+                      f"{wall:8.3f} {cpu:8.3f} {cpu / T_END:8.3f} {err:12.2e} {steps:6d}")
+    codes = names + (["exudyn"] if use_exu else [])
+    for target in TARGETS:
+        print(f"\nCPU s per simulated second for a tip error of {target:g} "
+              "(interpolated; * extrapolated past the ladder):")
+        cost = {(n, c): cost_at(ladders[(n, c)], target) for n in sizes for c in codes}
+        for code in codes:
+            cs = [cost[(n, code)] for n in sizes]
+            growth = " ".join(f"x{b[0] / a_[0]:.1f}" for a_, b in zip(cs, cs[1:]))
+            print(f"  {code:<20} " + "  ".join(f"N={n}: {c:7.3f}{'*' if x else ' '}"
+                                              for n, (c, x) in zip(sizes, cs))
+                  + f"   growth with N: {growth}")
+        if use_exu:
             for name in names:
-                r = rows[(n, "exudyn")][1] / rows[(n, name)][1]
-                print(f"  N = {n:3d} {name:<20} {r:6.2f}  (errors: exudyn "
-                      f"{rows[(n, 'exudyn')][2]:.1e}, mbsim {rows[(n, name)][2]:.1e})")
+                rs = [cost[(n, "exudyn")][0] / cost[(n, name)][0] for n in sizes]
+                print(f"  exudyn / {name:<20}" + "  ".join(f"N={n}: {r:5.2f}  "
+                                                          for n, r in zip(sizes, rs)))
 
 
 if __name__ == "__main__":

@@ -9,7 +9,9 @@ point, in body coordinates, is attached to its body.  Each frame draws
 - each massless link (``distance``, ``spherical-spherical``, ``revolute-spherical`` joints,
   ``distance`` drivers) as a dashed line between its two points;
 - each TSDA as a dotted line between its points;
-- the points on ground bodies as fixed triangles;
+- the points on ground bodies as fixed triangles, and the guide of each translational or
+  cylindrical joint with ground as a thin line over the travel of the moving body;
+- a body whose points all lie at its centroid (a slider) as a square;
 - the time, ``t = 0.350 s``.
 
 Positions are projected orthographically: ``xy``, ``xz``, ``yz`` onto a coordinate plane,
@@ -40,6 +42,8 @@ class Sketch:
     links: list[tuple[str, np.ndarray, str, np.ndarray]] = field(default_factory=list)
     springs: list[tuple[str, np.ndarray, str, np.ndarray]] = field(default_factory=list)
     ground: list[tuple[str, np.ndarray]] = field(default_factory=list)  # (ground body, P)
+    # guides: (ground body, P, axis f (3,), moving body, its joint point), body coordinates
+    rails: list[tuple[str, np.ndarray, np.ndarray, str, np.ndarray]] = field(default_factory=list)
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
 
 
@@ -61,8 +65,14 @@ def sketch_of(spec) -> Sketch:
         else:
             _add_point(pts, body, P)
 
+    rails = []
     for joint in spec.joints.values():
         bi, bj = joint.bodies
+        if joint.type in ("translational", "cylindrical") and (bi in ground) != (bj in ground):
+            g, b = (bi, bj) if bi in ground else (bj, bi)
+            ps = joint.points[g]
+            if ps.Q is not None:
+                rails.append((g, ps.P, ps.Q - ps.P, b, joint.points[b].P))
         if joint.type in LINK_TYPES and bj is not None:
             links.append((bi, joint.points[bi].P, bj, joint.points[bj].P))
         for body, ps in joint.points.items():
@@ -82,7 +92,15 @@ def sketch_of(spec) -> Sketch:
     g = np.asarray(spec.gravity, float)
     up = -g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, 1.0])
     moving = [n for n in spec.bodies if n not in ground]
-    return Sketch(moving, {b: np.array(v) for b, v in pts.items()}, links, springs, fixed, up)
+    return Sketch(
+        moving,
+        {b: np.array(v) for b, v in pts.items()},
+        links=links,
+        springs=springs,
+        ground=fixed,
+        rails=rails,
+        up=up,
+    )
 
 
 def projection(view: str, up: np.ndarray) -> np.ndarray:
@@ -122,11 +140,20 @@ def _glob(poses, body, P, k):
 
 def frames(result: Result, sketch: Sketch, view: str, every: int = 1):
     """Projected geometry per frame: list of dicts with 'bodies' {name: (centroid (2,),
-    points (n, 2))}, 'links', 'springs' [((2,), (2,))], 'ground' (n, 2), 't'."""
+    points (n, 2))}, 'links', 'springs', 'rails' [((2,), (2,))], 'ground' (n, 2), 't'."""
     P2 = projection(view, sketch.up)
     names = set(sketch.bodies) | {b for b, _ in sketch.ground}
     names |= {b for item in sketch.links + sketch.springs for b in (item[0], item[2])}
+    names |= {b for item in sketch.rails for b in (item[0], item[3])}
     poses = _poses(result, sorted(names))
+    rails = []  # static: the guide over the whole travel of the moving point
+    for g, P, f, b, Pb in sketch.rails:
+        base = _glob(poses, g, P, 0)
+        axis = poses[g][1][0] @ (f / np.linalg.norm(f))
+        s = [(_glob(poses, b, Pb, k) - base) @ axis for k in range(len(result.t))]
+        lo, hi = min(s), max(s)
+        pad = 0.1 * max(hi - lo, 1e-3)
+        rails.append((P2 @ (base + (lo - pad) * axis), P2 @ (base + (hi + pad) * axis)))
     out = []
     for k in range(0, len(result.t), every):
         bodies = {}
@@ -141,7 +168,7 @@ def frames(result: Result, sketch: Sketch, view: str, every: int = 1):
                    for bi, Pi, bj, Pj in sketch.springs]  # fmt: skip
         ground = np.array([P2 @ _glob(poses, g, P, k) for g, P in sketch.ground]).reshape(-1, 2)
         out.append({"t": float(result.t[k]), "bodies": bodies, "links": pair,
-                    "springs": springs, "ground": ground})  # fmt: skip
+                    "springs": springs, "ground": ground, "rails": rails})  # fmt: skip
     return out
 
 
@@ -150,7 +177,7 @@ def _limits(frame_list) -> tuple[np.ndarray, np.ndarray]:
     for f in frame_list:
         for c, p in f["bodies"].values():
             pts += [c[None, :], p]
-        for a, b in f["links"] + f["springs"]:
+        for a, b in f["links"] + f["springs"] + f["rails"]:
             pts += [a[None, :], b[None, :]]
         pts.append(f["ground"])
     allp = np.vstack([p for p in pts if len(p)])
@@ -174,9 +201,17 @@ def sketch_from_result(result: Result):
     return sketch_of(spec)
 
 
-def animate_result(result: Result, path: str | Path, fps: float = 20, view: str = "iso",
-                   every: int = 1, dpi: float = 80, size: float = 5.0,
-                   sketch: Sketch | None = None, title: str | None = None) -> tuple[Path, int]:  # fmt: skip
+def animate_result(
+    result: Result,
+    path: str | Path,
+    fps: float = 20,
+    view: str = "iso",
+    every: int = 1,
+    dpi: float = 80,
+    size: float = 5.0,
+    sketch: Sketch | None = None,
+    title: str | None = None,
+) -> tuple[Path, int]:
     """Write a GIF of `result` to `path`; returns (path, number of frames).
 
     Parameters
@@ -194,6 +229,9 @@ def animate_result(result: Result, path: str | Path, fps: float = 20, view: str 
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    path = Path(path)
+    if path.suffix.lower() != ".gif":
+        raise ValueError(f"the animation is written as GIF; name it *.gif, not {path.name}")
     sketch = sketch or sketch_from_result(result)
     frame_list = frames(result, sketch, view, every)
     if not frame_list:
@@ -211,14 +249,26 @@ def animate_result(result: Result, path: str | Path, fps: float = 20, view: str 
              "yz": "y right, z up"}[view]  # fmt: skip
     first = frame_list[0]
     if title is None:
-        deck_title = (result.deck_text.split("title:", 1)[1].splitlines()[0].strip()
-                      if "title:" in result.deck_text else Path(result.deck_file).stem)
+        deck_title = (
+            result.deck_text.split("title:", 1)[1].splitlines()[0].strip()
+            if "title:" in result.deck_text
+            else Path(result.deck_file).stem
+        )
         title = f"{deck_title}\n{result.mode}, {label}"
     ax.set_title(title, fontsize="small")
     colors = {b: f"C{i % 10}" for i, b in enumerate(sketch.bodies)}
     star = {b: ax.plot([], [], "-", color=colors[b], lw=2.5, solid_capstyle="round")[0]
             for b in sketch.bodies}  # fmt: skip
-    dots = {b: ax.plot([], [], "o", color=colors[b], ms=5)[0] for b in sketch.bodies}
+
+    def blob(b):  # a body with all its points at the centroid is a block, the others a dot
+        pts = sketch.points.get(b, np.zeros((0, 3)))
+        block = not len(pts) or np.allclose(pts, 0.0, atol=1e-12)
+        return ax.plot([], [], "s" if block else "o", color=colors[b], ms=11 if block else 5,
+                       zorder=3)[0]  # fmt: skip
+
+    for a, b in first["rails"]:
+        ax.plot([a[0], b[0]], [a[1], b[1]], "-", color="0.6", lw=1)
+    dots = {b: blob(b) for b in sketch.bodies}
     joints = ax.plot([], [], "o", mfc="white", mec="k", ms=4, ls="none")[0]
     links = [ax.plot([], [], "--", color="0.3", lw=1.5)[0] for _ in first["links"]]
     springs = [ax.plot([], [], ":", color="0.45", lw=2)[0] for _ in first["springs"]]
@@ -247,9 +297,6 @@ def animate_result(result: Result, path: str | Path, fps: float = 20, view: str 
         return []
 
     anim = FuncAnimation(fig, draw, frames=len(frame_list), blit=False, repeat=False)
-    path = Path(path)
-    if path.suffix.lower() != ".gif":
-        raise ValueError(f"the animation is written as GIF; name it *.gif, not {path.name}")
     anim.save(path, writer=PillowWriter(fps=fps), dpi=dpi)
     return path, len(frame_list)
 

@@ -27,11 +27,16 @@ def _table(header: list[str], rows: list[list[str]], indent: str = "  ") -> None
 @click.command("study")
 @click.argument("deck", type=click.Path(dir_okay=False))
 @click.argument("name", required=False)
-@click.option("-o", "--output", "out_dir", default=None,
-              help="Output folder; each study writes into <folder>/<study>/. "
-                   "Default: <deck stem>_studies")
-@click.option("-j", "--jobs", type=int, default=1, show_default=True,
-              help="Cases run at once (processes).")
+@click.option(
+    "-o",
+    "--output",
+    "out_dir",
+    default=None,
+    help="Output folder; each study writes into <folder>/<study>/. Default: <deck stem>_studies",
+)
+@click.option(
+    "-j", "--jobs", type=int, default=1, show_default=True, help="Cases run at once (processes)."
+)
 @click.option("--list", "list_only", is_flag=True, help="List the deck's studies.")
 @click.option("--dpi", type=float, default=110, show_default=True, help="Figure resolution.")
 @click.option("-q", "--quiet", is_flag=True, help="Print only errors and the tables.")
@@ -69,29 +74,36 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
         _warn(new)
         if not quiet:
             where = case.path if case.path else case.message
-            click.echo(f"  {case.label}: {case.mode} {case.status} in {case.wall_time:.3g} s"
-                       f" -> {where}")
+            click.echo(
+                f"  {case.label}: {case.mode} {case.status} in {case.wall_time:.3g} s -> {where}"
+            )
 
     for sname in names:
         if not quiet:
             click.echo(f"study {sname}: {spec.studies[sname]['description']}")
         try:
-            outcome = run_study(deck, sname, folder, jobs=jobs, spec=spec, on_case=progress,
-                                dpi=dpi)
+            outcome = run_study(
+                deck, sname, folder, jobs=jobs, spec=spec, on_case=progress, dpi=dpi
+            )
         except MbsimError as exc:
             _fail(exc, deck)
         for case in outcome.cases:
             if case.status != "complete":
-                click.echo(f"error: {deck}: study {sname}, case {case.label}: {case.status}: "
-                           f"{case.message}", err=True)
+                click.echo(
+                    f"error: {deck}: study {sname}, case {case.label}: {case.status}: "
+                    f"{case.message}",
+                    err=True,
+                )
         for problem in outcome.problems:
             click.echo(f"error: {problem}", err=True)
         if not quiet:
             for fig in outcome.figures:
                 click.echo(f"  figure -> {fig}")
         _table(*outcome.table)
-        click.echo(f"  study {sname}: {len(outcome.cases)} cases, wall {outcome.wall_time:.3g} s"
-                   f" -> {outcome.out_dir}")
+        click.echo(
+            f"  study {sname}: {len(outcome.cases)} cases, wall {outcome.wall_time:.3g} s"
+            f" -> {outcome.out_dir}"
+        )
         failed = failed or not outcome.ok
     if failed:
         sys.exit(EXIT_FAILED)
@@ -101,13 +113,20 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
 @click.argument("file", type=click.Path(exists=True, dir_okay=False))
 @click.option("-o", "--output", default=None, help="GIF file (default: FILE with .gif).")
 @click.option("--fps", type=float, default=20, show_default=True, help="Frames per second.")
-@click.option("--view", type=click.Choice(VIEWS), default="iso", show_default=True,
-              help="Projection: isometric or onto a coordinate plane.")
-@click.option("--every", type=int, default=1, show_default=True,
-              help="Draw every N-th output time.")
+@click.option(
+    "--view",
+    type=click.Choice(VIEWS),
+    default="iso",
+    show_default=True,
+    help="Projection: isometric or onto a coordinate plane.",
+)
+@click.option(
+    "--every", type=int, default=1, show_default=True, help="Draw every N-th output time."
+)
 @click.option("--dpi", type=float, default=80, show_default=True, help="Frame resolution.")
-@click.option("--size", type=float, default=5.0, show_default=True,
-              help="Frame size, inches (square).")
+@click.option(
+    "--size", type=float, default=5.0, show_default=True, help="Frame size, inches (square)."
+)
 def animate_command(file, output, fps, view, every, dpi, size):
     """Draw the mechanism of a results FILE moving: bodies as lines between their joint
     points, massless links dashed, springs dotted, ground points fixed, a time stamp.
@@ -120,8 +139,7 @@ def animate_command(file, output, fps, view, every, dpi, size):
     if every < 1 or fps <= 0:
         _fail(DeckError("--every must be >= 1 and --fps > 0"))
     try:
-        path, nframes = animate_file(file, out, fps=fps, view=view, every=every, dpi=dpi,
-                                     size=size)
+        path, nframes = animate_file(file, out, fps=fps, view=view, every=every, dpi=dpi, size=size)
     except (MbsimError, KeyError, ValueError, OSError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else DeckError(str(exc).strip("'\"")))
     click.echo(f"animation: {nframes} frames at {fps:g} fps -> {path}")

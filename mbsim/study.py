@@ -238,7 +238,8 @@ def run_case(deck: str, study: str, case: dict, path: str | Path) -> CaseOutcome
         out.message = str(exc) if isinstance(exc, MbsimError) else f"{type(exc).__name__}: {exc}"
         out.wall_time = time.perf_counter() - t0
         return out
-    out.status, out.message, out.path, out.result = result.status, result.message, Path(path), result
+    out.status, out.message, out.path = result.status, result.message, Path(path)
+    out.result = result
     out.wall_time = time.perf_counter() - t0
     return out
 
@@ -249,9 +250,14 @@ def _run_in_pool(deck: str, study: str, case: dict, path: str) -> CaseOutcome:
     return out
 
 
-def run_cases(deck: str | Path, study: str, cases: Sequence[dict], out_dir: Path,
-              jobs: int = 1,
-              on_case: Callable[[CaseOutcome], None] | None = None) -> list[CaseOutcome]:
+def run_cases(
+    deck: str | Path,
+    study: str,
+    cases: Sequence[dict],
+    out_dir: Path,
+    jobs: int = 1,
+    on_case: Callable[[CaseOutcome], None] | None = None,
+) -> list[CaseOutcome]:
     """Run `cases` (``jobs`` > 1: in that many processes) into ``out_dir/<name>.h5``."""
     from mbsim.output import read_result
 
@@ -374,8 +380,9 @@ def study_figure(fig: dict, results: Sequence[tuple[str, Result]],
         k = 0
         for sel in fig["y"]:
             cols = select_columns(result, sel)
-            ylabel = ylabel or header_name(cols[0].channel if len(cols) > 1 else cols[0].name,
-                                           cols[0].unit)
+            ylabel = ylabel or header_name(
+                cols[0].channel if len(cols) > 1 else cols[0].name, cols[0].unit
+            )
             for col in cols:
                 extra = (col.label or sel.rsplit(".", 1)[-1]) if (many or len(cols) > 1) else ""
                 ax.plot(np.asarray(xdata) * fig["xscale"], col.data * fig["scale"],
@@ -395,25 +402,27 @@ def study_figure(fig: dict, results: Sequence[tuple[str, Result]],
 
 
 def summary_value(result: Result, key: str) -> Any:
-    """``summary.a.b`` -> result.summary['a']['b'] (KeyError naming the keys there)."""
-    value: Any = result.summary
-    for part in key.split(".")[1:]:
+    """``summary.a.b`` -> result.summary['a']['b'], ``counters.steps`` ->
+    result.counters['steps'] (KeyError naming the keys there)."""
+    where, *parts = key.split(".")
+    value: Any = result.summary if where == "summary" else result.counters
+    for part in parts:
         if isinstance(value, dict) and part in value:
             value = value[part]
         elif isinstance(value, list) and part.isdigit() and int(part) < len(value):
             value = value[int(part)]
         else:
             have = ", ".join(value) if isinstance(value, dict) else type(value).__name__
-            raise KeyError(f"no {key!r} in the result's summary (there: {have})")
+            raise KeyError(f"no {key!r} in the result's {where} (there: {have})")
     return value
 
 
 def number_values(result: Result, number: dict) -> list[tuple[str, Any]]:
     """[(column, value)] of one number for one result: one column per component of the
-    selected channel (``name.x`` when it has several), or the summary value."""
+    selected channel (``name.x`` when it has several), or the summary or counter value."""
     from mbsim.output.export import select_columns
 
-    if number["y"].startswith("summary."):
+    if number["y"].startswith(("summary.", "counters.")):
         return [(number["name"], summary_value(result, number["y"]))]
     stat = STATS[number["stat"]]
     cols = select_columns(result, number["y"])
@@ -508,8 +517,10 @@ def threshold(deck: str | Path, case: dict, path: str, lo: float, hi: float,
         return verdict
 
     if judge(lo) or not judge(hi):
-        raise ValueError(f"{path}: the criterion must be False at {lo:g} and True at {hi:g} "
-                         f"(got {runs[0][1]} and {runs[-1][1] if len(runs) > 1 else '-'})")
+        raise ValueError(
+            f"{path}: the criterion must be False at {lo:g} and True at {hi:g} "
+            f"(got {runs[0][1]} and {runs[-1][1] if len(runs) > 1 else '-'})"
+        )
     while hi - lo > rtol * abs(hi) and len(runs) < max_runs:
         mid = 0.5 * (lo + hi)
         if judge(mid):

@@ -206,7 +206,9 @@ def test_mass_matrix_and_applied_forces_match_numpy():
     fd = fast.FastDynamics(model)
     assert not fd.py_forces  # the governor's spring is a compiled TSDA
     _close(fd.mass_matrix(q), eq.mass_matrix(model, q), 1e-13)
-    _close(fd.applied_forces(q, qd, 0.4), eq.applied_forces(model, q, qd, 0.4)[0], 1e-13)
+    ref = eq.applied_forces(model, q, qd, 0.4)[0]
+    _close(fd.generalized_forces(q, qd, 0.4), ref, 1e-13)
+    _close(fd.applied_forces(eq.State(model, q, qd), 0.4), ref, 1e-13)  # System's signature
 
 
 def test_compiled_and_python_force_elements_match_numpy():
@@ -248,7 +250,7 @@ def test_compiled_and_python_force_elements_match_numpy():
     assert [el.name for el in fd.py_forces] == ["L"] and fd.ei.shape[0] == 6
     q = model.q0 + 0.1 * rng.normal(size=model.nq)
     qd = rng.normal(size=model.nq)
-    _close(fd.applied_forces(q, qd, 0.7), eq.applied_forces(model, q, qd, 0.7)[0], 1e-13)
+    _close(fd.generalized_forces(q, qd, 0.7), eq.applied_forces(model, q, qd, 0.7)[0], 1e-13)
     _check_accelerations(model, q, qd, 0.7)
 
 

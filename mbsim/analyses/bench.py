@@ -12,6 +12,7 @@ needed for a target error (log-log between the two ladder points around it).
 from __future__ import annotations
 
 import fnmatch
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,6 +35,8 @@ class BenchRow:
     error: float  # max abs error of the chosen outputs against the reference
     drift: float  # max |Phi| over the run
     status: str = "complete"
+    error_end: float = float("nan")  # the same at t_end only
+    cpu: float = float("nan")  # CPU s per simulated second (median)
 
 
 @dataclass
@@ -54,23 +57,26 @@ class Bench:
                          f"{r.evaluations:8d} {r.error:10.3e} {r.drift:9.2e}  {r.status}")
         return "\n".join(lines)
 
-    def cost_to_reach(self, target: float) -> dict[str, float]:
-        """Wall s per simulated second to reach error `target`, per integrator (nan: not
-        reached by the ladder)."""
+    def cost_to_reach(self, target: float, key: str = "wall") -> dict[str, float]:
+        """Wall (or CPU, key="cpu") s per simulated second to reach error `target`, per
+        integrator (nan: not reached by the ladder)."""
         out = {}
         for name in dict.fromkeys(r.integrator for r in self.rows):
             rows = sorted((r for r in self.rows if r.integrator == name and r.status == "complete"
-                           and np.isfinite(r.error) and r.error > 0), key=lambda r: r.wall)
-            out[name] = _interpolate_cost(rows, target)
+                           and np.isfinite(r.error) and r.error > 0),
+                          key=lambda r: getattr(r, key))
+            out[name] = interpolate_cost([(getattr(r, key), r.error) for r in rows], target)
         return out
 
 
-def _interpolate_cost(rows, target):
-    for a, b in zip(rows, rows[1:]):
-        if (a.error - target) * (b.error - target) <= 0 and a.error != b.error:
-            x = (np.log(target) - np.log(a.error)) / (np.log(b.error) - np.log(a.error))
-            return float(np.exp(np.log(a.wall) + x * (np.log(b.wall) - np.log(a.wall))))
-    ok = [r.wall for r in rows if r.error <= target]
+def interpolate_cost(points, target):
+    """Cost at error `target`, log-log between the two (cost, error) points around it
+    (points sorted by cost); nan when the ladder does not reach it."""
+    for (c0, e0), (c1, e1) in zip(points, points[1:]):
+        if (e0 - target) * (e1 - target) <= 0 and e0 != e1:
+            x = np.log(target / e0) / np.log(e1 / e0)
+            return float(np.exp(np.log(c0) + x * np.log(c1 / c0)))
+    ok = [c for c, e in points if e <= target]
     return float(min(ok)) if ok else float("nan")
 
 
@@ -92,10 +98,12 @@ def _stack(result, names):
 
 def work_precision(model, integrators=None, tolerances=TOLERANCES, steps=STEPS, t_end=1.0,
                    outputs=("bodies/*/r",), output_step=None, repeats=1, reference=None,
-                   options=None, progress=None) -> Bench:
+                   options=None, progress=None, low_order_rtol=1e-8) -> Bench:
     """Run the ladder (module doc).  integrators: names (default all); tolerances: rtol values
     of the adaptive methods (atol = 1e-2 rtol); steps: h of the fixed-step ones; options:
-    extra dynamic options for every run (e.g. q0/qd0); progress: callback(row)."""
+    extra dynamic options for every run (e.g. q0/qd0); progress: callback(row);
+    low_order_rtol: second-order methods skip tighter tolerances (their step count grows as
+    rtol^-1/2 there: minutes per run, nothing learnt)."""
     names = list(integrators or INTEGRATORS)
     classes = {n: integrator_class(n) for n in names}
     base = dict(options or {}, t_end=float(t_end),
@@ -109,23 +117,28 @@ def work_precision(model, integrators=None, tolerances=TOLERANCES, steps=STEPS, 
     bench = Bench(getattr(model, "file", ""), float(t_end), channels, ref_opts)
     for name in names:
         cls = classes[name]
-        ladder = ([("rtol", tol) for tol in tolerances] if cls.adaptive
+        ladder = ([("rtol", tol) for tol in tolerances
+                   if cls.order > 2 or tol >= low_order_rtol] if cls.adaptive
                   else [("h", h) for h in steps])
         for key, value in ladder:
             opts = dict(base, integrator=name)
             opts.update({"rtol": value, "atol": 1e-2 * value} if key == "rtol" else {"h": value})
-            walls, res = [], None
+            walls, cpus, res = [], [], None
             for _ in range(max(1, int(repeats))):
+                c0 = time.process_time()
                 res = dynamic(model, opts)
+                cpus.append(time.process_time() - c0)
                 walls.append(res.wall_time)
             n = min(len(res.t), len(ref.t))
-            err = (float(np.abs(_stack(res, channels)[:n] - yref[:n]).max())
-                   if n == len(ref.t) else float("nan"))
+            full = n == len(ref.t)
+            dev = np.abs(_stack(res, channels)[:n] - yref[:n]) if n else np.zeros((0, 1))
+            err = float(dev.max()) if full else float("nan")
+            err_end = float(dev[-1].max()) if full else float("nan")
             drift = float(res.channel("monitors/position_violation").data.max()) if n else np.nan
             row = BenchRow(cls.name, f"{key}={value:g}", float(np.median(walls)) / t_end,
                            int(res.counters.get("steps", 0)),
                            int(res.counters.get("function_evaluations", 0)), err, drift,
-                           res.status)
+                           res.status, err_end, float(np.median(cpus)) / t_end)
             bench.rows.append(row)
             if progress is not None:
                 progress(row)

@@ -3,8 +3,10 @@ consistent initial conditions with one of the integrators of :mod:`mbsim.integra
 
 Output sampling is independent of the step size: the integrator steps freely and its dense
 output is evaluated at the output times t_start + k step; at each output the accelerations
-and multipliers are solved from the sampled (q, qd).  Monitors written with the standard
-body and point channels:
+and multipliers are solved from the sampled (q, qd).  The equations of motion come from
+:mod:`mbsim.fast` (numba, one compiled call per evaluation) when it is available, else from
+the numpy :class:`mbsim.integrators.System`; option ``compiled: false`` forces the latter.
+Monitors written with the standard body and point channels:
 
 - ``monitors/position_violation``  max |Phi| (all rows)
 - ``monitors/velocity_violation``  max |Phi_q qd - nu|
@@ -31,7 +33,22 @@ from mbsim.integrators import ALIASES, DEFAULT, INTEGRATORS, System
 from mbsim.result import STATUS_INCOMPLETE
 
 DEFAULTS = {"t_start": 0.0, "t_end": 1.0, "step": 0.01, "integrator": DEFAULT, "rtol": 1e-6,
-            "atol": 1e-8, "h": None, "max_steps": 1_000_000, "tol": 1e-10, "sparse": None}
+            "atol": 1e-8, "h": None, "max_steps": 1_000_000, "tol": 1e-10, "sparse": None,
+            "compiled": True}
+
+
+def make_system(model, rows, sparse=None, compiled=True):
+    """The equations of motion the integrators call: the compiled :mod:`mbsim.fast` path
+    (numba) when available and asked for, else :class:`mbsim.integrators.System` (numpy);
+    both have the same interface and results."""
+    if compiled:
+        try:
+            from mbsim import fast
+        except ImportError:
+            fast = None
+        if fast is not None:
+            return fast.make_system(model, rows, sparse)
+    return System(model, rows, sparse)
 
 
 def integrator_class(name: str):
@@ -50,8 +67,9 @@ def dynamic(model, options=None):
 
     options: t_start, t_end, step (output step, s), integrator (name, see
     ``mbsim list integrators``), rtol, atol, h (fixed step: no error control; a fixed-step
-    method without h steps at ``step``), h_max, max_steps, sparse (None: by size), q0/qd0
-    (a consistent initial state instead of the deck's), and the integrator's own options
+    method without h steps at ``step``), h_max, max_steps, sparse (None: by size), compiled
+    (False: the numpy System instead of mbsim.fast), q0/qd0 (a consistent initial state
+    instead of the deck's), and the integrator's own options
     (alpha, beta, rho_inf, repartition_ratio, jacobian, newton_tol).
     """
     wall0 = _time.perf_counter()
@@ -65,7 +83,7 @@ def dynamic(model, options=None):
     q, qd, summary = _initial(model, t0, opt)
     rank, red = rank_and_redundant(model, _jac(model, q, t0))
     rows = np.setdiff1d(np.arange(model.m), red)
-    system = System(model, rows, opt.get("sparse"))
+    system = make_system(model, rows, opt.get("sparse"), bool(opt.get("compiled", True)))
     solver = cls(system, t0, q, qd, t1, opt)
     rec = Recorder(model)
     mon = {k: [] for k in ("pos", "vel", "energy", "work", "h", "lam")}
@@ -130,7 +148,8 @@ def dynamic(model, options=None):
     summary.update({"integrator": cls.name, "formulation": cls.formulation,
                     "dof": model.nq - rank, "rank": rank,
                     "redundant": model.items_of_rows(red) if red.size else [],
-                    "sparse": system.sparse, "t_reached": float(solver.t)})
+                    "sparse": system.sparse, "equations": type(system).__name__,
+                    "t_reached": float(solver.t)})
     res.summary = summary
     res.wall_time = _time.perf_counter() - wall0
     return res

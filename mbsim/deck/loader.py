@@ -146,7 +146,7 @@ def _build(root: Node, rd: Reader, text: str, scene: str | None,
     outputs = _outputs(rd, *top["outputs"], bodies) if "outputs" in top else {}
     analysis = _analysis(rd, *top["analysis"]) if "analysis" in top else {}
     if "scenes" in top:
-        for name, node, w in rd.items(*top["scenes"]):
+        for _name, node, w in rd.items(*top["scenes"]):
             rd.fields(node, w, schema.SCENE_KEYS, what="a scene")
     studies = {}
     if "studies" in top and not (top["studies"][0].kind == "scalar"

@@ -14,11 +14,12 @@ and eq. 11.1.x) in one compiled call per evaluation (``python benchmarks/kernels
   all_rows, m, sparse, rheonomic, norm_pos, counters) and methods (``terms``, ``nu``,
   ``accelerations(q, qd, t, baumgarte=None, jac=None) -> (qdd, lam, power)``,
   ``full_lam``, ``project_positions``, ``project_velocities``, ``violations``,
-  ``energy``), plus ``applied_forces(q, qd, t) -> Q`` and ``mass_matrix(q) -> M``.  It
-  raises ``mbsim.integrators.system.SolveError`` where System does.  ``qdd, lam =
-  fd.accelerations(q, qd, t)[:2]`` equals :func:`mbsim.equations.accelerations` (with
-  ``rows``; ``fd.full_lam(lam)`` for all m rows).  System's internals ``minv_blocks``,
-  ``schur``, ``J_inv``, ``c_norm`` are not provided.
+  ``energy``, ``applied_forces(st, t) -> Q``), plus ``generalized_forces(q, qd, t) -> Q``
+  and ``mass_matrix(q) -> M``.  It raises ``mbsim.integrators.system.SolveError`` where
+  System does.  ``qdd, lam = fd.accelerations(q, qd, t)[:2]`` equals
+  :func:`mbsim.equations.accelerations` (with ``rows``; ``fd.full_lam(lam)`` for all m
+  rows).  System's internals (``minv_blocks``, ``schur``, ``G``, ``J_inv``, ``c_norm``,
+  ``fused``, ``bs``) are not provided.
 
 What is compiled and what stays Python:
 
@@ -38,16 +39,21 @@ Plugging in (the analyses build the System in one place, mbsim/analyses/dynamic.
     from mbsim import fast
     system = fast.make_system(model, rows, opt.get("sparse"))   # FastDynamics or System
 
-and, where an integrator calls ``eq.applied_forces(system.model, q, qd, t)[0]`` (gen-alpha),
-``system.applied_forces(q, qd, t)`` when the system has it.  Nothing else changes: the
-counters, SolveError and the returned shapes are System's.  Arrays returned by
-``FastDynamics`` methods are fresh; only ``FastConstraints.evaluate`` returns buffers.
+and, where an integrator calls ``eq.applied_forces(system.model, q, qd, t)[0]`` (gen-alpha,
+its mass matrix too), ``system.generalized_forces(q, qd, t)`` and ``system.mass_matrix(q)``
+when the system has them.  Nothing else changes: the counters, SolveError and the returned
+shapes are System's (tests/test_kernels.py compares them; the integrator and analysis tests
+pass with FastDynamics in place of System).  Arrays returned by ``FastDynamics`` methods
+are fresh; only ``FastConstraints.evaluate`` returns buffers.
 
 Fallback: without numba (or with the environment variable ``MBSIM_NO_NUMBA=1``),
 ``AVAILABLE`` is False, constructing :class:`FastConstraints` or :class:`FastDynamics` raises
-ImportError with the reason, and :func:`make_system` returns the numpy System.  Compiled
-code is cached on disk (numba ``cache=True``, in ``mbsim/fast/__pycache__`` or
-``NUMBA_CACHE_DIR``): the first run compiles for a few seconds, later runs load it.
+ImportError with the reason, and :func:`make_system` returns the numpy System.
+
+Compile cost: all numba code is in :mod:`mbsim.fast._compiled`, cached on disk (numba
+``cache=True``: ``mbsim/fast/__pycache__``, or ``NUMBA_CACHE_DIR``).  The first use after
+an install or an edit of that file compiles for 30-80 s (2-CPU machine); later processes
+load the cache in under a second (``python benchmarks/kernels.py`` measures both).
 """
 
 from __future__ import annotations

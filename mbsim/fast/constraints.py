@@ -1,8 +1,8 @@
 """FastConstraints(model): Phi, Phi_q, gamma and nu of a Model in one compiled call.
 
 Built once per Model (and row selection): the kernel Blocks are flattened into the tables
-of :mod:`mbsim.fast._kernels`, the output buffers and the CSR pattern are allocated, and
-every evaluation is then one call of :func:`~mbsim.fast._kernels.eval_constraints` plus one
+of :mod:`mbsim.fast._compiled`, the output buffers and the CSR pattern are allocated, and
+every evaluation is then one call of :func:`~mbsim.fast._compiled.eval_constraints` plus one
 fill of the dense or CSR Jacobian.  Time targets (driver functions) stay Python callables:
 f, f', f'' of the few time-dependent rows are evaluated here and passed in as an array.
 """
@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from mbsim.equations import Terms
-from mbsim.fast import _kernels as K
+from mbsim.fast import _compiled as K
 
 SPARSE_NQ = 700  # the same switch as mbsim.integrators.system: CSR Jacobian from here on
 
@@ -50,6 +50,8 @@ class FastConstraints:
         self._phi, self._gamma, self._nu = np.zeros(ma), np.zeros(ma), np.zeros(ma)
         self._J = None  # dense (m_a, nq), allocated on first use (pattern-only writes)
         self._csr = None  # (indptr, indices, dpos, data), built on first use
+        self._no_J = np.zeros((0, 0))  # placeholders of the compiled call's fixed types
+        self._no_csr = (None, None, np.zeros((0, 14), dtype=np.int64), np.zeros(0))
 
     # -- time targets ----------------------------------------------------------------------
     def targets(self, t: float, derivatives: bool = True) -> np.ndarray:
@@ -68,7 +70,7 @@ class FastConstraints:
     # -- evaluation ------------------------------------------------------------------------
     def compact(self, q, t=0.0, qd=None, jac=True, gamma=False):
         """All m rows into the buffers phi_all, Jc (m, 14), gamma_all, nu_all (module
-        :mod:`mbsim.fast._kernels`); returns nothing."""
+        :mod:`mbsim.fast._compiled`); returns nothing."""
         q = self.vector(q, "q")
         if gamma and qd is None:
             raise ValueError("gamma needs the velocities qd")
@@ -81,6 +83,8 @@ class FastConstraints:
         """x as the C-contiguous float64 (nq,) array the compiled code reads (it does not
         check bounds: a wrong shape is an error here, not a wrong read there)."""
         x = np.ascontiguousarray(x, dtype=np.float64)
+        if not x.flags.writeable:  # a read-only array is another numba type: another compile
+            x = x.copy()
         if x.shape != (self.nq,):
             raise ValueError(f"{name}: expected shape ({self.nq},), got {x.shape}")
         return x
@@ -89,26 +93,24 @@ class FastConstraints:
         """Phi, Phi_q, gamma (when asked; needs qd) and nu on ``rows`` at (q, qd, t), in this
         object's buffers: Terms(phi (m_a,), jac (m_a, nq) dense or csr, gamma, nu)."""
         self.compact(q, t, qd, jac, gamma)
-        rows = self.rows
-        out = Terms()
-        K.select(self.phi_all, rows, self._phi)
-        K.select(self.nu_all, rows, self._nu)
-        out.phi, out.nu = self._phi, self._nu
-        out.gamma = out.jac = None
-        if gamma:
-            K.select(self.gamma_all, rows, self._gamma)
-            out.gamma = self._gamma
-        if jac:
-            if self.sparse if sparse is None else sparse:
-                indptr, indices, dpos, data = self.csr_pattern()
-                K.fill_csr(self.Jc, rows, dpos, data)
-                out.jac = _csr(data, indices, indptr, (rows.size, self.nq))
-            else:
-                if self._J is None:
-                    self._J = np.zeros((rows.size, self.nq))
-                K.fill_dense(self.Jc, self.rb, rows, self._J)
-                out.jac = self._J
-        return out
+        sparse = self.sparse if sparse is None else sparse
+        mode = 0 if not jac else (2 if sparse else 1)
+        if mode == 1 and self._J is None:
+            self._J = np.zeros((self.rows.size, self.nq))  # pattern-only writes from here on
+        J = self._J if mode == 1 else self._no_J
+        indptr, indices, dpos, data = self.csr_pattern() if mode == 2 else self._no_csr
+        out = (self._phi, self._nu, self._gamma, J, dpos, data)
+        all_ = (self.phi_all, self.nu_all, self.gamma_all, self.Jc)
+        K.gather(self.rows, self.rb, *all_, bool(gamma), mode, *out)
+        T = Terms()
+        T.phi, T.nu = self._phi, self._nu
+        T.gamma = self._gamma if gamma else None
+        T.jac = None
+        if mode == 1:
+            T.jac = J
+        elif mode == 2:
+            T.jac = _csr(data, indices, indptr, (self.rows.size, self.nq))
+        return T
 
     def constraints(
         self, q, t=0.0, qd=None, phi=True, jac=True, gamma=False, nu=False, sparse=None
@@ -154,7 +156,7 @@ def _csr(data, indices, indptr, shape):
 
 
 def flatten(model):
-    """The model's kernel Blocks as tables (module doc of :mod:`mbsim.fast._kernels`).
+    """The model's kernel Blocks as tables (module doc of :mod:`mbsim.fast._compiled`).
 
     Returns ci (nc, NI) int64, cf (nc, NF) float64, rb (m, 2) int64 bodies of each row and
     funcs: [(TimeFunction, squared)] indexed by ci[:, I_FUNC]."""
@@ -176,9 +178,14 @@ def flatten(model):
                 flag = int(blk.vecs["axis"][n])
             else:
                 flag = 0
-            ci[:] = (code, bi, bj, blk.rows[n, 0], flag, fn_of.get(n, -1))
-            for s, key in enumerate(K.VECTORS[blk.kernel]):
-                cf[3 * s : 3 * s + 3] = blk.vecs[key][n]
+            ci[: K.I_SLOT] = (code, bi, bj, blk.rows[n, 0], flag, fn_of.get(n, -1))
+            ci[K.I_SLOT :] = -1
+            for v, slot in enumerate(K.VECTORS[blk.kernel]):
+                if slot is not None:
+                    key, side = slot
+                    on_j = side == "j" or (blk.kernel == "dot2" and key == "a" and flag)
+                    ci[K.I_SLOT + v] = bj if on_j else bi
+                    cf[3 * v : 3 * v + 3] = blk.vecs[key][n]
             cf[K.F_CONST : K.F_CONST + blk.ne] = blk.c_const[n]
             ci_rows.append(ci)
             cf_rows.append(cf)

@@ -16,8 +16,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from mbsim import equations as eq
-from mbsim.fast import _dynamics as D
-from mbsim.fast import _kernels as K
+from mbsim.fast import _compiled as C
 from mbsim.fast.constraints import FastConstraints
 
 
@@ -32,7 +31,7 @@ class FastDynamics:
     :class:`mbsim.integrators.system.System` (same attributes, counters and methods).
 
     model: compiled Model; rows: (m_a,) active (independent) constraint rows, default all;
-    sparse: CSR Jacobians from :meth:`terms`; None chooses by size (nq >= SPARSE_NQ).
+    sparse: CSR Jacobians from :meth:`terms`; None chooses as System does (its SPARSE_NQ).
     """
 
     def __init__(self, model, rows=None, sparse=None):
@@ -44,6 +43,10 @@ class FastDynamics:
         )
         self.all_rows = self.rows.size == model.m
         self.m = self.rows.size
+        if sparse is None:  # the same choice as System's (CSR Jacobians for GCP's LU)
+            from mbsim.integrators.system import SPARSE_NQ
+
+            sparse = model.nq >= SPARSE_NQ
         self.fc = FastConstraints(model, self.rows, sparse)
         self.sparse = self.fc.sparse
         self.rheonomic = any(it.kind == "driver" or it.func is not None for it in model.items)
@@ -62,16 +65,12 @@ class FastDynamics:
         self.kkt = bool(self.singular)  # no exact Mt^-1: dense LU of the KKT matrix
         self.ei, self.ef, self.py_forces = element_tables(model.forces)
         self.sidx, self.inc, self.pairs = schur_structure(self.fc.rb, self.rows, nb)
+        self._no_loads = np.zeros((2, nb, 3))  # (F, n') of the Python force elements
         self._no_jac = np.zeros((0, 14))
-        self._zero3 = np.zeros((nb, 3))
         self._par0 = np.zeros(3)  # Baumgarte (alpha, beta, on)
-        fc = self.fc
-        head = (fc.ci, fc.cf, fc.rb, self.sidx)  # the compiled call's model arguments
-        tail = (self.bt, self.norm_pos, self.ei, self.ef)
-        if self.kkt:
-            self._acc, self._static = D.accelerations_kkt, head + tail
-        else:
-            self._acc, self._static = D.accelerations_schur, head + (self.inc, self.pairs) + tail
+        fc = self.fc  # the model arguments of the compiled call
+        self._static = (fc.ci, fc.cf, fc.rb, self.sidx, self.inc, self.pairs, self.bt)
+        self._static += (self.norm_pos, self.ei, self.ef)
 
     # -- constraint terms on the active rows -----------------------------------------------
     def terms(self, q, t, qd=None, phi=True, jac=True, gamma=False, nu=False):
@@ -86,27 +85,34 @@ class FastDynamics:
 
     # -- forces and masses -----------------------------------------------------------------
     def _python_loads(self, q, qd, t):
-        """(F, n_local) (nb, 3) of the force elements that are not compiled (their apply)."""
+        """(2, nb, 3): forces F and body torques n' of the force elements that are not
+        compiled, from their own ``apply``."""
         if not self.py_forces:
-            return self._zero3, self._zero3
+            return self._no_loads
         st = eq.State(self.model, q, qd)
-        F, n = np.zeros((self.nb, 3)), np.zeros((self.nb, 3))
+        loads = np.zeros((2, self.nb, 3))
         for el in self.py_forces:
-            el.apply(st, t, F, n)
-        return F, n
+            el.apply(st, t, loads[0], loads[1])
+        return loads
 
-    def applied_forces(self, q, qd, t=0.0) -> np.ndarray:
-        """Q (nq,): gravity, force elements, gyroscopic term (mbsim.equations.applied_forces)."""
+    def applied_forces(self, st, t) -> np.ndarray:
+        """Q (nq,) at the state st (:class:`mbsim.equations.State`) as System.applied_forces
+        and :func:`mbsim.equations.applied_forces`: gravity, force elements, gyroscopic term."""
+        q = np.concatenate([st.r, st.p], axis=1).reshape(-1)
+        qd = np.concatenate([st.rd, st.pd], axis=1).reshape(-1)
+        return self.generalized_forces(q, qd, t)
+
+    def generalized_forces(self, q, qd, t=0.0) -> np.ndarray:
+        """Q (nq,) at (q, qd, t): :meth:`applied_forces` without building a State."""
         q, qd = self._vector(q, "q"), self._vector(qd, "qd")
-        Fx, nx = self._python_loads(q, qd, t)
         Q = np.empty(self.nq)
-        D.applied_forces(q, qd, self.bt, self.ei, self.ef, Fx, nx, Q)
+        C.applied_forces(q, qd, self.bt, self.ei, self.ef, self._python_loads(q, qd, t), Q)
         return Q
 
     def mass_matrix(self, q) -> np.ndarray:
         """M (nq, nq) = diag(m I, 4 G^T J' G) (mbsim.equations.mass_matrix)."""
         Mb = np.empty((self.nb, 7, 7))
-        D.mass_blocks(self._vector(q, "q"), self.bt, Mb)
+        C.mass_blocks(self._vector(q, "q"), self.bt, Mb)
         M = np.zeros((self.nq, self.nq))
         for b in range(self.nb):
             M[7 * b : 7 * b + 7, 7 * b : 7 * b + 7] = Mb[b]
@@ -124,7 +130,7 @@ class FastDynamics:
         q, qd = self._vector(q, "q"), self._vector(qd, "qd")
         fc = self.fc
         tv = fc.targets(t) if fc.funcs else fc.tv
-        Fx, nx = self._python_loads(q, qd, t) if self.py_forces else (self._zero3, self._zero3)
+        loads = self._python_loads(q, qd, t)
         if baumgarte is None:
             par = self._par0
         else:
@@ -132,12 +138,13 @@ class FastDynamics:
         Jg = self._no_jac if jac is None else self._compact(jac)
         qdd = np.empty(self.nq)
         lam = np.empty(self.m)
-        args = (q, qd, tv) + self._static + (Fx, nx, par, Jg, qdd, lam)
         try:
-            status, power = self._acc(*args)
+            status, power = C.accelerations(
+                q, qd, tv, *self._static, loads, par, self.kkt, Jg, qdd, lam
+            )
         except np.linalg.LinAlgError as exc:  # the KKT path's LU
             raise _solve_error(f"singular KKT matrix ({exc})") from exc
-        if status != D.STATUS_OK:
+        if status != C.STATUS_OK:
             raise _solve_error(
                 "singular constraint Jacobian (Phi_q M^-1 Phi_q^T not positive definite)"
             )
@@ -153,7 +160,7 @@ class FastDynamics:
         Jc = np.zeros((self.model.m, 14))
         rb = self.fc.rb
         if not sp.issparse(jac):
-            K.gather_dense(np.ascontiguousarray(jac, dtype=np.float64), rb, self.rows, Jc)
+            C.gather_dense(np.ascontiguousarray(jac, dtype=np.float64), rb, self.rows, Jc)
             return Jc
         coo = sp.coo_matrix(jac)
         coo.sum_duplicates()
@@ -181,7 +188,7 @@ class FastDynamics:
         dq = np.empty(self.nq)
         rhs = np.ascontiguousarray(rhs, dtype=np.float64)
         args = (self.fc.Jc, self.bt, self.kkt, self.sidx, self.inc, self.pairs, rhs, dq)
-        ok = D.schur_project(q, *args)
+        ok = C.schur_project(q, *args)
         if not ok:
             raise _solve_error(
                 "singular constraint Jacobian (Phi_q M^-1 Phi_q^T not positive definite)"
@@ -218,7 +225,7 @@ class FastDynamics:
         fc = self.fc
         fc.compact(q, t, jac=True)
         v = np.empty(fc.m)
-        K.jac_times(fc.Jc, fc.rb, self._vector(qd, "qd"), v)
+        C.jac_times(fc.Jc, fc.rb, self._vector(qd, "qd"), v)
         return v - fc.nu_all
 
     def violations(self, q, qd, t):
@@ -232,10 +239,10 @@ class FastDynamics:
 
 
 def body_table(model):
-    """bt (nb, NB) (module doc of :mod:`mbsim.fast._dynamics`) and the names of the bodies
+    """bt (nb, NB) (module doc of :mod:`mbsim.fast._compiled`) and the names of the bodies
     without an exact Mt^-1: J' singular (smallest eigenvalue <= 1e-12 x largest) or m <= 0."""
     nb = model.nb
-    bt = np.zeros((nb, D.NB))
+    bt = np.zeros((nb, C.NB))
     singular = []
     for b in range(nb):
         J = np.asarray(model.J_local[b], dtype=float)
@@ -263,13 +270,13 @@ def element_tables(forces):
     for el in forces:
         cls = type(el)
         if cls is TSDA and el.law is None and el.actuator is None:
-            ei.append((D.EL_TSDA, el.bi, el.bj))
+            ei.append((C.EL_TSDA, el.bi, el.bj))
             ef.append(np.concatenate([el.si, el.sj, [el.k, el.c, el.L0]]))
         elif cls is PointForce and el.vec is not None:
-            ei.append((D.EL_FORCE_LOCAL if el.local else D.EL_FORCE, el.b, -1))
+            ei.append((C.EL_FORCE_LOCAL if el.local else C.EL_FORCE, el.b, -1))
             ef.append(np.concatenate([el.vec, el.s, np.zeros(3)]))
         elif cls is Torque and el.vec is not None:
-            ei.append((D.EL_TORQUE_LOCAL if el.local else D.EL_TORQUE, el.bj, el.bi))
+            ei.append((C.EL_TORQUE_LOCAL if el.local else C.EL_TORQUE, el.bj, el.bi))
             ef.append(np.concatenate([el.vec, np.zeros(6)]))
         else:
             py.append(el)
@@ -280,13 +287,13 @@ def element_tables(forces):
 
 def schur_structure(rb, rows, nb):
     """(sidx (4, m_a), inc (ninc, 3), pairs (np, 3)) of the Schur matrix on ``rows`` (module
-    doc of :mod:`mbsim.fast._dynamics`): reverse Cuthill-McKee order, envelope, incidences
+    doc of :mod:`mbsim.fast._compiled`): reverse Cuthill-McKee order, envelope, incidences
     (row, column offset, body) and the products that fill the envelope."""
     ma = rows.size
     inc = [(u, 7 * s, rb[r, s]) for u, r in enumerate(rows) for s in range(2) if rb[r, s] >= 0]
     inc = np.array(sorted(inc, key=lambda x: (x[2], x[0], x[1])), dtype=np.int64).reshape(-1, 3)
-    C = sp.csr_matrix((np.ones(len(inc)), (inc[:, 0], inc[:, 2])), shape=(ma, nb))
-    graph = (C @ C.T).tocsr()
+    rows_bodies = sp.csr_matrix((np.ones(len(inc)), (inc[:, 0], inc[:, 2])), shape=(ma, nb))
+    graph = (rows_bodies @ rows_bodies.T).tocsr()
     order = (
         reverse_cuthill_mckee(graph, symmetric_mode=True).astype(np.int64)
         if ma

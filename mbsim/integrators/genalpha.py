@@ -33,8 +33,8 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from mbsim import equations as eq
 from mbsim.integrators.base import Integrator, hermite, rms_norm
+from mbsim.integrators.system import mass_blocks
 
 
 class GeneralizedAlpha(Integrator):
@@ -81,24 +81,13 @@ class GeneralizedAlpha(Integrator):
         self._prev = None  # (t, q, qd) of the accepted state before the current one
 
     # -- model terms --------------------------------------------------------------------------
-    def _mass_blocks(self, st):
-        B = np.zeros((self.system.nb, 7, 7))
-        B[:, 0, 0] = B[:, 1, 1] = B[:, 2, 2] = self.system.model.mass
-        B[:, 3:, 3:] = 4 * np.matmul(np.matmul(st.G.transpose(0, 2, 1), self.system.model.J_local),
-                                     st.G)
-        return B
-
-    def _forces(self, q, qd, t):
-        return eq.applied_forces(self.system.model, q, qd, t)[0]
-
     def _residual(self, q, qd, qdd, lam, t):
         """r = M(q) qdd + Phi_q(q)^T lam - Q(q, qd, t) (nq,), with Phi, Phi_q, Q, M."""
         s = self.system
         s.counters["function_evaluations"] += 1
         T = s.terms(q, t, jac=True, nu=s.rheonomic)
-        st = eq.State(s.model, q, qd)
-        Q = eq.applied_forces(s.model, q, qd, t, st=st)[0]
-        Mb = self._mass_blocks(st)
+        Q = s.generalized_forces(q, qd, t)
+        Mb = mass_blocks(s.model, q)
         r = np.einsum("bij,bj->bi", Mb, qdd.reshape(-1, 7)).reshape(-1) + T.jac.T @ lam - Q
         return r, T, Q, Mb
 

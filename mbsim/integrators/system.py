@@ -15,8 +15,11 @@ With s = p^T p, [G; p^T] [G; p^T]^T = s I, hence the exact block inverse
     Mt_p^-1 = (G^T J'^-1 G / 4 + p p^T / c) / s^2,
 
 and lam = (Phi_q Mt^-1 Phi_q^T)^-1 (Phi_q Mt^-1 Qt - gamma), qdd = Mt^-1 (Qt - Phi_q^T lam).
-Only the m x m Schur matrix is factored (Cholesky, or sparse LU above ``SPARSE_NQ``
-coordinates), never the (nq + m) KKT matrix.
+Only the m x m Schur matrix is factored, never the (nq + m) KKT matrix.  With the fused
+constraint evaluation (fused.py: every kernel but the rotational driver's) the Schur matrix
+is assembled body by body and factored banded or dense (kkt.py); otherwise it is formed from
+Phi_q of :func:`mbsim.equations.constraints`, dense or (above ``SPARSE_NQ`` coordinates)
+CSR with SuperLU.  Coordinate partitioning needs Phi_q itself: CSR above ``SPARSE_NQ``.
 """
 
 from __future__ import annotations
@@ -30,6 +33,25 @@ from mbsim.integrators.fused import FusedConstraints
 from mbsim.integrators.kkt import BlockSchur, SolveError
 
 __all__ = ["SolveError", "System"]
+
+_G_IDX = np.array([[1, 0, 3, 2], [2, 3, 0, 1], [3, 2, 1, 0]])
+_G_SIGN = np.array([[-1.0, 1, 1, -1], [-1, -1, 1, 1], [-1, 1, -1, 1]])
+
+
+def G_matrices(p):
+    """G(p) (nb, 3, 4) = [-e, -e~ + e0 I] (Haug eq. 6.3.18) for p (nb, 4): one gather, one
+    product."""
+    return p[:, _G_IDX] * _G_SIGN
+
+
+def mass_blocks(model, q):
+    """(nb, 7, 7) diagonal blocks of M = diag(m I, 4 G^T J' G) (Haug eq. 11.1.x)."""
+    G = G_matrices(q.reshape(model.nb, 7)[:, 3:])
+    B = np.zeros((model.nb, 7, 7))
+    B[:, 0, 0] = B[:, 1, 1] = B[:, 2, 2] = model.mass
+    B[:, 3:, 3:] = 4 * np.matmul(np.matmul(G.transpose(0, 2, 1), model.J_local), G)
+    return B
+
 
 SPARSE_NQ = 250  # sparse Phi_q (CSR) from about 35 bodies on (measured crossover, spherical chain)
 
@@ -93,12 +115,12 @@ class System:
         return self.terms(q, t, phi=False, jac=False, nu=True).nu
 
     # -- applied forces ---------------------------------------------------------------------------
-    _G_IDX = np.array([[1, 0, 3, 2], [2, 3, 0, 1], [3, 2, 1, 0]])
-    _G_SIGN = np.array([[-1.0, 1, 1, -1], [-1, -1, 1, 1], [-1, 1, -1, 1]])
-
     def G(self, p):
-        """G(p) (nb, 3, 4) = [-e, -e~ + e0 I] (Haug eq. 6.3.18), one gather and one product."""
-        return p[:, self._G_IDX] * self._G_SIGN
+        return G_matrices(p)
+
+    def generalized_forces(self, q, qd, t=0.0):
+        """Q (nq,) at (q, qd, t) (the interface of mbsim.fast's FastDynamics)."""
+        return self.applied_forces(eq.State(self.model, q, qd), t)
 
     def applied_forces(self, st, t):
         """Q (nq,) as :func:`mbsim.equations.applied_forces` (gravity, force elements and

@@ -25,15 +25,26 @@ def test_channels_monitors_and_counters(crank):
     res = dynamic(model, {"t_end": 0.2, "step": 0.02, "q0": q, "qd0": qd})
     assert res.complete and res.mode == "dynamic"
     assert np.allclose(res.t, np.linspace(0, 0.2, 11))
-    for name in ("position_violation", "velocity_violation", "energy", "work_nonconservative",
-                 "step_size"):
+    for name in (
+        "position_violation",
+        "velocity_violation",
+        "energy",
+        "work_nonconservative",
+        "step_size",
+    ):
         assert res.channel(f"monitors/{name}").data.shape == (11,)
     lam = res.channel("constraints/lam")
     assert lam.data.shape == (11, model.m) and lam.components == model.row_label
     # multipliers at t0 are those of the KKT solve (Haug eq. 11.1.x)
     assert np.allclose(lam.data[0], eq.accelerations(model, q, qd)[1], atol=1e-8)
-    for key in ("steps", "rejected_steps", "function_evaluations", "factorizations",
-                "newton_iterations", "repartitions"):
+    for key in (
+        "steps",
+        "rejected_steps",
+        "function_evaluations",
+        "factorizations",
+        "newton_iterations",
+        "repartitions",
+    ):
         assert key in res.counters
     assert res.settings["integrator"] == "gcp-dop853" and res.summary["dof"] == 1
     assert res.channel("monitors/position_violation").data.max() < 1e-9
@@ -43,8 +54,14 @@ def test_output_sampling_is_independent_of_the_step(crank):
     """Dense output: the outputs at 0.1 s and at 0.01 s agree at common times to the
     integration accuracy, and the steps taken are the same (output does not cut steps)."""
     model, q, qd = crank
-    base = {"t_end": 0.3, "q0": q, "qd0": qd, "rtol": 1e-8, "atol": 1e-10,
-            "integrator": "projection-dop853"}
+    base = {
+        "t_end": 0.3,
+        "q0": q,
+        "qd0": qd,
+        "rtol": 1e-8,
+        "atol": 1e-10,
+        "integrator": "projection-dop853",
+    }
     a = dynamic(model, dict(base, step=0.1))
     b = dynamic(model, dict(base, step=0.01))
     xa = a.channel("bodies/slider/r").data[:, 0]
@@ -57,8 +74,9 @@ def test_energy_minus_work_is_conserved_with_a_damper():
     """Governor (damper c = 30): W_nc <= 0 and E - W_nc stays at E(0) (1e-7 relative)."""
     model = M.governor(g=9.81)
     q, qd = M.governor_state(model)
-    res = dynamic(model, {"t_end": 0.5, "step": 0.05, "q0": q, "qd0": qd, "rtol": 1e-9,
-                          "atol": 1e-11})
+    res = dynamic(
+        model, {"t_end": 0.5, "step": 0.05, "q0": q, "qd0": qd, "rtol": 1e-9, "atol": 1e-11}
+    )
     W = res.channel("monitors/work_nonconservative").data
     E = res.channel("monitors/energy").data
     assert W[-1] < 0
@@ -67,8 +85,18 @@ def test_energy_minus_work_is_conserved_with_a_damper():
 
 def test_failure_keeps_data_and_names_time_and_joints(crank):
     model, q, qd = crank
-    res = dynamic(model, {"t_end": 1.0, "step": 0.01, "q0": q, "qd0": qd,
-                          "integrator": "projection", "rtol": 1e-10, "h_min": 0.05})
+    res = dynamic(
+        model,
+        {
+            "t_end": 1.0,
+            "step": 0.01,
+            "q0": q,
+            "qd0": qd,
+            "integrator": "projection",
+            "rtol": 1e-10,
+            "h_min": 0.05,
+        },
+    )
     assert res.status == "incomplete"
     assert res.message.startswith("t = ") and "h_min" in res.message
     assert any(j in res.message for j in ("A", "B", "C", "T"))
@@ -107,3 +135,17 @@ def test_fixed_step_method_steps_at_the_output_step(crank):
     res = dynamic(model, {"t_end": 0.1, "step": 0.01, "integrator": "rk4", "q0": q, "qd0": qd})
     assert res.complete and res.counters["steps"] == 10
     assert np.allclose(res.channel("monitors/step_size").data[1:], 0.01)
+
+
+@pytest.mark.parametrize("name", ["gcp-dop853", "projection", "genalpha"])
+def test_numpy_and_compiled_equations_agree(crank, name):
+    """The numpy System and mbsim.fast's compiled stand-in give the same run (same steps,
+    results to round-off amplified by the integration: 1e-10)."""
+    model, q, qd = crank
+    base = {"t_end": 0.2, "step": 0.05, "q0": q, "qd0": qd, "integrator": name, "rtol": 1e-8}
+    a = dynamic(model, dict(base, compiled=False))
+    b = dynamic(model, dict(base, compiled=True))
+    assert a.summary["equations"] == "System"
+    xa, xb = (r.channel("bodies/slider/r").data for r in (a, b))
+    assert np.abs(xa - xb).max() < 1e-10
+    assert a.counters["steps"] == b.counters["steps"]

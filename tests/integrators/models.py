@@ -22,8 +22,13 @@ from tests.helpers import body, joint, pts, spec
 
 def tsda(name, bi, bj, si=(0, 0, 0), sj=(0, 0, 0), k=0.0, c=0.0, L0=0.0):
     """A registry ``tsda`` force element spec between body points (Haug Sec. 11.3)."""
-    return ForceSpec(name, "tsda", (bi, bj), {bi: pts(si), bj: pts(sj)},
-                     {"k": float(k), "c": float(c), "L0": float(L0)})
+    return ForceSpec(
+        name,
+        "tsda",
+        (bi, bj),
+        {bi: pts(si), bj: pts(sj)},
+        {"k": float(k), "c": float(c), "L0": float(L0)},
+    )
 
 
 def with_forces(model, *forces):
@@ -42,18 +47,18 @@ def consistent_state(model, q=None, omega=None, rdot=None, t=0.0):
     rows, rhs = [T.jac[asm.active_rows]], [T.nu[asm.active_rows]]
     for name, w in (omega or {}).items():
         b = model.body_index(name)
-        p = q[7 * b + 3: 7 * b + 7]
+        p = q[7 * b + 3 : 7 * b + 7]
         R = np.zeros((3, model.nq))
         # omega = 2 E(p) pd (Haug eq. 6.3.17)
         from mbsim.rotations import E
 
-        R[:, 7 * b + 3: 7 * b + 7] = 2 * E(p)
+        R[:, 7 * b + 3 : 7 * b + 7] = 2 * E(p)
         rows.append(R)
         rhs.append(np.asarray(w, float))
     for name, v in (rdot or {}).items():
         b = model.body_index(name)
         R = np.zeros((3, model.nq))
-        R[:, 7 * b: 7 * b + 3] = np.eye(3)
+        R[:, 7 * b : 7 * b + 3] = np.eye(3)
         rows.append(R)
         rhs.append(np.asarray(v, float))
     qd = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)[0]
@@ -61,6 +66,7 @@ def consistent_state(model, q=None, omega=None, rdot=None, t=0.0):
 
 
 # ---------------------------------------------------------------- the models
+
 
 def free_body(J=(1.0, 2.0, 3.0), mass=2.0):
     """One asymmetric free body, no joints, no ground: only its normalisation row."""
@@ -71,8 +77,11 @@ def top(m=1.0, l=0.1, I1c=2e-3, I3=4e-3, g=9.81):
     """Symmetric top: spherical joint between the ground origin and the tip (0, 0, -l) of
     the body; symmetry axis z'; gravity -z."""
     bodies = [body("ground", ground=True), body("top", m, (I1c, I1c, I3), (0, 0, l))]
-    joints = [joint("tip", "spherical", "ground", "top",
-                    {"ground": pts((0, 0, 0)), "top": pts((0, 0, -l))})]
+    joints = [
+        joint(
+            "tip", "spherical", "ground", "top", {"ground": pts((0, 0, 0)), "top": pts((0, 0, -l))}
+        )
+    ]
     return compile_model(spec(bodies, joints, gravity=(0, 0, -g)))
 
 
@@ -105,8 +114,11 @@ def top_state(model, theta, omega3, l=0.1, g=9.81):
 def slider_crank(ell=0.3, g=9.81):
     """Undriven spatial slider-crank, reference geometry §1 (as tests/analyses kinematic test)."""
     xC = np.sqrt(ell**2 - 0.1**2 - 0.2**2)
-    rod_p = {0.3: (0.42926, 0.56191, -0.69455, -0.13265), 0.27: (0.46612, 0.53173, -0.68405, -0.17911),
-             0.24: (0.52244, 0.47650, -0.65984, -0.25419)}[ell]
+    rod_p = {
+        0.3: (0.42926, 0.56191, -0.69455, -0.13265),
+        0.27: (0.46612, 0.53173, -0.68405, -0.17911),
+        0.24: (0.52244, 0.47650, -0.65984, -0.25419),
+    }[ell]
     bodies = [
         body("crank", 0.12, (1e-4, 1e-5, 1e-4), (0, 0.1, 0.12), (0.70711, 0.70711, 0, 0)),
         body("rod", 0.5, (0.004, 0.0004, 0.004), (xC / 2, 0.05, 0.1), rod_p),
@@ -114,15 +126,40 @@ def slider_crank(ell=0.3, g=9.81):
         body("ground", ground=True),
     ]
     joints = [
-        joint("A", "revolute", "ground", "crank",
-              {"ground": pts((0, 0.1, 0.12), (1, 0.1, 0.12), (0, 1.1, 0.12)),
-               "crank": pts((0, 0, 0), (1, 0, 0), (0, 1, 0))}),
-        joint("B", "spherical", "crank", "rod", {"crank": pts((0, 0.08, 0)), "rod": pts((0, ell / 2, 0))}),
-        joint("C", "universal", "rod", "slider",
-              {"rod": pts((0, -ell / 2, 0), (1, -ell / 2, 0)), "slider": pts((0, 0, 0), (1, 0, 0))}),
-        joint("T", "translational", "slider", "ground",
-              {"slider": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)),
-               "ground": pts((0, 0, 0), (1, 0, 0), (0, 1, 0))}),
+        joint(
+            "A",
+            "revolute",
+            "ground",
+            "crank",
+            {
+                "ground": pts((0, 0.1, 0.12), (1, 0.1, 0.12), (0, 1.1, 0.12)),
+                "crank": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)),
+            },
+        ),
+        joint(
+            "B",
+            "spherical",
+            "crank",
+            "rod",
+            {"crank": pts((0, 0.08, 0)), "rod": pts((0, ell / 2, 0))},
+        ),
+        joint(
+            "C",
+            "universal",
+            "rod",
+            "slider",
+            {"rod": pts((0, -ell / 2, 0), (1, -ell / 2, 0)), "slider": pts((0, 0, 0), (1, 0, 0))},
+        ),
+        joint(
+            "T",
+            "translational",
+            "slider",
+            "ground",
+            {
+                "slider": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)),
+                "ground": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)),
+            },
+        ),
     ]
     return compile_model(spec(bodies, joints, gravity=(0, 0, -g)))
 
@@ -147,18 +184,59 @@ def governor(g=9.80, k=1000.0, c=30.0, L0=0.15):
     ]
     P0 = (0, 0, 0)
     joints = [
-        joint("DIST1", "distance", "ball1", "collar", {"ball1": pts((-0.08, 0, 0)), "collar": pts(P0)},
-              distance=0.10922),
-        joint("DIST2", "distance", "ball2", "collar", {"ball2": pts((0.08, 0, 0)), "collar": pts(P0)},
-              distance=0.10922),
-        joint("REV1", "revolute", "ground", "spindle",
-              {"ground": pts(P0, (0, 1, 0), (0, 0, 1)), "spindle": pts((0, -0.2, 0), (0, -1.2, 0), (0, -0.2, 1))}),
-        joint("REV2", "revolute", "spindle", "ball1",
-              {"spindle": pts(P0, (0, 0, 1), (1, 0, 0)), "ball1": pts((-0.16, 0, 0), (-0.16, 0, 1), (1, 0, 0))}),
-        joint("REV3", "revolute", "spindle", "ball2",
-              {"spindle": pts(P0, (0, 0, 1), (1, 0, 0)), "ball2": pts((0.16, 0, 0), (0.16, 0, 1), (1, 0, 0))}),
-        joint("TRANS1", "translational", "spindle", "collar",
-              {"spindle": pts(P0, (0, 1, 0), (0, 0, 1)), "collar": pts(P0, (0, 1, 0), (0, 0, 1))}),
+        joint(
+            "DIST1",
+            "distance",
+            "ball1",
+            "collar",
+            {"ball1": pts((-0.08, 0, 0)), "collar": pts(P0)},
+            distance=0.10922,
+        ),
+        joint(
+            "DIST2",
+            "distance",
+            "ball2",
+            "collar",
+            {"ball2": pts((0.08, 0, 0)), "collar": pts(P0)},
+            distance=0.10922,
+        ),
+        joint(
+            "REV1",
+            "revolute",
+            "ground",
+            "spindle",
+            {
+                "ground": pts(P0, (0, 1, 0), (0, 0, 1)),
+                "spindle": pts((0, -0.2, 0), (0, -1.2, 0), (0, -0.2, 1)),
+            },
+        ),
+        joint(
+            "REV2",
+            "revolute",
+            "spindle",
+            "ball1",
+            {
+                "spindle": pts(P0, (0, 0, 1), (1, 0, 0)),
+                "ball1": pts((-0.16, 0, 0), (-0.16, 0, 1), (1, 0, 0)),
+            },
+        ),
+        joint(
+            "REV3",
+            "revolute",
+            "spindle",
+            "ball2",
+            {
+                "spindle": pts(P0, (0, 0, 1), (1, 0, 0)),
+                "ball2": pts((0.16, 0, 0), (0.16, 0, 1), (1, 0, 0)),
+            },
+        ),
+        joint(
+            "TRANS1",
+            "translational",
+            "spindle",
+            "collar",
+            {"spindle": pts(P0, (0, 1, 0), (0, 0, 1)), "collar": pts(P0, (0, 1, 0), (0, 0, 1))},
+        ),
     ]
     forces = [tsda("spring", "spindle", "collar", k=k, c=c, L0=L0)]
     return compile_model(spec(bodies, joints, forces=forces, gravity=(0, -g, 0)))
@@ -171,9 +249,9 @@ def governor_state(model, omega=GOVERNOR_OMEGA):
     q = asm.q
     qd = np.zeros(model.nq)
     for b in range(1, model.nb):
-        r, p = q[7 * b: 7 * b + 3], q[7 * b + 3: 7 * b + 7]
-        qd[7 * b: 7 * b + 3] = np.cross(w, r)
-        qd[7 * b + 3: 7 * b + 7] = omega_to_pd(p, w)
+        r, p = q[7 * b : 7 * b + 3], q[7 * b + 3 : 7 * b + 7]
+        qd[7 * b : 7 * b + 3] = np.cross(w, r)
+        qd[7 * b + 3 : 7 * b + 7] = omega_to_pd(p, w)
     return q, qd
 
 
@@ -194,7 +272,14 @@ def chain(n, g=9.81, angle=0.3):
         bodies.append(body(f"link{i}", 1.0, (1 / 48, 1e-4, 1 / 48), r, p))
         prev = "ground" if i == 0 else f"link{i - 1}"
         Pprev = (0, 0, 0) if i == 0 else (0, -0.25, 0)
-        joints.append(joint(f"S{i}", "spherical", prev, f"link{i}",
-                            {prev: pts(Pprev), f"link{i}": pts((0, 0.25, 0))}))
+        joints.append(
+            joint(
+                f"S{i}",
+                "spherical",
+                prev,
+                f"link{i}",
+                {prev: pts(Pprev), f"link{i}": pts((0, 0.25, 0))},
+            )
+        )
         top = r + Ai @ np.array([0, -0.25, 0])
     return compile_model(spec(bodies, joints, gravity=(0, -g, 0)))

@@ -62,8 +62,18 @@ def test_balance_speeds_of_the_arm():
 def _collar(g, name):
     model = M.governor(g=g)
     q, qd = M.governor_state(model)
-    res = dynamic(model, {"t_end": 2.0, "step": 0.01, "integrator": name,
-                          "rtol": 1e-9, "atol": 1e-11, "q0": q, "qd0": qd})
+    res = dynamic(
+        model,
+        {
+            "t_end": 2.0,
+            "step": 0.01,
+            "integrator": name,
+            "rtol": 1e-9,
+            "atol": 1e-11,
+            "q0": q,
+            "qd0": qd,
+        },
+    )
     assert res.complete, res.message
     y = res.channel("bodies/collar/r").data[:, 1]
     return res, y - y[0]

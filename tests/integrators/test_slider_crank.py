@@ -57,8 +57,9 @@ REF = {}
 
 def positions(res):
     """(nt, 3 nb) centroid positions of every body."""
-    return np.hstack([c.data for n, c in res.channels.items()
-                      if n.startswith("bodies/") and n.endswith("/r")])
+    return np.hstack(
+        [c.data for n, c in res.channels.items() if n.startswith("bodies/") and n.endswith("/r")]
+    )
 
 
 def reference():
@@ -67,8 +68,9 @@ def reference():
         model = M.slider_crank()
         q, qd = M.slider_crank_state(model, 2 * np.pi)
         res = run(model, q, qd, "projection-dop853", 0.5, step=0.05, rtol=1e-12, atol=1e-14)
-        REF.update(model=model, q=q, qd=qd, x=res.channel("bodies/slider/r").data[:, 0],
-                   r=positions(res))
+        REF.update(
+            model=model, q=q, qd=qd, x=res.channel("bodies/slider/r").data[:, 0], r=positions(res)
+        )
     return REF
 
 
@@ -82,8 +84,7 @@ FACTOR = {"genalpha": 200.0, "hht": 200.0}
 def test_integrators_agree_within_the_tolerance(name):
     ref = reference()
     tol = 1e-4 if INTEGRATORS[name].order <= 2 else 1e-7
-    res = run(ref["model"], ref["q"], ref["qd"], name, 0.5, step=0.05, rtol=tol,
-              atol=1e-2 * tol)
+    res = run(ref["model"], ref["q"], ref["qd"], name, 0.5, step=0.05, rtol=tol, atol=1e-2 * tol)
     err = np.abs(res.channel("bodies/slider/r").data[:, 0] - ref["x"]).max()
     assert err < FACTOR.get(name, 20.0) * tol
 

@@ -17,13 +17,20 @@ def two_sliders():
     """Two 1 kg sliders on the x axis: a soft spring (10 N/m) from the ground to slider a, a
     stiff TSDA (1e7 N/m) between a and b.  Fast mode sqrt(2 k / 1 kg) = 4472 rad/s, explicit
     limit 2/omega = 4.5e-4 s; slow mode: the pair on the soft spring, sqrt(10 / 2) rad/s."""
-    bodies = [body("ground", ground=True), body("a", 1.0, (0.1, 0.1, 0.1), (0, 0, 0)),
-              body("b", 1.0, (0.1, 0.1, 0.1), (0.5, 0, 0))]
+    bodies = [
+        body("ground", ground=True),
+        body("a", 1.0, (0.1, 0.1, 0.1), (0, 0, 0)),
+        body("b", 1.0, (0.1, 0.1, 0.1), (0.5, 0, 0)),
+    ]
     tr = {"a": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)), "b": pts((0, 0, 0), (1, 0, 0), (0, 1, 0))}
-    joints = [joint("Ta", "translational", "ground", "a", {"ground": SLIDE["ground"], "a": tr["a"]}),
-              joint("Tb", "translational", "ground", "b", {"ground": SLIDE["ground"], "b": tr["b"]})]
-    forces = [M.tsda("soft", "ground", "a", (-1.0, 0, 0), (0, 0, 0), k=K_SOFT, L0=1.0),
-              M.tsda("stiff", "a", "b", k=K_STIFF, L0=0.5)]
+    joints = [
+        joint("Ta", "translational", "ground", "a", {"ground": SLIDE["ground"], "a": tr["a"]}),
+        joint("Tb", "translational", "ground", "b", {"ground": SLIDE["ground"], "b": tr["b"]}),
+    ]
+    forces = [
+        M.tsda("soft", "ground", "a", (-1.0, 0, 0), (0, 0, 0), k=K_SOFT, L0=1.0),
+        M.tsda("stiff", "a", "b", k=K_STIFF, L0=0.5),
+    ]
     return compile_model(spec(bodies, joints, forces=forces))
 
 
@@ -41,8 +48,9 @@ def test_stiff_tsda_at_steps_far_above_the_explicit_limit(name):
     the stiff spring's compliance ~1e-6)."""
     model = two_sliders()
     q, qd = _start(model)
-    res = dynamic(model, {"t_end": 2.0, "step": 0.05, "integrator": name, "h": 0.01,
-                          "q0": q, "qd0": qd})
+    res = dynamic(
+        model, {"t_end": 2.0, "step": 0.05, "integrator": name, "h": 0.01, "q0": q, "qd0": qd}
+    )
     assert res.complete, res.message
     w = np.sqrt(K_SOFT / 2)
     x = res.channel("bodies/a/r").data[:, 0]
@@ -55,8 +63,18 @@ def test_stiff_tsda_adaptive_steps_are_large():
     """With error control the implicit method's mean step stays far above 2/omega."""
     model = two_sliders()
     q, qd = _start(model)
-    res = dynamic(model, {"t_end": 2.0, "step": 0.1, "integrator": "genalpha", "rtol": 1e-4,
-                          "atol": 1e-6, "q0": q, "qd0": qd})
+    res = dynamic(
+        model,
+        {
+            "t_end": 2.0,
+            "step": 0.1,
+            "integrator": "genalpha",
+            "rtol": 1e-4,
+            "atol": 1e-6,
+            "q0": q,
+            "qd0": qd,
+        },
+    )
     assert res.complete, res.message
     assert 2.0 / res.counters["steps"] > 10 * 2 / np.sqrt(2 * K_STIFF)
 
@@ -67,8 +85,9 @@ def test_explicit_fixed_step_is_unstable_there():
     model = two_sliders()
     q, qd = _start(model, 0.5)
     qd[14] += 1e-3  # a seed for the fast mode
-    res = dynamic(model, {"t_end": 0.5, "step": 0.05, "integrator": "rk4", "h": 0.01,
-                          "q0": q, "qd0": qd})
+    res = dynamic(
+        model, {"t_end": 0.5, "step": 0.05, "integrator": "rk4", "h": 0.01, "q0": q, "qd0": qd}
+    )
     E = res.channel("monitors/energy").data
     assert (not res.complete) or not np.isfinite(E).all() or E.max() > 1e3 * E[0]
 
@@ -76,17 +95,36 @@ def test_explicit_fixed_step_is_unstable_there():
 def chassis_and_rack():
     """Table 12.5.1 masses: chassis 1247.5 kg swinging on a revolute about z, rack 0.1 kg on a
     translational joint along the chassis x', held by a TSDA (1e4 N/m): mass ratio 1.2e4."""
-    bodies = [body("ground", ground=True),
-              body("chassis", 1247.5, (1240.1, 209.6, 139.9), (1.0, 0, 0)),
-              body("rack", 0.1, (0.01, 0.01, 0.01), (1.0, 0.5, 0))]
-    joints = [joint("R", "revolute", "ground", "chassis",
-                    {"ground": pts((0, 0, 0), (0, 0, 1), (1, 0, 0)),
-                     "chassis": pts((-1, 0, 0), (-1, 0, 1), (0, 0, 0))}),
-              joint("D", "translational", "chassis", "rack",
-                    {"chassis": pts((0, 0.5, 0), (1, 0.5, 0), (0, 1.5, 0)),
-                     "rack": pts((0, 0, 0), (1, 0, 0), (0, 1, 0))})]
-    forces = [M.tsda("rack_spring", "chassis", "rack", (-0.2, 0.5, 0), (0, 0, 0), k=1e4,
-                     c=1.0, L0=0.2)]
+    bodies = [
+        body("ground", ground=True),
+        body("chassis", 1247.5, (1240.1, 209.6, 139.9), (1.0, 0, 0)),
+        body("rack", 0.1, (0.01, 0.01, 0.01), (1.0, 0.5, 0)),
+    ]
+    joints = [
+        joint(
+            "R",
+            "revolute",
+            "ground",
+            "chassis",
+            {
+                "ground": pts((0, 0, 0), (0, 0, 1), (1, 0, 0)),
+                "chassis": pts((-1, 0, 0), (-1, 0, 1), (0, 0, 0)),
+            },
+        ),
+        joint(
+            "D",
+            "translational",
+            "chassis",
+            "rack",
+            {
+                "chassis": pts((0, 0.5, 0), (1, 0.5, 0), (0, 1.5, 0)),
+                "rack": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)),
+            },
+        ),
+    ]
+    forces = [
+        M.tsda("rack_spring", "chassis", "rack", (-0.2, 0.5, 0), (0, 0, 0), k=1e4, c=1.0, L0=0.2)
+    ]
     return compile_model(spec(bodies, joints, forces=forces, gravity=(0, -9.81, 0)))
 
 
@@ -97,8 +135,18 @@ def test_mass_ratio_1e4(name):
     rtol 1e-7 for the explicit pairs, 1e-3 for the implicit method's numerical damping."""
     model = chassis_and_rack()
     q = model.q0.copy()
-    res = dynamic(model, {"t_end": 1.0, "step": 0.05, "integrator": name, "rtol": 1e-7,
-                          "atol": 1e-9, "q0": q, "qd0": np.zeros(model.nq)})
+    res = dynamic(
+        model,
+        {
+            "t_end": 1.0,
+            "step": 0.05,
+            "integrator": name,
+            "rtol": 1e-7,
+            "atol": 1e-9,
+            "q0": q,
+            "qd0": np.zeros(model.nq),
+        },
+    )
     assert res.complete, res.message
     E = res.channel("monitors/energy").data - res.channel("monitors/work_nonconservative").data
     y = res.channel("bodies/chassis/r").data[:, 1]

@@ -18,8 +18,11 @@ def _cases():
     qc = assemble(ch).q
     rng = np.random.default_rng(1)
     qdc = rng.normal(size=ch.nq) * 0.1
-    return [("governor", gov, *M.governor_state(gov)), ("slider-crank", sc, *M.slider_crank_state(sc, 6.0)),
-            ("chain", ch, qc, qdc)]
+    return [
+        ("governor", gov, *M.governor_state(gov)),
+        ("slider-crank", sc, *M.slider_crank_state(sc, 6.0)),
+        ("chain", ch, qc, qdc),
+    ]
 
 
 @pytest.mark.parametrize("sparse", [False, True])
@@ -82,8 +85,15 @@ def test_every_integrator_runs_a_free_body(name):
     qd = np.zeros(7)
     qd[:3] = (0.1, 0.0, 0.2)
     qd[3:] = omega_local_to_pd(q[3:], np.array([0.5, 0.2, 1.0]))
-    opts = {"t_end": 0.2, "step": 0.05, "integrator": name, "rtol": 1e-6, "atol": 1e-8,
-            "q0": q, "qd0": qd}
+    opts = {
+        "t_end": 0.2,
+        "step": 0.05,
+        "integrator": name,
+        "rtol": 1e-6,
+        "atol": 1e-8,
+        "q0": q,
+        "qd0": qd,
+    }
     if not INTEGRATORS[name].adaptive:
         opts["h"] = 0.01
     res = dynamic(model, opts)
@@ -91,3 +101,45 @@ def test_every_integrator_runs_a_free_body(name):
     E = res.channel("monitors/energy").data
     assert np.abs(E - E[0]).max() < 1e-4 * E[0]
     assert res.counters["steps"] > 0 and res.counters["function_evaluations"] > 0
+
+
+def test_fused_evaluation_matches_equations():
+    """The fused evaluator (fused.py) returns the Phi, Phi_q, gamma and nu of
+    equations.constraints for every kernel it covers, time targets included (round-off)."""
+    from mbsim.integrators.fused import FusedConstraints
+    from mbsim.model import compile_model
+    from tests.helpers import driver, func, joint, pts
+    from tests.helpers import spec as make_spec
+
+    base = M.slider_crank()
+    sp_ = base.spec
+    drivers = [
+        driver("x", "translation", func("harmonic", amplitude=0.01, frequency=3.0), joint="T"),
+        driver(
+            "d",
+            "distance",
+            func("polynomial", coefficients=[0.3, 0.01]),
+            bodies=("crank", "slider"),
+            points={"crank": pts((0, 0.08, 0)), "slider": pts((0, 0, 0))},
+        ),
+    ]
+    extra = [joint("Z", "absolute", "rod", None, {"rod": pts((0, 0.1, 0))}, axis="z", value=0.05)]
+    spec = make_spec(
+        list(sp_.bodies.values()), list(sp_.joints.values()) + extra, drivers, gravity=(0, 0, -9.81)
+    )
+    models = [compile_model(spec), M.governor(), M.chain(3), M.free_body()]
+    rng = np.random.default_rng(3)
+    for model in models:
+        kernels = {b.kernel for b in model.blocks}
+        for sparse in (False, True):
+            fc = FusedConstraints(model, sparse)
+            assert fc.ok, kernels
+            q = model.q0 + 0.05 * rng.normal(size=model.nq)
+            qd = rng.normal(size=model.nq)
+            T = eq.constraints(model, q, 0.37, qd=qd, gamma=True, nu=True, sparse=sparse)
+            phi, J, g, nu = fc(q, 0.37, qd, jac=True, gamma=True, nu=True)
+            Jd, Td = (J.toarray(), T.jac.toarray()) if sparse else (J, T.jac)
+            assert np.allclose(phi, T.phi, atol=1e-13), kernels
+            assert np.allclose(Jd, Td, atol=1e-13), kernels
+            assert np.allclose(g, T.gamma, atol=1e-12), kernels
+            assert np.allclose(nu, T.nu, atol=1e-14), kernels

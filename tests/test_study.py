@@ -1,0 +1,323 @@
+"""Studies: the deck's ``studies:`` section, the statistics, running, figures, tables, CLI,
+and the bisection helper (mbsim/study.py, mbsim/cli_study.py, docs/studies.md)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from mbsim.cli import main
+from mbsim.deck import load_deck, load_deck_text
+from mbsim.deck.schema import STUDY_STATS
+from mbsim.errors import DeckError
+from mbsim.output import read_result
+from mbsim.study import STATS, growth, period, run_study, settle, threshold
+
+ROOT = Path(__file__).resolve().parents[1]
+SLIDER = ROOT / "models" / "slider_crank.yaml"
+
+# A small study on the slider-crank: two short inverse runs and a kinematic one.
+STUDY = """
+studies:
+  quick:
+    description: two rod lengths, a few steps
+    cases:
+      - {label: 'ℓ = 0.30 m', name: long, mode: inverse, set: {parameters.ell: 0.3},
+         options: {t_end: 0.1, step: 0.02}}
+      - {label: 'ℓ = 0.24 m', name: short, mode: inverse, set: {parameters.ell: 0.24},
+         options: {t_end: 0.1, step: 0.02}}
+      - {label: kinematic, mode: kinematic, options: {t_end: 0.1, step: 0.05}}
+    figures:
+      - {name: torque, y: drivers.crank.torque, ylabel: 'torque [N m]', cases: [long, short],
+         title: Driving torque}
+      - {name: slider, y: [bodies.slider.r.x, bodies.slider.rd.x], xlabel: 't [ms]',
+         xscale: 1000}
+    numbers:
+      - {name: peak, y: drivers.crank.torque, stat: absmax, unit: N m, cases: [long, short]}
+      - {name: x0, y: bodies.slider.r.x, stat: initial, unit: mm, scale: 1000}
+      - {name: pin, y: points.pin_B.position, stat: final}
+      - {name: dof, y: summary.dof}
+      - {name: solves, y: counters.multiplier_solves, cases: [long]}
+  other:
+    description: one case
+    cases:
+      - {label: one, mode: kinematic, options: {t_end: 0.02, step: 0.01}}
+"""
+
+
+def deck_text(extra: str = STUDY) -> str:
+    """The slider-crank deck without its own studies, plus `extra`."""
+    return SLIDER.read_text().split("\nstudies:\n")[0] + "\n" + extra
+
+
+@pytest.fixture
+def deck(tmp_path) -> Path:
+    path = tmp_path / "slider.yaml"
+    path.write_text(deck_text())
+    return path
+
+
+# --------------------------------------------------------------------------- statistics
+
+
+def test_stats_registry_matches_the_schema():
+    assert tuple(STATS) == STUDY_STATS
+
+
+def test_period_of_a_sine():
+    t = np.linspace(0.0, 2.0, 2001)
+    y = 3.0 + np.sin(2 * np.pi * t / 0.4 + 0.3)
+    assert period(t, y) == pytest.approx(0.4, rel=1e-4)
+    assert np.isnan(period(t[:100], y[:100]))  # less than two crossings
+
+
+def test_settle_of_a_first_order_step():
+    # y = 1 - exp(-(t - 1)/tau) after t = 1 enters the 2 % band at tau ln 50 (exact)
+    tau, dt = 0.5, 1e-3
+    t = np.arange(0.0, 8.0 + dt / 2, dt)
+    y = np.where(t < 1.0, 0.0, 1.0 - np.exp(-(t - 1.0) / tau))
+    assert settle(t, y, {"from": 1.0, "band": 0.02}) == pytest.approx(tau * np.log(50), abs=2 * dt)
+    assert settle(t, np.ones_like(t), {}) == 0.0
+
+
+@pytest.mark.parametrize("sigma, expect", [(-0.3, "<"), (0.0, "="), (0.3, ">")])
+def test_growth_of_an_oscillation(sigma, expect):
+    t = np.linspace(0.0, 20.0, 20001)
+    y = 2.0 + np.exp(sigma * t) * np.sin(2 * np.pi * t)
+    g = growth(t, y, {"from": 0.0})
+    quarter = 5.0  # (20 - 0) / 4: the amplitude ratio of successive quarters is e^(sigma 5)
+    assert g == pytest.approx(np.exp(sigma * quarter), rel=0.02)
+    assert {"<": g < 1, "=": abs(g - 1) < 1e-3, ">": g > 1}[expect]
+
+
+def test_simple_stats_and_windows():
+    t = np.linspace(0.0, 1.0, 11)
+    y = np.array([0, 1, 3, -4, 2, 0, 0, 1, 0, 0, 5.0])
+    n = {"from": None}
+    assert STATS["absmax"](t, y, n) == 5.0
+    assert STATS["t_min"](t, y, n) == pytest.approx(0.3)
+    assert STATS["range"](t, y, n) == 9.0
+    assert STATS["max"](t, y, {"from": 0.15}) == 5.0
+    assert STATS["initial"](t, y, {"from": 0.15}) == 3.0
+    assert STATS["t_absmax"](t, -y, n) == pytest.approx(1.0)
+
+
+# --------------------------------------------------------------------------- the deck section
+
+
+def test_studies_are_read_as_plain_data(deck):
+    spec = load_deck(deck)
+    quick = spec.studies["quick"]
+    assert quick["description"] == "two rod lengths, a few steps"
+    case = quick["cases"][0]
+    assert case["label"] == "ℓ = 0.30 m" and case["name"] == "long" and case["mode"] == "inverse"
+    assert case["set"] == {"parameters.ell": 0.3} and case["scene"] is None
+    assert case["options"] == {"t_end": 0.1, "step": 0.02}
+    assert quick["cases"][2]["name"] == "kinematic"  # from the label
+    fig = quick["figures"][1]
+    assert fig["x"] == "time" and fig["xscale"] == 1000.0 and fig["scale"] == 1.0
+    assert fig["y"] == ["bodies.slider.r.x", "bodies.slider.rd.x"] and fig["cases"] == []
+    assert quick["figures"][0]["cases"] == ["long", "short"]
+    num = quick["numbers"][0]
+    assert (num["stat"], num["band"], num["from"], num["unit"]) == ("absmax", 0.02, None, "N m")
+    assert quick["numbers"][2]["stat"] == "final"  # the default
+    assert re.fullmatch(r".*slider\.yaml:\d+: studies\.quick\.figures\[1\]", fig["where"])
+
+
+def test_a_deck_without_studies_has_none():
+    spec = load_deck(SLIDER.parent / "governor.yaml")
+    assert isinstance(spec.studies, dict)
+    assert load_deck_text(deck_text("")).studies == {}
+
+
+BAD = [
+    (
+        "studies: {s: {cases: [{label: a, mode: inverse}], figurs: []}}",
+        r"studies\.s\.figurs: unknown key 'figurs' in a study; did you mean 'figures'\?",
+    ),
+    (
+        "studies: {s: {cases: [{label: a, mode: invers}]}}",
+        r"studies\.s\.cases\[0\]\.mode: expected mode .*did you mean 'inverse'\?",
+    ),
+    (
+        "studies: {s: {cases: [{label: a, mode: inverse, scene: fre}]}}",
+        r"cases\[0\]\.scene: unknown scene 'fre'; did you mean 'free'\?",
+    ),
+    (
+        "studies: {s: {cases: [{label: a, mode: inverse, set: {parameters.el: 0.3}}]}}",
+        r"cases\[0\]\.set\.parameters\.el: cannot set parameters\.el: .*did you mean",
+    ),
+    (
+        "studies: {s: {cases: [{label: a, mode: inverse}, {label: a, mode: dynamic}]}}",
+        r"studies\.s\.cases\[1\]: label 'a' is used twice",
+    ),
+    (
+        "studies: {s: {cases: [{label: a, mode: inverse}],"
+        " figures: [{name: f, y: q, cases: [b]}]}}",
+        r"figures\[0\]\.cases\[0\]: unknown case \(label or name\) 'b'",
+    ),
+    (
+        "studies: {s: {cases: [{label: a, mode: inverse}], numbers: [{name: n, y: q, stat: mx}]}}",
+        r"numbers\[0\]\.stat: expected stat .*did you mean 'max'\?",
+    ),
+    (
+        "studies: {s: {cases: [{label: a, mode: inverse}], numbers: [{name: n, y: q, band: 2}]}}",
+        r"numbers\[0\]\.band: band must be between 0 and 1, got 2",
+    ),
+    (
+        "studies: {all: {cases: [{label: a, mode: inverse}]}}",
+        r"studies\.all: study name 'all' is reserved",
+    ),
+    ("studies: {s: {cases: []}}", r"studies\.s\.cases: expected at least one case"),
+    ("studies: {s: {description: x}}", r"studies\.s: missing required key 'cases'"),
+    ("studies: {s: {cases: {label: a}}}", r"studies\.s\.cases: expected a list"),
+]
+
+
+@pytest.mark.parametrize("text, message", BAD)
+def test_study_errors_name_file_key_path_and_line(text, message):
+    with pytest.raises(DeckError) as err:
+        load_deck_text(deck_text("\n" + text + "\n"), "deck.yaml")
+    line = deck_text("").count("\n") + 2
+    assert re.search(rf"^deck\.yaml:{line}: .*{message}", str(err.value)), str(err.value)
+
+
+def test_a_scene_of_the_chosen_case_is_applied_only_when_run(deck):
+    # loading with a scene leaves the studies as written (they are checked on the deck as is)
+    spec = load_deck(deck, scene="free")
+    assert "quick" in spec.studies
+
+
+# --------------------------------------------------------------------------- running
+
+
+def test_run_study_writes_files_figures_and_a_table(deck, tmp_path):
+    out = run_study(deck, "quick", tmp_path / "out")
+    assert out.ok, out.problems
+    folder = tmp_path / "out" / "quick"
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "kinematic.h5",
+        "long.h5",
+        "short.h5",
+        "slider.png",
+        "torque.png",
+    ]
+    assert [c.status for c in out.cases] == ["complete"] * 3
+    res = read_result(folder / "short.h5")
+    assert res.settings["study"] == {"study": "quick", "case": "short", "label": "ℓ = 0.24 m"}
+    assert res.settings["overrides"] == {"parameters.ell": "0.24"}
+    header, rows = out.table
+    assert header[:4] == ["case", "mode", "status", "wall [s]"]
+    assert "peak [N m]" in header and "x0 [mm]" in header and "dof" in header
+    assert "pin.x" in header and "pin.z" in header  # one column per component
+    by_case = {r[0]: dict(zip(header, r)) for r in rows}
+    assert by_case["kinematic"]["peak [N m]"] == ""  # not asked for this case
+    # x0 = sqrt(ell^2 - 0.1^2 - 0.2^2) (geometry.md §1.1), in mm by the scale
+    assert out.values["short"]["x0 [mm]"] == pytest.approx(1000 * np.sqrt(0.24**2 - 0.05), 1e-9)
+    assert out.values["long"]["dof"] == 0
+    assert out.values["long"]["solves"] == 6  # t = 0, 0.02, ..., 0.1
+
+
+def test_a_failing_case_does_not_stop_the_others(tmp_path):
+    text = deck_text("""
+studies:
+  s:
+    cases:
+      - {label: ok, mode: kinematic, options: {t_end: 0.01, step: 0.01}}
+      - {label: bad mass, mode: kinematic, set: {bodies.rod.mass: -1}}
+    figures:
+      - {name: f, y: bodies.slider.r.x}
+      - {name: g, y: no.such.channel}
+""")
+    path = tmp_path / "d.yaml"
+    path.write_text(text)
+    out = run_study(path, "s", tmp_path)
+    status = {c.name: c.status for c in out.cases}
+    assert status == {"ok": "complete", "bad_mass": "failed"}
+    assert "bodies.rod.mass: mass must be > 0, got -1" in out.cases[1].message
+    assert out.cases[1].path is None
+    assert not out.ok
+    assert [p.name for p in out.figures] == ["f.png"]
+    assert any("figure g" in p and "no channel" in p for p in out.problems)
+
+
+@pytest.mark.slow
+def test_parallel_cases_give_the_same_files(deck, tmp_path):
+    serial = run_study(deck, "quick", tmp_path / "a")
+    parallel = run_study(deck, "quick", tmp_path / "b", jobs=2)
+    assert parallel.ok
+    for c in serial.cases:
+        a = read_result(tmp_path / "a" / "quick" / f"{c.name}.h5")
+        b = read_result(tmp_path / "b" / "quick" / f"{c.name}.h5")
+        assert np.array_equal(a.channel("bodies.slider.r").data, b.channel("bodies.slider.r").data)
+
+
+def test_threshold_finds_a_known_rod_length():
+    # x_C(0) = sqrt(ell^2 - 0.05) > 0.2  <=>  ell > 0.3 (geometry.md §1.1)
+    case = {"scene": None, "set": {}, "mode": "kinematic", "options": {"t_end": 0.0, "step": 0.1}}
+    th = threshold(
+        SLIDER,
+        case,
+        "parameters.ell",
+        0.26,
+        0.34,
+        lambda r: r.channel("bodies.slider.r").data[0, 0] > 0.2,
+        rtol=1e-3,
+    )
+    assert th.low <= 0.3 <= th.high and th.high - th.low <= 1e-3 * 0.34
+    assert len(th.runs) >= 8 and th.runs[0][:2] == (0.26, False)
+    with pytest.raises(ValueError, match="must be False at"):
+        threshold(
+            SLIDER,
+            case,
+            "parameters.ell",
+            0.31,
+            0.34,
+            lambda r: r.channel("bodies.slider.r").data[0, 0] > 0.2,
+        )
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def test_cli_list_run_and_errors(deck, tmp_path):
+    runner = CliRunner()
+    res = runner.invoke(main, ["study", str(deck), "--list"])
+    assert res.exit_code == 0, res.output
+    assert re.search(r"^quick\s+3 cases \(inverse, kinematic\)\s+two rod lengths", res.output, re.M)
+    assert re.search(r"^other\s+1 case \(kinematic\)", res.output, re.M)
+
+    res = runner.invoke(main, ["study", str(deck), "quick", "-o", str(tmp_path / "o")])
+    assert res.exit_code == 0, res.output
+    assert "figure -> " in res.output and "peak [N m]" in res.output
+    assert re.search(r"ℓ = 0.24 m\s+inverse\s+complete", res.output)
+    assert (tmp_path / "o" / "quick" / "torque.png").stat().st_size > 1000
+
+    res = runner.invoke(main, ["study", str(deck), "all", "-o", str(tmp_path / "o"), "-q"])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "o" / "other" / "one.h5").exists()
+
+    res = runner.invoke(main, ["study", str(deck), "quik"])
+    assert res.exit_code == 2
+    assert "unknown study 'quik'; did you mean 'quick'? (studies: quick, other)" in res.output
+
+    res = runner.invoke(main, ["study", str(deck)])
+    assert res.exit_code == 2 and "name a study" in res.output
+
+
+def test_cli_exit_1_when_a_case_fails(tmp_path):
+    path = tmp_path / "d.yaml"
+    path.write_text(
+        deck_text("""
+studies:
+  s:
+    cases: [{label: bad, mode: kinematic, set: {bodies.rod.mass: -1}}]
+""")
+    )
+    res = CliRunner().invoke(main, ["study", str(path), "s", "-o", str(tmp_path)])
+    assert res.exit_code == 1
+    assert "study s, case bad: failed:" in res.output
