@@ -20,7 +20,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np  # noqa: E402
-from common import chain_model, chain_tip, exudyn_available, exudyn_run, timed  # noqa: E402
+from common import chain_model, chain_tip, cost_at, exudyn_available, exudyn_run, timed  # noqa: E402
 
 from mbsim.analyses.dynamic import dynamic  # noqa: E402
 
@@ -33,24 +33,6 @@ def run_mbsim(model, n, integrator, rtol):
             "atol": 1e-2 * rtol, "q0": model.q0.copy(), "qd0": np.zeros(model.nq)}
     res = dynamic(model, opts)
     return res, chain_tip(res, n)
-
-
-def cost_at(points, target):
-    """(CPU s at error `target`, extrapolated?) by log-log interpolation over [(cpu, error),
-    ...]; past the ladder's end the last two points are extrapolated (flagged)."""
-    pts = sorted(p for p in points if p[1] > 0)
-    for (c0, e0), (c1, e1) in zip(pts, pts[1:]):
-        if (e0 - target) * (e1 - target) <= 0 and e0 != e1:
-            x = np.log(target / e0) / np.log(e1 / e0)
-            return float(np.exp(np.log(c0) + x * np.log(c1 / c0))), False
-    ok = [c for c, e in pts if e <= target]
-    if ok:
-        return min(ok), False
-    if len(pts) >= 2 and pts[-1][1] < pts[-2][1]:
-        (c0, e0), (c1, e1) = pts[-2], pts[-1]
-        x = np.log(target / e0) / np.log(e1 / e0)
-        return float(np.exp(np.log(c0) + x * np.log(c1 / c0))), True
-    return float("nan"), False
 
 
 def main(argv=None):

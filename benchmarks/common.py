@@ -43,6 +43,24 @@ def load(deck, scene=None, overrides=None):
     return load_model(ROOT / "models" / deck, overrides=overrides, scene=scene)[1]
 
 
+def cost_at(points, target):
+    """(CPU s at error `target`, extrapolated?) by log-log interpolation over [(cpu, error),
+    ...]; past the ladder's end the last two points are extrapolated (flagged)."""
+    pts = sorted(p for p in points if p[1] > 0)
+    for (c0, e0), (c1, e1) in zip(pts, pts[1:]):
+        if (e0 - target) * (e1 - target) <= 0 and e0 != e1:
+            x = np.log(target / e0) / np.log(e1 / e0)
+            return float(np.exp(np.log(c0) + x * np.log(c1 / c0))), False
+    ok = [c for c, e in pts if e <= target]
+    if ok:
+        return min(ok), False
+    if len(pts) >= 2 and pts[-1][1] < pts[-2][1]:
+        (c0, e0), (c1, e1) = pts[-2], pts[-1]
+        x = np.log(target / e0) / np.log(e1 / e0)
+        return float(np.exp(np.log(c0) + x * np.log(c1 / c0))), True
+    return float("nan"), False
+
+
 # ------------------------------------------------------------------ the spherical chain
 def chain_spec(n, angle=0.3, g=9.81):
     """Links of 1 kg, 0.5 m, body frame at the centre, rod axis y', J' = diag(1/48, 1e-4,
@@ -156,6 +174,16 @@ def exudyn_rigid_system(model, q, qd):
         elif it.type == "translational":
             mbs.CreatePrismaticJoint(itemNumbers=pair, position=list(P),
                                      axis=list(Ai @ it.C_i[:, 0]))
+        elif it.type == "universal":
+            # spherical + the book's dot-1 (Haug eq. 9.4.3): the cross axes stay
+            # perpendicular; Exudyn's generic joint frees rotations about the two axes
+            Aj = rot_A(Q[it.bj, 3:])
+            hi, hj = Ai @ it.C_i[:, 0], Aj @ it.C_j[:, 0]
+            third = np.cross(hi, hj)
+            frame = np.column_stack([hi, hj - hi * (hi @ hj), third / np.linalg.norm(third)])
+            frame[:, 1] /= np.linalg.norm(frame[:, 1])
+            mbs.CreateGenericJoint(bodyNumbers=pair, position=list(P), rotationMatrixAxes=frame,
+                                   constrainedAxes=[1, 1, 1, 0, 0, 1])
         elif it.type == "distance":
             Pj = Q[it.bj, :3] + rot_A(Q[it.bj, 3:]) @ it.P_j
             mbs.CreateDistanceConstraint(itemNumbers=pair, localPosition0=list(it.P_i),
@@ -174,10 +202,11 @@ def exudyn_rigid_system(model, q, qd):
     return SC, mbs, items
 
 
-def exudyn_run(model, q, qd, steps, t_end, points, sparse=True):
+def exudyn_run(model, q, qd, steps, t_end, points, sparse=True, omegas=()):
     """Exudyn's default implicit solver (generalized-alpha) with `steps` fixed steps; returns
-    ({name: (3,) global position at t_end} for points {name: (body, local point)}, wall s,
-    CPU s).  The build is not timed."""
+    ({name: (3,) global position at t_end} for points {name: (body, local point)}, plus
+    ``{body: (3,) global angular velocity}`` for the bodies in `omegas` under the key
+    ``"<body>.omega"``, wall s, CPU s).  The build is not timed."""
     import exudyn as exu
 
     SC, mbs, items = exudyn_rigid_system(model, q, qd)
@@ -188,4 +217,7 @@ def exudyn_run(model, q, qd, steps, t_end, points, sparse=True):
     out = {k: np.array(mbs.GetObjectOutputBody(items[b], exu.OutputVariableType.Position,
                                                localPosition=list(s)))
            for k, (b, s) in points.items()}
+    for b in omegas:
+        out[f"{b}.omega"] = np.array(mbs.GetObjectOutputBody(
+            items[b], exu.OutputVariableType.AngularVelocity, localPosition=[0, 0, 0]))
     return out, wall, cpu
