@@ -10,7 +10,7 @@ import importlib
 import time
 from pathlib import Path
 
-from mbsim.errors import DeckError, MbsimError
+from mbsim.errors import MbsimError, UsageError
 from mbsim.result import STATUS_INCOMPLETE, Result
 
 ANALYSES: dict[str, tuple[str, str, str]] = {
@@ -36,15 +36,9 @@ def load_model(path, overrides=None, scene=None):
 
 def analysis_function(mode: str):
     if mode not in ANALYSES:
-        raise DeckError(f"unknown mode {mode!r}; choose one of {', '.join(ANALYSES)}")
+        raise UsageError(f"unknown mode {mode!r}; choose one of {', '.join(ANALYSES)}")
     mod, fn, _ = ANALYSES[mode]
-    try:
-        module = importlib.import_module(mod)
-    except ModuleNotFoundError as exc:
-        if exc.name == mod:
-            raise DeckError(f"--mode {mode} is not available in this version") from exc
-        raise
-    return getattr(module, fn)
+    return getattr(importlib.import_module(mod), fn)
 
 
 def run_model(model, mode: str, options: dict | None = None) -> Result:
@@ -70,7 +64,7 @@ def output_path(template: str | None, deck: str | Path, mode: str, parameters: d
     try:
         return Path(template.format(**fields))
     except (KeyError, IndexError, ValueError) as exc:
-        raise DeckError(f"output name template {template!r}: unknown field {exc}; "
+        raise UsageError(f"output name template {template!r}: unknown field {exc}; "
                         f"available: {', '.join(sorted(fields))}") from exc
 
 

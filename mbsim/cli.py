@@ -15,7 +15,7 @@ import click
 import numpy as np
 
 from mbsim import __version__
-from mbsim.errors import DeckError, MbsimError
+from mbsim.errors import DeckError, MbsimError, UsageError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -274,21 +274,31 @@ def check(deck, sets, scene, worst):
 
 
 @main.command()
-@click.argument("files", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
-@click.option("-y", "ys", multiple=True, help="Channel(s) to plot, e.g. drivers.crank.torque.")
+@click.argument("args", nargs=-1, required=True, metavar="FILE... [CHANNEL...]")
+@click.option("-y", "ys", multiple=True, help="Channel(s) to plot, e.g. drivers.crank.torque "
+              "(the same as naming them after the files).")
 @click.option("-x", "x", default="time", show_default=True, help="Channel for the x axis.")
 @click.option("-o", "--output", default="plot.png", show_default=True,
               help="Figure file: .png, .svg or .pdf.")
 @click.option("--label", "labels", multiple=True, help="Curve label per file (with several files).")
 @click.option("--title", help="Figure title.")
 @click.option("--list", "list_only", is_flag=True, help="List the channels of the file(s).")
-def plot(files, ys, x, output, labels, title, list_only):
+def plot(args, ys, x, output, labels, title, list_only):
     """Plot stored channels of results file(s) against time or another channel.
 
-    Example: mbsim plot slider_inverse.h5 -y drivers.crank.torque -o torque.png
+    Arguments that are existing files are results files; the others are channel names.
+
+    Example: mbsim plot slider_inverse.h5 drivers.crank.torque -o torque.png
     """
     from mbsim.output import list_channels, plot_channels, plot_results, read_result, save_figure
 
+    files = [a for a in args if Path(a).is_file()]
+    missing = [a for a in args if not Path(a).is_file() and Path(a).suffix in (".h5", ".hdf5")]
+    if missing:
+        _fail(UsageError(f"no such results file: {missing[0]}"))
+    if not files:
+        _fail(UsageError(f"no results file among {', '.join(args)}"))
+    ys = tuple(ys) + tuple(a for a in args if a not in files)
     try:
         if list_only:
             for f in files:
@@ -306,9 +316,9 @@ def plot(files, ys, x, output, labels, title, list_only):
             fig = plot_results(list(zip(labs, results)), ys[0], x=x, title=title)
         save_figure(fig, output)
     except KeyError as exc:
-        _fail(DeckError(str(exc).strip("'\"")))
+        _fail(UsageError(str(exc).strip("'\"")))
     except (MbsimError, ValueError, OSError) as exc:
-        _fail(DeckError(str(exc)))
+        _fail(exc if isinstance(exc, MbsimError) else UsageError(str(exc)))
     click.echo(f"plot -> {output}")
 
 
@@ -377,7 +387,7 @@ def compare(a, b, rtol, atol, channels, worst):
         chans = [c.strip().replace(".", "/") for c in channels.split(",")] if channels else None
         ok, diffs, problems = compare_results(ra, rb, rtol=rtol, atol=atol, channels=chans)
     except (MbsimError, KeyError, ValueError, OSError) as exc:
-        _fail(DeckError(str(exc)))
+        _fail(exc if isinstance(exc, MbsimError) else UsageError(str(exc).strip("'\"")))
     for p in problems:
         click.echo(f"problem: {p}")
     bad = [d for d in diffs if d.failed]
@@ -408,7 +418,7 @@ def export(file, csv_path, channels):
         chans = [c.strip() for c in channels.split(",")] if channels else None
         paths = export_csv(res, csv_path or str(Path(file).with_suffix(".csv")), channels=chans)
     except (MbsimError, KeyError, ValueError, OSError) as exc:
-        _fail(DeckError(str(exc)))
+        _fail(exc if isinstance(exc, MbsimError) else UsageError(str(exc).strip("'\"")))
     for p in paths:
         click.echo(f"csv -> {p}")
 

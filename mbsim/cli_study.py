@@ -13,7 +13,7 @@ from pathlib import Path
 import click
 
 from mbsim.cli import EXIT_FAILED, _fail, _warn
-from mbsim.errors import DeckError, MbsimError
+from mbsim.errors import MbsimError, UsageError
 
 VIEWS = ("iso", "xy", "xz", "yz")
 
@@ -137,9 +137,9 @@ def animate_command(file, output, fps, view, every, dpi, size):
 
     out = Path(output) if output else Path(file).with_suffix(".gif")
     if every < 1 or fps <= 0:
-        _fail(DeckError("--every must be >= 1 and --fps > 0"))
+        _fail(UsageError("--every must be >= 1 and --fps > 0"))
     try:
         path, nframes = animate_file(file, out, fps=fps, view=view, every=every, dpi=dpi, size=size)
     except (MbsimError, KeyError, ValueError, OSError) as exc:
-        _fail(exc if isinstance(exc, MbsimError) else DeckError(str(exc).strip("'\"")))
+        _fail(exc if isinstance(exc, MbsimError) else UsageError(str(exc).strip("'\"")))
     click.echo(f"animation: {nframes} frames at {fps:g} fps -> {path}")

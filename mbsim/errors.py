@@ -44,6 +44,13 @@ class DeckError(MbsimError):
         super().__init__(f"{self.where}: {message}")
 
 
+class UsageError(MbsimError):
+    """A bad command-line request that is not about a deck: a missing results file, an
+    unknown channel, an option out of range.  Printed without a deck location."""
+
+    exit_code = 2
+
+
 class ExpressionError(MbsimError):
     """A formula in a deck that does not parse or uses something not allowed."""
 

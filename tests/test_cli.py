@@ -75,7 +75,8 @@ def test_singular_run_keeps_partial_results(tmp_path):
         t = f["time"][()]
         assert 0.0 < t[-1] < 0.2
         msg = f.attrs["message"]
-    assert "t = " in msg
+    assert "t = 0.11 s" in msg and "lock-up" in msg
+    assert "lock-up" in r.output  # the one-line error says it too
 
 
 def test_check_info_list(tmp_path):

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mbsim import equations as eq
-from mbsim.analyses.common import rank_and_redundant
-from mbsim.errors import ConvergenceError, DeckError, ModelError
+from mbsim.analyses.common import rank_and_redundant, singular_rows
+from mbsim.errors import ConvergenceError, DeckError, ModelError, SingularJacobianError
 
 
 @dataclass
@@ -54,12 +54,19 @@ def normalize_q(model, q):
     return qq.reshape(-1)
 
 
+STALL_COND = 1e3
+"""A stalled Newton iteration whose residual lies along the weakest singular direction of a
+Phi_q with a condition number above this is reported as a lock-up, not as non-convergence."""
+
+
 def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
     """Solve Phi(q, t) = 0 (rows: the subset to solve); returns (q, iterations, max|Phi|).
 
     ``hold``: coordinate indices kept at their starting values (extra rows q_k - q0_k = 0),
     e.g. the independent coordinates of a system with DOF > 0 during assembly.
-    Raises ConvergenceError naming the worst constraints if ||Phi|| stalls or max_iter passes.
+    Raises ConvergenceError naming the worst constraints if ||Phi|| stalls or max_iter passes,
+    or SingularJacobianError naming the constraints of the singular direction when it stalls
+    where Phi_q is singular (no solution exists there: a lock-up).
     """
     q = normalize_q(model, np.array(q, float))
     hold = np.asarray([] if hold is None else hold, dtype=int)
@@ -95,6 +102,27 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
     if res < tol:
         return q, max_iter, res
     full = eq.phi(model, q, t)
+    # A stall with Phi != 0 ends near a least-squares minimum, J^T Phi = 0: when the residual
+    # lies mostly (measured: 64-70 % for the slider-crank's rod too short by 1e-6 to 6e-3 m)
+    # along the weakest left singular vector of a (nearly) singular J, no configuration
+    # satisfies the constraints at this t (a lock-up: the mechanism cannot pass this
+    # position), and the rows of that direction say which constraints are involved.
+    U, s, _ = np.linalg.svd(J)
+    cond = s[0] / s[-1] if s[-1] > 0 else np.inf
+    along = abs(U[:, -1] @ ph) / max(np.linalg.norm(ph), 1e-300) if J.shape[0] <= J.shape[1] \
+        else 0.0
+    if cond > STALL_COND and along > 0.5:
+        sing, _ = singular_rows(model, J)
+        nrow = len(rows) if rows is not None else model.m
+        crow = [rows[i] if rows is not None else i for i in sing if i < nrow]
+        names = model.items_of_rows(np.asarray(crow, int))
+        raise SingularJacobianError(
+            f"no configuration satisfies the constraints: Newton stalls at max |Phi| = "
+            f"{res:.3g}, the residual along the singular direction of the constraint Jacobian "
+            f"(condition number {cond:.3g}): the constraints cannot all hold here (during a run: "
+            f"a lock-up, the mechanism cannot pass this position); constraints involved: "
+            f"{', '.join(names)}",
+            time=t, items=tuple(names))
     raise ConvergenceError(
         f"Newton iteration did not converge in {max_iter} iterations (max |Phi| = {res:.3g}); "
         f"worst constraints: {worst_constraints(model, full)}",
@@ -133,7 +161,7 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembl
     hold_idx = hold_indices(model, hold)
     try:
         q, its, res = newton(model, q0, t, tol, max_iter, hold=hold_idx)
-    except ConvergenceError as exc:
+    except (ConvergenceError, SingularJacobianError) as exc:
         # A rank-deficient Phi_q where Newton stalls means constraints that contradict
         # each other: name them rather than only the residuals.
         qs = normalize_q(model, q0)

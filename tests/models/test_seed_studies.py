@@ -2,9 +2,8 @@
 (1989) Secs. 12.2, 12.3, 12.6 as a test, and regression numbers pinned with tolerances.
 
 Each study runs exactly as ``mbsim study DECK NAME`` runs it (:func:`mbsim.study.run_study`).
-Fast studies run in the default test run; the long dynamic ones are ``slow``. A study whose
-analysis cannot run yet (a mode not available, the four-bar's dynamics with the book's zero
-principal moments, see ``UNAVAILABLE``) is skipped with the analysis' own message.
+Fast studies run in the default test run; the long dynamic ones are ``slow``. Every case must
+complete: the four-bar's dynamics run with the book's zero principal moments (Table 12.3.1).
 
 Reference values: the seed's text (quoted at each test), shared/reference/geometry.md (§ given),
 and numbers measured with this code (marked "regression"; tolerances wider than the
@@ -13,7 +12,6 @@ integrators' errors).
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
@@ -25,18 +23,10 @@ from mbsim.study import growth, period, run_case, run_study, settle, threshold, 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 SLIDER, FOUR_BAR, GOVERNOR = (MODELS / f"{n}.yaml" for n in ("slider_crank", "four_bar",
                                                              "governor"))  # fmt: skip
-# Analyses that cannot run yet: a mode missing, or the dynamic formulation's inverse of the
-# body inertia (Table 12.3.1 gives Izz = 0 for every four-bar link).
-UNAVAILABLE = re.compile(r"not available in this version|Singular matrix")
-
 
 def results(outcome) -> dict:
-    """case name -> Result; skip when a case cannot run yet, fail on any other failure."""
+    """case name -> Result; every case must be complete."""
     for case in outcome.cases:
-        if case.status == "failed" and UNAVAILABLE.search(case.message):
-            pytest.skip(
-                f"study {outcome.name}, case {case.label}: analysis not available: {case.message}"
-            )
         assert case.status == "complete", f"{case.label}: {case.status}: {case.message}"
     assert not outcome.problems, outcome.problems
     assert len(outcome.figures) == len(set(outcome.figures))
@@ -106,7 +96,6 @@ def slider_dynamics(tmp_path_factory):
     return study(tmp_path_factory, SLIDER, "dynamics_initial_speed")
 
 
-@pytest.mark.slow
 def test_slider_motion_is_periodic_with_a_period_that_depends_on_w0(slider_dynamics):
     """Sec. 12.2.3: "Since the system is conservative, plots are periodic, with different
     periods according to the initial angular velocities." Regression: the periods."""
@@ -124,7 +113,6 @@ def test_slider_motion_is_periodic_with_a_period_that_depends_on_w0(slider_dynam
     assert T == pytest.approx({"w0_6": 0.6019, "w0_2pi": 0.5878, "w0_8": 0.5143}, rel=2e-3)
 
 
-@pytest.mark.slow
 def test_project_12_1_three_body_model(tmp_path_factory):
     """Problem 12.1: the rod's inertia removed (a distance constraint B-C). Regression: the
     driving torque is less than half (0.130 vs 0.297 N m peak), the spike at the reversal
@@ -265,7 +253,6 @@ def test_four_bar_models_need_different_driving_torques(four_bar_inverse):
     assert np.max(np.abs(f1 - column(res["model2"], "joints.A.force_j", 0))) > 20.0
 
 
-@pytest.mark.slow
 def test_four_bar_model_2_responds_faster(tmp_path_factory):
     """Sec. 12.3.4: "the basic character of motion is the same, but the response of model 2
     is faster due to its lower inertia": the centroid of CD reaches its first turning point
@@ -300,8 +287,6 @@ def test_governor_steady_state_holds_until_the_load_step(tmp_path):
         "options": {"t_end": 0.1, "step": 0.01},
     }
     out = run_case(str(GOVERNOR), "test", case, tmp_path / "ss.h5")
-    if out.status == "failed" and UNAVAILABLE.search(out.message):
-        pytest.skip(out.message)
     r = out.result
     assert out.status == "complete", out.message
     before = r.t < 0.1 - 1e-9
@@ -312,7 +297,6 @@ def test_governor_steady_state_holds_until_the_load_step(tmp_path):
     assert column(r, "forces.load.torque")[-1] == pytest.approx([0, -50, 0])  # the step
 
 
-@pytest.mark.slow
 def test_governor_stiffer_spring_longer_transition(tmp_path_factory):
     """Sec. 12.6.4: "the stiffer the spring, the longer the transition time from the initial
     steady state to another steady state". Every stable case ends with the engine torque
@@ -336,7 +320,6 @@ def test_governor_stiffer_spring_longer_transition(tmp_path_factory):
     assert settle(res["k3000"].t, w, {"from": 0.1}) == v["k3000"]["transition [s]"]
 
 
-@pytest.mark.slow
 def test_governor_large_feedback_gain_is_unstable(tmp_path_factory):
     """Sec. 12.6.4: "As the feedback rate becomes larger (more powerful engine), the system
     may become unstable." k = 1000: C = 7 500 settles (about dl = Te/C), 12 500 and 17 500
