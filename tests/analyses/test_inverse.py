@@ -11,7 +11,7 @@ from mbsim.deck.spec import ForceSpec, FunctionSpec
 from mbsim.errors import ModelError
 from mbsim.expr import parse_expression
 from mbsim.model import compile_model
-from tests.analyses.test_kinematic_slider_crank import slider_crank_spec
+from tests.analyses.test_kinematic_slider_crank import slider_crank_model, slider_crank_spec
 from tests.helpers import body, driver, func, joint, pts, spec
 
 # pendulum: arm of mass m, centroid a distance l below the pivot at theta = 0, revolute axis x
@@ -67,14 +67,15 @@ def test_pendulum_torque_matches_hand_formula_and_power():
     np.testing.assert_allclose(res.channel("drivers/motor/power").data, P, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("source", ["spec", "deck"])
 @pytest.mark.parametrize("ell", [0.3, 0.27])
-def test_slider_crank_power_balance(ell):
+def test_slider_crank_power_balance(ell, source):
     """Driver torque x crank rate = dT/dt - P_gravity at every output time (the joints are
     ideal, so the driver is the only other source of work); dT/dt and P_gravity come from
     the kinematic channels, independently of lam.  1e-8 of the peak power: the identity
     holds exactly for the computed (q, qd, qdd); only round-off times cond(Phi_q) < 1e3
-    remains."""
-    model = compile_model(slider_crank_spec(ell))
+    remains.  Both the model built here and the shipped deck."""
+    model = slider_crank_model(ell, source)
     res = inverse(model, {"t_end": 1.0, "step": 0.01})
     assert res.complete, res.message
     tau = res.channel("drivers/crank/torque").data
