@@ -196,13 +196,13 @@ def moment_balance_speed(g, k, L0, yc, m_ball=1.0, m_collar=1.0):
 @pytest.mark.parametrize("g, book", [(9.80, 11.0176), (9.81, 11.0232)])
 @pytest.mark.parametrize("spring", [True, False])
 def test_governor_speed_at_45_degrees(g, book, spring):
-    """The speed that keeps the 45 deg configuration steady equals the independent moment
-    balance to 1e-9 rad/s (both exact solutions of the same statics, measured to agree to
-    1e-13; 1e-9 leaves room for the Newton tolerance of the steady solve).  Reference §4
-    (typo 2) assumes the spring at its free length: without it the speeds are 11.0176
-    (g 9.80; the book prints 11.0174) and 11.0232 (g 9.81) to the 4 decimals printed.  With the spring, exact
-    45 deg arms put the collar at y = 0.050002 (the table rounds to 0.05): the spring is
-    compressed by 2e-6 m (0.002 N), which raises the speed by 3.6e-4 rad/s."""
+    """The speed that keeps the 45 deg configuration steady equals the independent moment balance
+    to 1e-9 rad/s (both exact solutions of the same statics, measured to agree to 1e-13;
+    1e-9 leaves room for the Newton tolerance of the steady solve). Reference §4 (typo 2)
+    assumes the spring at its free length: without it the speeds are 11.0176 (g 9.80; the
+    book prints 11.0174) and 11.0232 (g 9.81) to the 4 decimals printed. With the spring,
+    exact 45 deg arms put the collar at y = 0.050002 (the table rounds to 0.05): the spring
+    is compressed by 2e-6 m (0.002 N), which raises the speed by 3.6e-4 rad/s."""
     _, model = load_model(GOVERNOR)
     model = dataclasses.replace(model, gravity=np.array([0.0, -g, 0.0]),
                                 forces=model.forces if spring else ())
