@@ -50,6 +50,7 @@ def test_kinematic_needs_dof_zero(tmp_path):
     assert r.exit_code == 2
     line = r.output.strip()
     assert "\n" not in line and "governor.yaml" in line and "DOF = 2" in line
+    assert ": drivers: kinematic analysis needs DOF = 0" in line  # the key path of the cause
 
 
 def test_bad_deck_one_line_error(tmp_path):

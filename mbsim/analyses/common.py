@@ -6,6 +6,7 @@ import numpy as np
 import scipy.linalg as la
 
 from mbsim import equations as eq
+from mbsim.errors import DeckError, Where
 from mbsim.result import Result
 from mbsim.rotations import G as rot_G
 
@@ -23,6 +24,19 @@ def rank_and_redundant(model, J, tol=1e-9):
         return 0, np.arange(J.shape[0])
     rank = int(np.sum(d > tol * d[0]))
     return rank, np.sort(piv[rank:])
+
+
+def require_dof_zero(model, dof: int, what: str) -> None:
+    """A driven analysis (kinematic, inverse) needs DOF = 0: otherwise a deck error at the
+    deck's ``drivers`` (file and line of its first driver) saying how many are missing."""
+    if dof == 0:
+        return
+    drivers = [it for it in model.items if it.kind == "driver"]
+    first = next((d for d in (model.spec.drivers.values() if model.spec else ())), None)
+    where = Where(model.file, "drivers", first.where.line if first is not None else None)
+    names = ", ".join(d.name for d in drivers) or "none"
+    raise DeckError(f"{what} needs DOF = 0, but the drivers ({names}) leave DOF = {dof}: add "
+                    f"{dof} driver(s), or run --mode dynamic", where)
 
 
 def singular_rows(model, J, k=1):

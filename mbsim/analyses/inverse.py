@@ -26,10 +26,11 @@ import scipy.linalg as la
 
 from mbsim import equations as eq
 from mbsim.analyses.assembly import assemble
+from mbsim.analyses.common import require_dof_zero
 from mbsim.analyses.kinematic import DEFAULTS as KIN_DEFAULTS
 from mbsim.analyses.kinematic import kinematic
 from mbsim.analyses.reactions import add_reaction_channels
-from mbsim.errors import ModelError, SingularJacobianError
+from mbsim.errors import SingularJacobianError
 from mbsim.result import STATUS_INCOMPLETE, Result
 from mbsim.rotations import G as rot_G
 
@@ -82,7 +83,7 @@ def inverse(model, options=None) -> Result:
     """Inverse dynamics over [t_start, t_end] every ``step`` (options as for kinematic).
 
     Returns the kinematic channels plus driver efforts, joint reactions, ``constraints/lam``.
-    Raises ModelError (one line) if the drivers leave DOF != 0.  A kinematic failure
+    Raises DeckError (one line, at the deck's drivers) if they leave DOF != 0.  A kinematic failure
     (lock-up, singular Jacobian) gives status 'incomplete', its message naming time and
     joints, with every channel kept up to the last good time.
     """
@@ -91,11 +92,7 @@ def inverse(model, options=None) -> Result:
     progress = opt.pop("progress", None)  # progress(t, t_end) per output step (mbsim.progress)
     wall0 = _time.perf_counter()
     asm = assemble(model, t=float(opt["t_start"]), tol=opt["tol"])
-    if asm.dof != 0:
-        drivers = [it.name for it in model.items if it.kind == "driver"]
-        raise ModelError(
-            f"inverse dynamics needs DOF = 0, but the drivers ({', '.join(drivers) or 'none'}) "
-            f"leave DOF = {asm.dof}: add {asm.dof} driver(s), or run --mode dynamic")
+    require_dof_zero(model, asm.dof, "inverse dynamics")
     kin_opt = {k: opt[k] for k in KIN_DEFAULTS}
     if progress is not None:
         kin_opt["progress"] = progress

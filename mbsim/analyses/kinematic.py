@@ -10,8 +10,8 @@ import scipy.linalg as la
 
 from mbsim import equations as eq
 from mbsim.analyses.assembly import assemble, newton
-from mbsim.analyses.common import Recorder, singular_rows
-from mbsim.errors import AnalysisError, ConvergenceError, ModelError, SingularJacobianError
+from mbsim.analyses.common import Recorder, require_dof_zero, singular_rows
+from mbsim.errors import AnalysisError, ConvergenceError, SingularJacobianError
 from mbsim.result import STATUS_INCOMPLETE
 
 DEFAULTS = {"t_start": 0.0, "t_end": 1.0, "step": 0.01, "tol": 1e-10, "max_iter": 25,
@@ -51,11 +51,7 @@ def kinematic(model, options=None):
     times = output_times(float(opt["t_start"]), float(opt["t_end"]), float(opt["step"]))
     asm = assemble(model, t=times[0], tol=opt["tol"])
     rows = asm.active_rows
-    if asm.dof != 0:
-        drivers = [it.name for it in model.items if it.kind == "driver"]
-        raise ModelError(
-            f"kinematic analysis needs DOF = 0, but the drivers ({', '.join(drivers) or 'none'}) "
-            f"leave DOF = {asm.dof}: add {asm.dof} driver(s) or run --mode dynamic")
+    require_dof_zero(model, asm.dof, "kinematic analysis")
     rec = Recorder(model)
     cond = []
     q, qd_prev, qdd_prev = asm.q, None, None

@@ -8,7 +8,7 @@ from mbsim.analyses.dynamic import dynamic
 from mbsim.analyses.inverse import inverse, multipliers, states_from_result
 from mbsim.analyses.reactions import reactions
 from mbsim.deck.spec import ForceSpec, FunctionSpec
-from mbsim.errors import ModelError
+from mbsim.errors import DeckError
 from mbsim.expr import parse_expression
 from mbsim.model import compile_model
 from tests.analyses.test_kinematic_slider_crank import slider_crank_model, slider_crank_spec
@@ -206,12 +206,13 @@ def test_locked_slider_crank_stops_with_a_named_error_and_keeps_the_data():
 
 def test_inverse_needs_dof_zero():
     model = compile_model(pendulum_spec(drivers=False))
-    with pytest.raises(ModelError) as err:
+    with pytest.raises(DeckError) as err:
         inverse(model, {"t_end": 0.1})
     msg = str(err.value)
     assert "DOF = 1" in msg and "none" in msg and "\n" not in msg
+    assert err.value.where.path == "drivers"
     model = compile_model(slider_crank_spec(0.3))
     free = compile_model(spec(list(slider_crank_spec(0.3).bodies.values()),
                               list(model.spec.joints.values()), gravity=(0, 0, -9.81)))
-    with pytest.raises(ModelError, match="DOF = 1"):
+    with pytest.raises(DeckError, match="DOF = 1"):
         inverse(free, {"t_end": 0.1})
