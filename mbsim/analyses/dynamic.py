@@ -96,36 +96,42 @@ def dynamic(model, options=None):
         n_out_eval += 1
         T, V = system.energy(q, qd)
         pv, vv = system.violations(q, qd, t)
+        lam_all = system.full_lam(lam)
+        # monitors first, the output row last: a Ctrl-C in between leaves at most one extra
+        # monitor value, trimmed below, never a row without its monitors
+        for key, v in (("pos", pv), ("vel", vv), ("energy", T + V), ("work", w + V - V0),
+                       ("h", h), ("lam", lam_all)):
+            mon[key].append(v)
         rec.add(t, q, qd, qdd)
-        mon["pos"].append(pv)
-        mon["vel"].append(vv)
-        mon["energy"].append(T + V)
-        mon["work"].append(w + V - V0)
-        mon["h"].append(h)
-        mon["lam"].append(system.full_lam(lam))
 
     status, message = "complete", ""
     record(t0, q, qd, 0.0, np.nan)
     k = 1
     steps = 0
-    while k < len(times):
-        ok, msg = solver.step()
-        steps += 1
-        if not ok:
-            status, message = STATUS_INCOMPLETE, _explain(model, system, solver, msg)
-            break
-        if k < len(times) and times[k] <= solver.t + 1e-12 * max(1.0, abs(solver.t)):
-            dense = solver.dense_output()
-            while k < len(times) and times[k] <= solver.t + 1e-12 * max(1.0, abs(solver.t)):
-                tk = min(times[k], solver.t)
-                qk, qdk, wk = (solver.q, solver.qd, solver.w) if tk == solver.t else dense(tk)
-                record(times[k], qk, qdk, wk, solver.h_last)
-                k += 1
-        if steps >= int(opt["max_steps"]) and k < len(times):
-            status = STATUS_INCOMPLETE
-            message = (f"t = {solver.t:.6g} s: max_steps = {int(opt['max_steps'])} reached "
-                       f"before t_end = {t1:g} s (step size {solver.h_last:.3g} s)")
-            break
+    try:
+        while k < len(times):
+            ok, msg = solver.step()
+            steps += 1
+            if not ok:
+                status, message = STATUS_INCOMPLETE, _explain(model, system, solver, msg)
+                break
+            if k < len(times) and times[k] <= solver.t + 1e-12 * max(1.0, abs(solver.t)):
+                dense = solver.dense_output()
+                while k < len(times) and times[k] <= solver.t + 1e-12 * max(1.0, abs(solver.t)):
+                    tk = min(times[k], solver.t)
+                    qk, qdk, wk = (solver.q, solver.qd, solver.w) if tk == solver.t else dense(tk)
+                    record(times[k], qk, qdk, wk, solver.h_last)
+                    k += 1
+            if steps >= int(opt["max_steps"]) and k < len(times):
+                status = STATUS_INCOMPLETE
+                message = (f"t = {solver.t:.6g} s: max_steps = {int(opt['max_steps'])} reached "
+                           f"before t_end = {t1:g} s (step size {solver.h_last:.3g} s)")
+                break
+    except KeyboardInterrupt:  # Ctrl-C: keep what was computed, marked incomplete
+        status = STATUS_INCOMPLETE
+        message = f"t = {solver.t:.6g} s: interrupted (Ctrl-C) before t_end = {t1:g} s"
+        for v in mon.values():
+            del v[len(rec):]
     res = rec.result("dynamic")
     if len(rec):
         res.add("monitors/position_violation", mon["pos"], "", "max |Phi| over all rows")

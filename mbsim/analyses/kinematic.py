@@ -83,6 +83,10 @@ def kinematic(model, options=None):
         except (ConvergenceError, SingularJacobianError, AnalysisError) as exc:
             status, message = STATUS_INCOMPLETE, str(exc)
             break
+        except KeyboardInterrupt:  # Ctrl-C: keep the finished output times, marked incomplete
+            status = STATUS_INCOMPLETE
+            message = f"t = {t:.6g} s: interrupted (Ctrl-C) before t_end = {times[-1]:g} s"
+            break
         rec.add(t, q, qd, qdd, residual=np.abs(T.phi).max())
         qd_prev, qdd_prev = qd, qdd
         if progress is not None:

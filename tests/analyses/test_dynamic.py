@@ -106,6 +106,29 @@ def test_failure_keeps_data_and_names_time_and_joints(crank):
     assert 0 < res.t[-1] < 1.0
 
 
+def test_ctrl_c_keeps_the_finished_outputs(crank, monkeypatch):
+    """A KeyboardInterrupt in the 40th step ends the run as incomplete with every output
+    reached so far, each with its monitors (all channels the same length)."""
+    from mbsim.analyses import dynamic as dyn
+
+    model, q, qd = crank
+    cls = dyn.integrator_class("projection-dop853")
+    step, calls = cls.step, {"n": 0}
+
+    def interrupted_step(self):
+        calls["n"] += 1
+        if calls["n"] == 40:
+            raise KeyboardInterrupt
+        return step(self)
+
+    monkeypatch.setattr(cls, "step", interrupted_step)
+    res = dynamic(model, {"t_end": 1.0, "step": 0.005, "q0": q, "qd0": qd,
+                          "integrator": "projection-dop853", "rtol": 1e-8})
+    assert res.status == "incomplete" and "interrupted (Ctrl-C)" in res.message
+    assert 0.0 < res.t[-1] < 1.0
+    assert all(c.data.shape[0] == len(res.t) for c in res.channels.values())
+
+
 def test_unknown_integrator_is_a_usage_error(crank):
     model, q, qd = crank
     with pytest.raises(DeckError, match="did you mean gcp-dop853"):

@@ -73,3 +73,23 @@ def test_slider_matches_closed_form(ell, source):
     # the slider first reverses at t ~ 0.11 s (reference §1.1)
     t_rev = res.t[np.argmax(np.diff(np.sign(res.channel("bodies/slider/rd").data[:, 0])) != 0)]
     assert 0.10 <= t_rev <= 0.12
+
+
+def test_ctrl_c_keeps_the_finished_output_times(monkeypatch):
+    """A KeyboardInterrupt in the 6th Newton solve ends the run as incomplete with the five
+    output times before it, every channel the same length."""
+    import mbsim.analyses.kinematic as kin
+
+    newton, calls = kin.newton, {"n": 0}
+
+    def interrupted(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 6:
+            raise KeyboardInterrupt
+        return newton(*args, **kwargs)
+
+    monkeypatch.setattr(kin, "newton", interrupted)
+    res = kinematic(slider_crank_model(0.3, "deck"), {"t_end": 1.0, "step": 0.01})
+    assert res.status == "incomplete" and "interrupted (Ctrl-C)" in res.message
+    assert len(res.t) == 6 and res.t[-1] == pytest.approx(0.05)
+    assert all(c.data.shape[0] == 6 for c in res.channels.values())
