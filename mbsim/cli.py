@@ -8,6 +8,7 @@ talks to the terminal; the library reports through exceptions, Results and ``log
 from __future__ import annotations
 
 import logging
+import signal
 import sys
 from pathlib import Path
 
@@ -90,6 +91,8 @@ class LazyGroup(click.Group):
 @click.option("-v", "--verbose", count=True, help="Log progress (-vv for debug).")
 def main(verbose: int) -> None:
     """mbsim: spatial multibody kinematics and dynamics (Haug 1989) from YAML decks."""
+    if hasattr(signal, "SIGPIPE"):  # `mbsim info deck | head` ends quietly, as cat does
+        signal.signal(signal.SIGPIPE, signal.SIG_DFL)
     level = logging.WARNING - 10 * min(verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
 
