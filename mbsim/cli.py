@@ -407,7 +407,8 @@ def compare(a, b, rtol, atol, channels, worst):
 
 @main.command()
 @click.argument("file", type=click.Path(exists=True, dir_okay=False))
-@click.option("--csv", "csv_path", default=None, help="CSV file to write (default: FILE.csv).")
+@click.option("--csv", "csv_path", is_flag=False, flag_value="", default=None,
+              help="CSV file to write; --csv alone (or no option) writes FILE.csv.")
 @click.option("--channels", help="Comma-separated channels (default: all).")
 def export(file, csv_path, channels):
     """Export a results file to CSV for spreadsheets.

@@ -7,11 +7,24 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import sys
 
 import click
 
 from mbsim.api import ANALYSES
+
+
+def _echo(line: str, err: bool = False) -> None:
+    """click.echo, but a reader that went away (`mbsim sweep ... | head`) only silences the
+    stream: the sweep goes on, its files and index are the output that matters."""
+    try:
+        click.echo(line, err=err)
+    except BrokenPipeError:
+        stream = sys.stderr if err else sys.stdout
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, stream.fileno())  # later writes and the exit's flush go nowhere
+        os.close(devnull)
 
 
 @click.command("sweep")
@@ -27,9 +40,12 @@ from mbsim.api import ANALYSES
               help="Parallel processes (default: min(CPUs, cases)); ignored with --scheduler.")
 @click.option("-o", "--output", "out_dir",
               help="Folder for the case files and the index (default <deck>_<mode>_sweep).")
-@click.option("--summary", "summaries", multiple=True, metavar="CHANNEL:NAME",
-              help="A value per case in the index, e.g. bodies.collar.r.y:final; NAME is "
-                   "final, min, max, mean, peak or settle_time (repeatable).")
+@click.option("--summary", "summaries", multiple=True, metavar="CHANNEL:NAME[:from=T]",
+              help="A value per case in the index, e.g. bodies.spindle.omega.y:final or "
+                   "bodies.spindle.omega.y:settle:from=0.1 (transition time after t = 0.1 s); "
+                   "NAME is a study statistic: final, initial, min, max, absmax, mean, range, "
+                   "t_max, t_min, t_absmax, period, settle (band=B, default 0.02), growth "
+                   "(repeatable).")
 @click.option("--set", "sets", multiple=True, metavar="PATH=VALUE",
               help="Override a deck value in every case (repeatable).")
 @click.option("--scene", help="Apply a named scene of the deck to every case.")
@@ -48,11 +64,19 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
     and an index (index.csv, index.h5) in the output folder. Re-running the same command
     runs only the cases that are missing, failed or incomplete.
 
-    Example: mbsim sweep models/governor.yaml --mode dynamic --param k=1000,2000,3000
-    --summary bodies.collar.r.y:settle_time -o gov_k
+    Example: mbsim sweep models/governor.yaml --mode dynamic --scene governed
+    --param k=1000,2000,3000 -j 2 --summary bodies.spindle.omega.y:final
+    --summary bodies.spindle.omega.y:settle:from=0.1 -o gov_k
     """
     from mbsim.cli import EXIT_FAILED, EXIT_OK, EXIT_USAGE, _fail, _parse_sets, _warn
     from mbsim.errors import MbsimError
+
+    if hasattr(signal, "SIGPIPE"):
+        # Python's own setting again (mbsim's main sets the default action, for `| head`):
+        # the sweep talks to its workers through pipes and to a Dask scheduler through
+        # sockets, where a peer that went away must be an error, not the silent end of the
+        # sweep with its workers left running
+        signal.signal(signal.SIGPIPE, signal.SIG_IGN)
     from mbsim.sweep import (
         STATUS_COMPLETE,
         default_out_dir,
@@ -85,18 +109,18 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
         line = f"[{done}/{ncases}] {rec.case.name}: {how}, {wall}"
         if rec.message:
             line += f": {rec.message}"
-        click.echo(line)
+        _echo(line)
 
     if not quiet:
         where = f"Dask scheduler {scheduler}" if scheduler else \
             f"up to {jobs or min(os.cpu_count() or 1, ncases)} process(es)"
-        click.echo(f"sweep: {ncases} case(s) of {mode} on {where} -> {plan.out_dir}")
+        _echo(f"sweep: {ncases} case(s) of {mode} on {where} -> {plan.out_dir}")
     try:
         outcome = run_sweep(plan, on_case=on_case, jobs=jobs, scheduler=scheduler)
     except KeyboardInterrupt:
-        click.echo(f"error: interrupted after {done} of {ncases} case(s); finished files kept, "
-                   f"index written to {plan.out_dir}/index.csv (re-run the same command to "
-                   "continue)", err=True)
+        _echo(f"error: interrupted after {done} of {ncases} case(s); finished files kept, "
+              f"index written to {plan.out_dir}/index.csv (re-run the same command to "
+              "continue)", err=True)
         sys.exit(EXIT_FAILED)
     except MbsimError as exc:
         _fail(exc, deck)
@@ -104,15 +128,15 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
     skipped = sum(r.skipped for r in outcome.records)
     if not quiet:
         listed = ", ".join(f"{n} {s}" for s, n in counts.items() if n)
-        click.echo(f"sweep: {listed} ({skipped} kept from an earlier run) -> "
-                   f"{outcome.index_csv}, {outcome.index_h5.name}")
+        _echo(f"sweep: {listed} ({skipped} kept from an earlier run) -> "
+              f"{outcome.index_csv}, {outcome.index_h5.name}")
     _warn([e + " (value left empty)" for e in outcome.summary_errors])
     if outcome.summary_errors:
         sys.exit(EXIT_USAGE)
     bad = ncases - counts[STATUS_COMPLETE]
     if bad:
-        click.echo(f"error: {deck}: {bad} of {ncases} case(s) not complete "
-                   f"(see {outcome.index_csv})", err=True)
+        _echo(f"error: {deck}: {bad} of {ncases} case(s) not complete "
+              f"(see {outcome.index_csv})", err=True)
         sys.exit(EXIT_FAILED)
     sys.exit(EXIT_OK)
 

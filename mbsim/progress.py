@@ -12,8 +12,9 @@ The contract between an analysis and whoever runs it (the CLI) is one optional c
    internal integrator step or Newton iteration), with non-decreasing ``t``; the first call
    may be at ``t_start``. It ignores the return value. The callable is cheap (it rate-limits
    its own writing), so calling it every output step costs nothing measurable.
-4. An exception raised by the callable (a ``KeyboardInterrupt`` from the terminal, say)
-   propagates; the analysis does not catch it.
+4. An exception raised by the callable propagates, except ``KeyboardInterrupt`` (Ctrl-C on
+   the terminal): the kinematic, inverse and dynamic analyses end the run there as
+   ``incomplete`` and return what they recorded, as they do on a Ctrl-C anywhere in the loop.
 5. The analysis never prints: drawing, rate limiting and cleaning up the line are the
    callable's business, and the caller closes it when the analysis returns.
 

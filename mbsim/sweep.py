@@ -33,11 +33,13 @@ Resuming
     index). So re-running an interrupted or partly failed sweep runs only what is missing.
 
 Interrupting
-    A ``KeyboardInterrupt`` (Ctrl-C) while cases run cancels the cases not started, stops
-    the running ones (their results are lost; nothing of theirs was written), keeps every
+    Ctrl-C (SIGINT) or SIGTERM while cases run (caught by :func:`run_sweep` and raised as a
+    ``KeyboardInterrupt`` from its wait loop) cancels the cases not started, stops the
+    running ones (their results are lost; nothing of theirs was written), keeps every
     finished file and writes the index with the unfinished cases as ``cancelled``, then
     re-raises. The index is also rewritten (atomically) as cases finish, at most once a
-    second, so even a killed sweep leaves an index of what had finished by then.
+    second, so even a killed sweep (SIGKILL) leaves an index of what had finished by then;
+    the files decide what a re-run runs, not the index.
 
 Index
     ``index.csv`` and ``index.h5`` (compound dataset ``/cases``, one record per case; root
@@ -49,10 +51,13 @@ Index
     otherwise).
 
 Summaries
-    ``SUMMARIES`` maps a name to ``f(t, x) -> float`` over the time axis ``t`` (nt,) and one
-    scalar column ``x`` (nt,) (a channel or one component, ``bodies.collar.r.y``). A function
-    whose result is a time carries ``unit = "s"``; otherwise the value has the channel's unit.
-    Add entries to the dict to make new names available on the command line.
+    ``--summary CHANNEL:NAME[:from=T][:band=B]``: NAME is a statistic of a deck study's
+    ``numbers:`` (``SUMMARIES`` is :data:`mbsim.study.STATS`: final, min, max, mean,
+    absmax, range, t_max, period, settle, growth, ...), computed by the same function over
+    the time axis and one scalar column (a channel or one component, ``bodies.collar.r.y``),
+    with ``from`` (window start, s) and ``band`` (settle) as the study keys of those names.
+    So ``bodies.spindle.omega.y:settle:from=0.1`` is the transition time of the governor's
+    study ``spring_rate``, to the last bit.
 """
 
 from __future__ import annotations
@@ -65,9 +70,11 @@ import json
 import math
 import multiprocessing
 import os
+import pickle
 import re
 import signal
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -79,11 +86,13 @@ import numpy as np
 
 from mbsim.errors import DeckError, MbsimError, Where
 from mbsim.result import STATUS_COMPLETE, STATUS_INCOMPLETE, Result
+from mbsim.study import RATIO_STATS, STATS, TIME_STATS
 
 STATUS_FAILED = "failed"  # the case raised: no results file
 STATUS_CANCELLED = "cancelled"  # interrupted before it finished: no results file
-SETTLE_BAND = 0.02  # settle_time: half-width of the band around the final value, relative
 INDEX_INTERVAL = 1.0  # s: the index is rewritten at most this often while cases finish
+POLL = 0.1  # s: how often the wait for cases looks for a Ctrl-C / SIGTERM
+ORPHAN_POLL = 0.5  # s: how often a pool worker checks that the sweep process is still there
 MAX_NAME = 150  # longer case names are replaced by case<number>
 CONNECT_TIMEOUT = 20.0  # s to reach a Dask scheduler
 _UNSAFE = re.compile(r"[^A-Za-z0-9.+=-]+")
@@ -97,111 +106,89 @@ class SweepError(MbsimError):
 
 # --------------------------------------------------------------------------- summaries
 
-
-def final(t: np.ndarray, x: np.ndarray) -> float:
-    """The last value."""
-    return float(x[-1])
-
-
-def minimum(t: np.ndarray, x: np.ndarray) -> float:
-    """The smallest value."""
-    return float(np.min(x))
-
-
-def maximum(t: np.ndarray, x: np.ndarray) -> float:
-    """The largest value."""
-    return float(np.max(x))
-
-
-def mean(t: np.ndarray, x: np.ndarray) -> float:
-    """The time average, trapezoidal rule: (1 / (t_end - t_0)) * integral of x dt
-    (the plain average of the samples for a single sample)."""
-    if len(t) < 2 or t[-1] == t[0]:
-        return float(np.mean(x))
-    integral = float(np.sum(0.5 * (x[1:] + x[:-1]) * np.diff(t)))
-    return integral / float(t[-1] - t[0])
-
-
-def peak(t: np.ndarray, x: np.ndarray) -> float:
-    """The largest absolute value, max |x|."""
-    return float(np.max(np.abs(x)))
-
-
-def settle_time(t: np.ndarray, x: np.ndarray) -> float:
-    """The transition time to a new steady state: when `x` last enters, and then stays in,
-    the band |x - x_f| <= 0.02 |x_f| around its final value x_f = x[-1].
-
-    The time is interpolated linearly between the last sample outside the band and the next
-    one; it is ``t[0]`` when no sample is outside. When x_f = 0 the band is 2 % of max |x|
-    instead. The run must be long enough to reach the steady state: x_f is the last sample,
-    whatever it is. (The 2 % settling-time criterion of control engineering, taken relative
-    to the final value.)
-    """
-    xf = float(x[-1])
-    band = SETTLE_BAND * (abs(xf) if xf != 0 else float(np.max(np.abs(x))))
-    outside = np.flatnonzero(np.abs(x - xf) > band)
-    if outside.size == 0:
-        return float(t[0])
-    k = int(outside[-1])  # k < nt - 1: the last sample is always inside
-    d0, d1 = abs(x[k] - xf) - band, abs(x[k + 1] - xf) - band  # > 0, <= 0
-    return float(t[k] + (t[k + 1] - t[k]) * d0 / (d0 - d1)) if d0 != d1 else float(t[k + 1])
-
-
-settle_time.unit = "s"  # type: ignore[attr-defined]
-
-SUMMARIES: dict[str, Callable[[np.ndarray, np.ndarray], float]] = {
-    "final": final,
-    "min": minimum,
-    "max": maximum,
-    "mean": mean,
-    "peak": peak,
-    "settle_time": settle_time,
-}
+# The statistics of studies (``numbers:`` of a deck's study, docs/studies.md): one definition
+# of "transition time", "final", ... for studies and sweeps.  Each is f(t, y, options).
+SUMMARIES: dict[str, Callable[[np.ndarray, np.ndarray, dict], float]] = STATS
+SUMMARY_OPTIONS = ("from", "band")  # CHANNEL:NAME:from=T:band=B (the study number keys)
 
 
 @dataclass(frozen=True)
 class Summary:
-    """``--summary CHANNEL:NAME``: the summary `name` of one scalar column `channel`."""
+    """``--summary CHANNEL:NAME[:from=T][:band=B]``: the statistic `name` (a key of
+    :data:`SUMMARIES`, i.e. :data:`mbsim.study.STATS`) of one scalar column `channel`,
+    over the samples at t >= `from` (all when None); `band` is the relative band of
+    ``settle`` (default 0.02)."""
 
     channel: str  # dotted selector, e.g. bodies.collar.r.y
     name: str  # key of SUMMARIES
+    options: tuple[tuple[str, str], ...] = ()  # (key, number text as given), e.g. ('from', '0.1')
 
     @property
     def column(self) -> str:
-        return f"{self.channel}:{self.name}"
+        """The index column: ``bodies.spindle.omega.y:settle:from=0.1``."""
+        return ":".join([self.channel, self.name] + [f"{k}={v}" for k, v in self.options])
+
+    @property
+    def number(self) -> dict[str, float]:
+        """The options as a study number's keys, for ``STATS[name](t, y, number)``."""
+        return {k: float(v) for k, v in self.options}
 
 
 def parse_summary(text: str) -> Summary:
-    """``bodies.collar.r.y:final`` -> Summary; the name must be in SUMMARIES."""
-    channel, sep, name = text.strip().rpartition(":")
+    """``bodies.collar.r.y:final`` or ``bodies.spindle.omega.y:settle:from=0.1`` -> Summary;
+    the name must be in SUMMARIES, the options ``from`` (s) and ``band`` (settle only)."""
+    channel, _, rest = text.strip().partition(":")
     channel = channel.strip().replace("/", ".").strip(".")
-    name = name.strip()
-    if not sep or not channel:
+    name, *opts = [x.strip() for x in rest.split(":")] if rest else [""]
+    names = ", ".join(SUMMARIES)
+    if not channel or not name:
         raise SweepError(f"--summary {text!r}: expected CHANNEL:NAME, e.g. "
-                         f"bodies.collar.r.y:final (names: {', '.join(SUMMARIES)})")
+                         f"bodies.collar.r.y:final (names: {names})")
     if name not in SUMMARIES:
         import difflib
 
         close = difflib.get_close_matches(name, list(SUMMARIES), n=1)
         hint = f"did you mean {close[0]!r}? " if close else ""
-        raise SweepError(f"--summary {text!r}: unknown summary {name!r}; {hint}"
-                         f"(names: {', '.join(SUMMARIES)})")
-    return Summary(channel, name)
+        raise SweepError(f"--summary {text!r}: unknown summary {name!r}; {hint}(names: {names})")
+    options: dict[str, str] = {}
+    for opt in opts:
+        key, sep, value = (x.strip() for x in opt.partition("="))
+        if not sep or key not in SUMMARY_OPTIONS:
+            raise SweepError(f"--summary {text!r}: {opt!r} is not one of from=T (start of the "
+                             "window, s) or band=B (relative band of settle)")
+        if key in options:
+            raise SweepError(f"--summary {text!r}: {key} given twice")
+        try:
+            number = float(value)
+        except ValueError:
+            raise SweepError(f"--summary {text!r}: {key}={value!r} is not a number") from None
+        if not math.isfinite(number) or (key == "band" and number <= 0):
+            raise SweepError(f"--summary {text!r}: {key}={value} must be a finite number"
+                             + (" > 0" if key == "band" else ""))
+        if key == "band" and name != "settle":
+            raise SweepError(f"--summary {text!r}: band applies to settle only")
+        options[key] = value
+    return Summary(channel, name, tuple(options.items()))
 
 
 def summary_unit(summary: Summary, channel_unit: str) -> str:
-    return getattr(SUMMARIES[summary.name], "unit", None) or channel_unit
+    """``s`` for the time statistics, nothing for growth, else the channel's unit."""
+    if summary.name in TIME_STATS:
+        return "s"
+    return "" if summary.name in RATIO_STATS else channel_unit
 
 
 def evaluate_summary(result: Result, summary: Summary) -> tuple[float, str]:
-    """(value, unit) of `summary` on `result`.
+    """(value, unit) of `summary` on `result`: ``STATS[name](t, y, {from, band})``, the very
+    function (and so the very number) of a study's ``numbers:`` entry with the same keys.
 
     Raises
     ------
     KeyError, IndexError
         Unknown channel or component (the message suggests close names).
     ValueError
-        The selector names a vector channel (several columns) or there are no samples.
+        The selector names a vector channel (several columns) or there are no samples (in
+        the window).
     """
     from mbsim.output import select_columns
 
@@ -212,9 +199,14 @@ def evaluate_summary(result: Result, summary: Summary) -> tuple[float, str]:
                          f"name one: {labels}")
     col = cols[0]
     t = np.asarray(result.t, dtype=float)
+    number = summary.number
     if t.size == 0:
         raise ValueError("no output samples")
-    return SUMMARIES[summary.name](t, col.data), summary_unit(summary, col.unit)
+    if number.get("from") is not None and not t[-1] >= number["from"] - 1e-12:
+        raise ValueError(f"no output at t >= from={number['from']:g} s "
+                         f"(the run ends at {t[-1]:g} s)")
+    value = SUMMARIES[summary.name](t, np.asarray(col.data, dtype=float), number)
+    return float(value), summary_unit(summary, col.unit)
 
 
 # --------------------------------------------------------------------------- parameters, cases
@@ -275,8 +267,14 @@ class Case:
 
 
 def safe_name(text: str) -> str:
-    """`text` with runs of characters other than ``A-Z a-z 0-9 . + - =`` replaced by ``-``."""
-    return _UNSAFE.sub("-", text).strip("-") or "-"
+    """`text` with runs of characters other than ``A-Z a-z 0-9 . + - =`` replaced by ``-``,
+    such runs at either end dropped (a sign stays: ``-2*pi`` gives ``-2-pi``)."""
+    name = _UNSAFE.sub("-", text)
+    if _UNSAFE.match(text):
+        name = name[1:]
+    if text and _UNSAFE.match(text[-1]):
+        name = name[:-1]
+    return name or "-"
 
 
 def make_cases(params: Sequence[Param], zip_: bool = False) -> list[Case]:
@@ -381,6 +379,12 @@ def plan_sweep(deck: str | Path, mode: str, params: Sequence[Param], out_dir: st
     if both:
         raise SweepError(f"{both[0]} is both --set and --param; give it once")
     cases = make_cases(params, zip_)
+    fixed = {"case", "status", "skipped", "message", "wall_s", "file"}
+    clash = [p.label for p in params if p.label in fixed]
+    if clash:
+        raise SweepError(f"--param {clash[0]}: the index has a column of that name; "
+                         f"write the key path, parameters.{clash[0]}")
+    summaries = tuple(dict.fromkeys(summaries))  # one column per distinct --summary
     spec = load_deck(deck, overrides=overrides, scene=scene)
     _check_paths(spec.text, str(deck), scene, params)
     opts = {k: v for k, v in (options or {}).items() if v is not None}
@@ -426,6 +430,29 @@ def run_case(deck_text: str, deck_file: str, overrides: dict[str, str], scene: s
         msg = f"{type(exc).__name__}: {exc}".replace("\n", " ")
         return CaseRun(None, msg, time.perf_counter() - t0)
     return CaseRun(result, "", time.perf_counter() - t0)
+
+
+def run_case_spooled(spool: str, number: int, *args) -> str:
+    """:func:`run_case` in a local pool worker: the CaseRun is pickled to a file in the
+    folder `spool` and only its name goes back through the pool's pipe.
+
+    A Result is megabytes; sent through the pipe, it takes many writes, and a worker stopped
+    part-way (Ctrl-C stops the running cases) leaves half a message there, on which the
+    pool's result thread then waits forever (and with it the exit of the process). A name
+    is one write of a few bytes, which a signal cannot split.
+    """
+    run = run_case(*args)
+    path = os.path.join(spool, f"case{number}.pkl")
+    with open(path, "wb") as fh:
+        pickle.dump(run, fh, protocol=pickle.HIGHEST_PROTOCOL)
+    return path
+
+
+def _unspool(path: str) -> CaseRun:
+    with open(path, "rb") as fh:
+        run = pickle.load(fh)
+    os.unlink(path)
+    return run
 
 
 @dataclass
@@ -521,9 +548,55 @@ def skipped_case(sweep: Sweep, case: Case) -> CaseRecord:
 # --------------------------------------------------------------------------- executors
 
 
-def _ignore_sigint() -> None:
-    """Pool workers leave Ctrl-C to the parent, which cancels and stops them."""
+def _init_worker() -> None:
+    """Pool workers leave Ctrl-C to the parent, which cancels and stops them; SIGTERM (the
+    parent's terminate()) ends them, whatever handler a forked worker inherited; and a
+    worker whose parent is gone (``kill -9`` of the sweep alone) ends itself within a
+    second, instead of waiting forever for work on a queue whose other end it holds."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    parent = os.getppid()  # the sweep, or the forkserver that exits with it
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(ORPHAN_POLL)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="mbsim-parent-watch", daemon=True).start()
+
+
+@contextlib.contextmanager
+def _stop_requests() -> Iterator[threading.Event]:
+    """An Event set by Ctrl-C (SIGINT) or SIGTERM while the sweep waits for cases.
+
+    Python raises KeyboardInterrupt wherever the main thread happens to be: inside the
+    locks of concurrent.futures (a later exit then waits forever on the executor's thread)
+    or in a weakref callback (where it is printed and dropped, and the sweep goes on). So
+    the first signal only sets the event, and the wait loop raises KeyboardInterrupt at a
+    safe point; a second one raises at once. SIGTERM (``kill PID``, a batch system's time
+    limit) is treated as Ctrl-C. Signals whose handler is not Python's default, and calls
+    from another thread, are left alone (the event then stays clear).
+    """
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def handler(signum, frame):
+        if stop.is_set():
+            raise KeyboardInterrupt
+        stop.set()
+
+    defaults = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: signal.SIG_DFL}
+    previous = {}
+    try:
+        for sig, default in defaults.items():
+            if signal.getsignal(sig) is default:
+                previous[sig] = signal.signal(sig, handler)
+        yield stop
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 def _mp_context():
@@ -571,17 +644,25 @@ def open_executor(jobs: int | None = None, scheduler: str | None = None,
     if n < 1:
         raise SweepError(f"--jobs {jobs}: expected a positive number")
     ex = cf.ProcessPoolExecutor(max_workers=n, mp_context=_mp_context(),
-                                initializer=_ignore_sigint)
+                                initializer=_init_worker)
     try:
         yield ex
     except BaseException:
-        procs = list(getattr(ex, "_processes", {}).values())  # our own workers
+        procs = list((getattr(ex, "_processes", None) or {}).values())  # our own workers
+        manager = getattr(ex, "_executor_manager_thread", None)  # shutdown() forgets it
         ex.shutdown(wait=False, cancel_futures=True)
         for p in procs:
             if p.is_alive():
                 p.terminate()
         for p in procs:
             p.join(timeout=5)
+            if p.is_alive():  # did not take SIGTERM
+                p.kill()
+                p.join()
+        # let the pool's result thread see the workers gone and finish now, not in the
+        # interpreter's exit (where it races with concurrent.futures' own exit hook)
+        if manager is not None:
+            manager.join(timeout=10)
         raise
     else:
         ex.shutdown(wait=True)
@@ -623,7 +704,9 @@ def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
         run (none is opened when every case is up to date).
     executor : use this one instead (left open).
 
-    A KeyboardInterrupt is re-raised after the index is written (unfinished cases
+    Ctrl-C (SIGINT) or SIGTERM while the cases run: the cases that have finished are
+    written, then a KeyboardInterrupt is raised (from this function's wait loop, never from
+    inside an executor's locks) after the index is written (unfinished cases
     ``cancelled``); an executor opened here is stopped first (running workers ended).
     """
     sweep.out_dir.mkdir(parents=True, exist_ok=True)
@@ -647,22 +730,44 @@ def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
     try:
         if todo:
             with contextlib.ExitStack() as stack:
+                # local processes send their results through a folder (run_case_spooled),
+                # removed after the pool has stopped (an ExitStack exits in reverse order)
+                local = isinstance(executor, cf.ProcessPoolExecutor) or (
+                    executor is None and not scheduler)
+                spool = stack.enter_context(tempfile.TemporaryDirectory(
+                    prefix=".spool-", dir=sweep.out_dir, ignore_cleanup_errors=True)) \
+                    if local else None
                 ex = executor or stack.enter_context(
                     open_executor(jobs, scheduler, ncases=len(todo)))
-                futures = {ex.submit(run_case, sweep.deck_text, sweep.deck,
-                                     sweep.case_overrides(c), sweep.scene, sweep.mode,
-                                     sweep.options): c for c in todo}
+
+                def submit(c: Case) -> cf.Future:
+                    args = (sweep.deck_text, sweep.deck, sweep.case_overrides(c), sweep.scene,
+                            sweep.mode, sweep.options)
+                    if spool:
+                        return ex.submit(run_case_spooled, spool, c.number, *args)
+                    return ex.submit(run_case, *args)
+
+                futures = {submit(c): c for c in todo}
+                pending = set(futures)
                 try:
-                    for fut in cf.as_completed(futures):
-                        case = futures[fut]
-                        try:
-                            run = fut.result()
-                        except Exception as exc:  # the worker died (killed, out of memory)
-                            run = CaseRun(None, f"{type(exc).__name__}: {exc}", float("nan"))
-                        records[case.number] = finish_case(sweep, case, run)
-                        if on_case:
-                            on_case(records[case.number])
-                        index_now()
+                    with _stop_requests() as stop:  # after submit: forked workers get none
+                        while pending and not stop.is_set():
+                            done, pending = cf.wait(pending, timeout=POLL,
+                                                    return_when=cf.FIRST_COMPLETED)
+                            for fut in sorted(done, key=lambda f: futures[f].number):
+                                case = futures[fut]
+                                try:
+                                    run = fut.result()
+                                    run = _unspool(run) if isinstance(run, str) else run
+                                except Exception as exc:  # the worker died (killed, no memory)
+                                    run = CaseRun(None, f"{type(exc).__name__}: {exc}",
+                                                  float("nan"))
+                                records[case.number] = finish_case(sweep, case, run)
+                                if on_case:
+                                    on_case(records[case.number])
+                                index_now()
+                        if stop.is_set():
+                            raise KeyboardInterrupt
                 except BaseException:
                     for fut in futures:
                         fut.cancel()
@@ -804,5 +909,5 @@ def read_index(path: str | Path) -> list[dict]:
 __all__ = [
     "SUMMARIES", "Case", "CaseRecord", "Param", "Summary", "Sweep", "SweepError",
     "SweepOutcome", "make_cases", "open_executor", "parse_param", "parse_summary",
-    "plan_sweep", "read_index", "run_case", "run_sweep", "settle_time", "write_index",
+    "plan_sweep", "read_index", "run_case", "run_sweep", "write_index",
 ]

@@ -110,6 +110,9 @@ def test_plot_compare_export(tmp_path):
     assert r.exit_code == 0
     data = np.loadtxt(tmp_path / "a.csv", delimiter=",", skiprows=1)
     assert data.shape == (21, 4)
+    (tmp_path / "a.csv").unlink()
+    r = run("export", a, "--csv")  # the form: --csv alone writes a.csv beside a.h5
+    assert r.exit_code == 0 and (tmp_path / "a.csv").exists()
 
 
 @pytest.mark.parametrize("cmd", ["run", "info", "check"])

@@ -112,3 +112,66 @@ def test_run_without_terminal_prints_no_progress(tmp_path):
                                   "kinematic", "--t-end", "0.05", "-o", str(tmp_path / "a.h5")])
     assert r.exit_code == 0, r.output
     assert "ETA" not in r.output and "\r" not in r.output
+
+
+def run_on_terminal(*args, timeout=120):
+    """`python -m mbsim ARGS` with standard error on a pseudo-terminal (what a user at a
+    terminal sees) and standard output on a pipe: (exit code, stdout, stderr text)."""
+    import os
+    import subprocess
+    import sys
+
+    pty = pytest.importorskip("pty")  # POSIX
+    master, slave = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "mbsim", *map(str, args)],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=slave,
+                            cwd=MODELS.parent)  # the mbsim of this tree
+    os.close(slave)
+    chunks = []
+    try:
+        while True:
+            try:
+                data = os.read(master, 4096)
+            except OSError:  # EIO: the child closed the terminal (exited)
+                break
+            if not data:
+                break
+            chunks.append(data)
+        out = proc.stdout.read().decode()
+        proc.wait(timeout=timeout)
+    finally:
+        os.close(master)
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return proc.returncode, out, b"".join(chunks).decode()
+
+
+def test_progress_on_a_real_terminal(tmp_path):
+    """A 3 s kinematic run (601 output steps, about 1 s of wall time, far over the 0.2 s a
+    line waits for): on a terminal the line is redrawn in place with time, steps, rate and
+    ETA, then blanked; with -q the terminal gets nothing (--no-progress takes the same
+    path; without a terminal: test_run_without_terminal_prints_no_progress)."""
+    args = ["run", MODELS / "slider_crank.yaml", "--mode", "kinematic", "--t-end", "3"]
+    code, out, err = run_on_terminal(*args, "-o", tmp_path / "a.h5")
+    assert code == 0, (out, err)
+    assert "kinematic: complete" in out and "ETA" not in out  # the summary is on stdout
+    updates = [u for u in err.split("\r") if u.strip()]
+    assert updates and "\n" not in err, repr(err)
+    for u in updates:
+        assert u.startswith("kinematic  t = ") and "/ 3 s" in u and "%" in u, u
+        assert "steps" in u and "steps/s" in u and "ETA " in u, u
+    assert err.endswith("\r") and err.split("\r")[-2].strip() == ""  # blanked at the end
+    code, out, err = run_on_terminal(*args, "-o", tmp_path / "b.h5", "-q")
+    assert code == 0 and out == err == "", (out, err)
+
+
+def test_dynamic_calls_progress_once_per_output_step():
+    from mbsim.api import load_model, run_model
+
+    calls = []
+    _, model = load_model(MODELS / "governor.yaml")
+    res = run_model(model, "dynamic", {"t_end": 0.1, "progress": lambda t, te: calls.append(
+        (t, te))})
+    assert [c[0] for c in calls] == list(res.t) and {c[1] for c in calls} == {0.1}
+    assert "progress" not in res.settings

@@ -1,7 +1,12 @@
 """mbsim sweep: cases, parallel runs, index, resuming, failures, interrupts, Dask, summaries."""
 
-import csv
+import contextlib
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import h5py
@@ -11,8 +16,10 @@ from click.testing import CliRunner
 
 from mbsim.cli import main
 from mbsim.output import compare_results, read_result
+from mbsim.study import STATS, number_values
 from mbsim.sweep import (
     SUMMARIES,
+    Summary,
     SweepError,
     make_cases,
     parse_param,
@@ -20,7 +27,6 @@ from mbsim.sweep import (
     plan_sweep,
     read_index,
     run_sweep,
-    settle_time,
     split_values,
 )
 
@@ -29,7 +35,8 @@ SLIDER = MODELS / "slider_crank.yaml"
 T_END = "0.1"  # 21 outputs at the deck's 0.005 s step: fast, and the slider moves
 ELLS = ("0.3", "0.27", "0.24")
 SUMS = ("bodies.slider.r.x:final", "bodies.slider.r.x:min", "bodies.slider.r.x:max",
-        "bodies.slider.r.x:mean", "bodies.slider.r.x:peak", "bodies.slider.r.x:settle_time")
+        "bodies.slider.r.x:mean", "bodies.slider.r.x:absmax", "bodies.slider.r.x:t_min",
+        "bodies.slider.r.x:settle:from=0.02", "bodies.slider.r.x:range:from=0.05")
 
 
 def invoke(*args):
@@ -85,7 +92,8 @@ def test_sweep_writes_case_files_and_index(base_sweep):
 
 def test_summaries_match_single_runs(base_sweep, tmp_path):
     """Each case equals `mbsim run --set parameters.ell=...` exactly, and its summaries are
-    the SUMMARIES functions of that run's channel."""
+    the study statistics (mbsim.study.STATS) of that run's channel: the very numbers a deck
+    study's `numbers:` entry with the same stat and `from` gives."""
     out = base_sweep[0]
     rows = {r["ell"]: r for r in read_index(out / "index.h5")}
     for ell in ("0.27", "0.24"):
@@ -99,10 +107,16 @@ def test_summaries_match_single_runs(base_sweep, tmp_path):
         x = b.channel("bodies/slider/r").data[:, 0]
         row = rows[float(ell)]
         for s in SUMS:
-            name = s.rpartition(":")[2]
-            assert row[s] == SUMMARIES[name](b.t, x), s
+            summ = parse_summary(s)
+            assert row[s] == STATS[summ.name](b.t, x, summ.number), s
+            number = {"name": "n", "y": "bodies.slider.r.x", "stat": summ.name, "scale": 1.0,
+                      **summ.number}
+            assert [row[s]] == [v for _, v in number_values(b, number)], s  # = a study's
         assert row["bodies.slider.r.x:final"] == x[-1]
-        assert row["bodies.slider.r.x:peak"] == np.abs(x).max()
+        assert row["bodies.slider.r.x:absmax"] == np.abs(x).max()
+        late = x[b.t >= 0.05 - 1e-12]
+        assert row["bodies.slider.r.x:range:from=0.05"] == late.max() - late.min()
+        assert row["bodies.slider.r.x:range:from=0.05"] < x.max() - x.min()  # window applied
         assert a.settings["overrides"] == {"parameters.ell": ell}
 
 
@@ -177,6 +191,105 @@ def test_interrupt_keeps_finished_cases_and_writes_index(tmp_path):
     assert outcome.ok and sum(r.skipped for r in outcome.records) == 1
 
 
+KILL_ELLS = ("0.3", "0.29", "0.28", "0.27", "0.26", "0.25")
+
+
+def wait_for(predicate, timeout):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def group_alive(pgid):
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals and process groups")
+@pytest.mark.parametrize("sig, group", [
+    pytest.param(signal.SIGINT, True, id="ctrl-c"),
+    pytest.param(signal.SIGTERM, False, id="term", marks=pytest.mark.slow),  # = ctrl-c's path
+    pytest.param(signal.SIGKILL, False, id="kill-9"),
+])
+def test_killed_sweep_reruns_only_the_missing_cases(tmp_path, sig, group):
+    """A real `mbsim sweep` process (6 cases on 2 processes) is stopped as soon as its first
+    case file appears: SIGINT to its process group (what Ctrl-C in a terminal sends),
+    SIGTERM to the sweep process alone (`kill PID`, a batch system's time limit) or SIGKILL
+    to it alone (its workers then end themselves). Running the same command again runs
+    exactly the cases without a file; the finished files are kept untouched (same inode,
+    same mtime)."""
+    out = tmp_path / "killed"
+    args = ["sweep", str(SLIDER), "--mode", "kinematic", "--param", "ell=" + ",".join(KILL_ELLS),
+            "--t-end", "1", "-j", "2", "-o", str(out), "--summary", "bodies.slider.r.x:final"]
+    proc = subprocess.Popen([sys.executable, "-m", "mbsim", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            cwd=MODELS.parent)  # the mbsim of this tree
+    try:
+        assert wait_for(lambda: any(out.glob("ell=*.h5")), 120), proc.communicate()
+        (os.killpg if group else os.kill)(proc.pid, sig)  # group: the sweep and its workers
+        # workers hold stdout/stderr too: the pipes close when every process has ended, the
+        # orphaned workers of a killed sweep included (they exit within about a second)
+        stdout, stderr = proc.communicate(timeout=60)
+        assert wait_for(lambda: not group_alive(proc.pid), 10), "workers left running"
+    finally:
+        with contextlib.suppress(ProcessLookupError):  # a failed test leaves nothing behind
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    if sig != signal.SIGKILL:
+        assert proc.returncode == 1 and "interrupted after" in stderr, (stdout, stderr)
+        assert "Traceback" not in stderr and "Exception ignored" not in stderr, stderr
+        rows = read_index(out / "index.h5")  # written on the way out: consistent with the files
+        assert {r["file"] for r in rows if r["status"] == "complete"} == {
+            p.name for p in out.glob("ell=*.h5")}
+        assert {r["status"] for r in rows} == {"complete", "cancelled"}
+        assert [p.name for p in out.iterdir() if p.name.startswith(".")] == []  # no leftovers
+    else:
+        assert proc.returncode == -signal.SIGKILL
+    finished = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.glob("ell=*.h5")}
+    assert 1 <= len(finished) < len(KILL_ELLS), finished  # killed part-way
+    r = invoke(*args)
+    assert r.exit_code == 0, r.output
+    assert r.output.count("(kept: up to date)") == len(finished)
+    rows = read_index(out / "index.csv")
+    assert [row["case"] for row in rows] == [f"ell={e}" for e in KILL_ELLS]
+    for row in rows:
+        assert row["status"] == "complete" and row["bodies.slider.r.x:final"] != ""
+        assert row["skipped"] == ("yes" if row["file"] in finished else "no")  # ran: the rest
+    for name, stamp in finished.items():
+        st = (out / name).stat()
+        assert (st.st_ino, st.st_mtime_ns) == stamp, name  # not rewritten
+    assert len(list(out.glob("ell=*.h5"))) == len(KILL_ELLS)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX pipes")
+def test_sweep_goes_on_when_its_reader_leaves(tmp_path):
+    """`mbsim sweep ... | head -1`: the reader closes the pipe after the first line; the
+    sweep still runs every case (the lines are not the output, the files are) and exits 0,
+    neither killed by SIGPIPE nor stopped by a BrokenPipeError."""
+    out = tmp_path / "piped"
+    proc = subprocess.Popen([sys.executable, "-m", "mbsim", "sweep", str(SLIDER), "--mode",
+                             "kinematic", "--param", "ell=0.3,0.29,0.28,0.27", "--t-end", "0.2",
+                             "-j", "2", "-o", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=MODELS.parent)
+    try:
+        assert proc.stdout.readline().startswith("sweep: 4 case(s)")
+        proc.stdout.close()  # what `head -1` does
+        stderr = proc.stderr.read()
+        proc.wait(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0 and stderr == "", stderr
+    assert [r["status"] for r in read_index(out / "index.csv")] == ["complete"] * 4
+
+
 # --------------------------------------------------------------------------- usage errors
 
 
@@ -185,6 +298,10 @@ def test_interrupt_keeps_finished_cases_and_writes_index(tmp_path):
     (["--param", "ell=0.3", "--param", "omega=1,2", "--zip"], "--zip needs lists of equal"),
     (["--param", "ell"], "expected NAME=V1,V2"),
     (["--param", "ell=0.3", "--summary", "bodies.slider.r.x:median"], "unknown summary"),
+    (["--param", "ell=0.3", "--summary", "bodies.slider.r.x:settle_time"], "did you mean 'settle'"),
+    (["--param", "ell=0.3", "--summary", "bodies.slider.r.x:final:to=1"], "not one of from=T"),
+    (["--param", "ell=0.3", "--summary", "bodies.slider.r.x:max:band=0.1"], "settle only"),
+    (["--param", "ell=0.3", "--summary", "bodies.slider.r.x:settle:from=x"], "not a number"),
     (["--param", "ell=0.3", "--set", "parameters.ell=0.27"], "both --set and --param"),
     (["--param", "ell=0.3", "--scene", "nope"], "unknown scene"),
 ])
@@ -236,76 +353,141 @@ def test_cases_product_zip_and_names():
         "k=1000_forces.spring.c=10", "k=2000_forces.spring.c=20"]
     odd = make_cases([parse_param("bodies.crank.r=[0, 0.1, 0.12],'30 deg'")])
     assert [x.name for x in odd] == ["bodies.crank.r=0-0.1-0.12", "bodies.crank.r=30-deg"]
+    signs = make_cases([parse_param("omega=-2*pi,2*pi,-1,+1")])  # a sign is part of the name
+    assert [x.name for x in signs] == ["omega=-2-pi", "omega=2-pi", "omega=-1", "omega=+1"]
     assert split_values("1,[2, 3],'a,b', {x: 1, y: 2}") == ["1", "[2, 3]", "'a,b'",
                                                            "{x: 1, y: 2}"]
     with pytest.raises(SweepError, match="same file name"):
         make_cases([parse_param("p='a b',a/b")])
     with pytest.raises(SweepError, match="given twice"):
         make_cases([k, parse_param("parameters.k=1")])
-    assert parse_summary("bodies/collar/r/y:settle_time").column == "bodies.collar.r.y:settle_time"
+    assert parse_summary("bodies/collar/r/y:settle").column == "bodies.collar.r.y:settle"
 
 
-def test_settle_time_of_a_first_order_response():
-    """x = 1 - exp(-t/tau) enters the 2 % band around its final value x_f = 1 - exp(-T/tau)
-    when exp(-t/tau) - exp(-T/tau) = 0.02 x_f: t = -tau ln(0.02 + 0.98 exp(-T/tau)),
-    about 3.9 tau (the textbook '4 time constants' of the 2 % criterion)."""
-    tau, T = 0.5, 10.0
-    t = np.linspace(0.0, T, 20001)
-    x = 1 - np.exp(-t / tau)
-    exact = -tau * np.log(0.02 + 0.98 * np.exp(-T / tau))
-    assert abs(settle_time(t, x) - exact) < 1e-6  # linear interpolation, step 5e-4
-    assert settle_time(t, 3 + 0 * t) == 0.0  # never outside: settled from the start
-    y = np.where(t < 2, 1.0, 0.0)  # final value 0: band 2 % of max |x|, leaves at t = 2
-    assert 1.9995 <= settle_time(t, y) <= 2.0
-    # a damped oscillation about 2: the last exit from the band is a peak near the end
-    z = 2 + np.exp(-t) * np.cos(10 * t)
-    ts = settle_time(t, z)
-    assert np.all(np.abs(z[t > ts + 1e-3] - z[-1]) <= 0.02 * abs(z[-1]))
-    assert np.abs(z[(t < ts) & (t > ts - 0.1)] - z[-1]).max() > 0.02 * abs(z[-1]) * 0.99
+def test_summary_syntax_and_the_study_statistics():
+    """CHANNEL:NAME[:from=T][:band=B]: NAME any study statistic, from/band as the study keys."""
+    assert SUMMARIES is STATS  # one set of definitions for studies and sweeps
+    s = parse_summary(" bodies.spindle.omega.y : settle : from=0.1 : band=0.05 ")
+    assert s == Summary("bodies.spindle.omega.y", "settle", (("from", "0.1"), ("band", "0.05")))
+    assert s.column == "bodies.spindle.omega.y:settle:from=0.1:band=0.05"
+    assert s.number == {"from": 0.1, "band": 0.05}
+    assert parse_summary("bodies.collar.r[1]:growth:from=2").number == {"from": 2.0}
+    for bad, says in [("x", "expected CHANNEL:NAME"), (":final", "expected CHANNEL:NAME"),
+                      ("x:settle:from=1:from=2", "given twice"), ("x:settle:band=0", "> 0"),
+                      ("x:final:from=nan", "finite"), ("x:final:from", "not one of")]:
+        with pytest.raises(SweepError, match=says):
+            parse_summary(bad)
+    # the transition time of a first-order step after t0 = 1 s (tau = 0.5 s): from t0 until
+    # y stays within 2 % of the change, tau ln 50 (the output step 1e-3 s is the resolution)
+    t = np.linspace(0.0, 10.0, 10001)
+    y = np.where(t < 1.0, 3.0, 1.0 + 2.0 * np.exp(-(t - 1.0) / 0.5))
+    settle = parse_summary("y:settle:from=1")
+    assert abs(SUMMARIES[settle.name](t, y, settle.number) - 0.5 * np.log(50)) <= 1.5e-3
+    wide = parse_summary("y:settle:from=1:band=0.1")  # 10 %: tau ln 10
+    assert abs(SUMMARIES[wide.name](t, y, wide.number) - 0.5 * np.log(10)) <= 1.5e-3
+
+
+def test_summary_window_past_the_end_is_reported(tmp_path):
+    r = invoke("sweep", SLIDER, "--mode", "kinematic", "--t-end", "0.02", "-o", tmp_path / "w",
+               "--param", "ell=0.3", "--summary", "bodies.slider.r.x:final:from=5")
+    assert r.exit_code == 2, r.output
+    assert "no output at t >= from=5 s (the run ends at 0.02 s)" in r.output
 
 
 # --------------------------------------------------------------------------- Dask
 
 
 def test_dask_cluster_gives_identical_results(base_sweep, tmp_path):
-    """The same sweep on a local Dask cluster (loopback only) writes the same numbers."""
+    """The same sweep on a Dask LocalCluster (2 worker processes, every socket on
+    127.0.0.1) writes the same files: `mbsim compare` at zero tolerance passes for every
+    case, and the index holds the same summaries."""
     distributed = pytest.importorskip("distributed")
     out = tmp_path / "dask"
     with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
-                                  host="127.0.0.1", dashboard_address=None) as cluster:
+                                  host="127.0.0.1", dashboard_address="127.0.0.1:0") as cluster:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        assert all(w.startswith("tcp://127.0.0.1:") for w in cluster.scheduler_info["workers"])
         r = invoke(*sweep_args(out, ELLS, "--scheduler", cluster.scheduler_address))
     assert r.exit_code == 0, r.output
+    assert "on Dask scheduler tcp://127.0.0.1:" in r.output
     local = {r["case"]: r for r in read_index(base_sweep[0] / "index.h5")}
-    for row in read_index(out / "index.h5"):
+    rows = read_index(out / "index.h5")
+    assert sorted(row["case"] for row in rows) == sorted(local)
+    for row in rows:
         ref = local[row["case"]]
         assert row["status"] == ref["status"] == "complete"
         assert all(row[s] == ref[s] for s in SUMS)
+        c = invoke("compare", out / row["file"], base_sweep[0] / ref["file"],
+                   "--rtol", "0", "--atol", "0")
+        assert c.exit_code == 0, c.output
+        assert "agree: 0 of " in c.output
         a, b = read_result(out / row["file"]), read_result(base_sweep[0] / ref["file"])
         ok, diffs, problems = compare_results(a, b, rtol=0, atol=0)
-        assert ok and not problems and diffs
+        assert ok and not problems and len(diffs) == len(b.channels) > 10
 
 
 # --------------------------------------------------------------------------- governor
 
+GOVERNOR = MODELS / "governor.yaml"
+GOV_SUMS = ("bodies.spindle.omega.y:final",  # final speed
+            "bodies.spindle.omega.y:settle:from=0.1",  # transition time after the load step
+            "bodies.collar.r.y:growth:from=2")  # > 1: the oscillation grows (unstable)
+# The two sweeps of the governor study (Haug Sec. 12.6.4, deck studies spring_rate and
+# feedback_gain): the spring rate k at C = 12 500 (the deck's C), over 20 s (scene governed);
+# the feedback rate C at k = 1000 (the deck's k), over 10 s.
+GOV_SWEEPS = {"spring_rate": ("k=1000,2000,3000", ()),
+              "feedback_gain": ("C=7500,12500,17500", ("--t-end", "10"))}
+
+
+def governor_sweep(out, param, *extra, sums=GOV_SUMS):
+    args = ["sweep", GOVERNOR, "--mode", "dynamic", "--scene", "governed", "--param", param,
+            "-j", "2", "-o", out, *extra]
+    for s in sums:
+        args += ["--summary", s]
+    return invoke(*args)
+
+
+def test_governor_sweep_index_holds_transition_time_and_final_speed(tmp_path):
+    """The command of the governor study, cut to 0.4 s: every case's final speed and
+    transition time are in both index files, and they are the study statistics of the
+    case's file (the 20 s physics is test_governor_sweeps, slow)."""
+    out = tmp_path / "gov"
+    r = governor_sweep(out, "k=1000,2000,3000", "--t-end", "0.4", sums=GOV_SUMS[:2])
+    assert r.exit_code == 0, r.output
+    rows, csv_rows = read_index(out / "index.h5"), read_index(out / "index.csv")
+    assert [row["k"] for row in rows] == [1000.0, 2000.0, 3000.0]
+    for row, crow in zip(rows, csv_rows):
+        res = read_result(out / row["file"])
+        assert res.settings["scene"] == "governed" and res.t[-1] == pytest.approx(0.4)
+        w = res.channel("bodies/spindle/omega").data[:, 1]
+        assert row["bodies.spindle.omega.y:final"] == w[-1] < 11.0  # slowed by the load step
+        assert row["bodies.spindle.omega.y:settle:from=0.1"] == STATS["settle"](
+            res.t, w, {"from": 0.1}) > 0.0
+        for s in GOV_SUMS[:2]:
+            assert float(crow[s]) == row[s]
+
 
 @pytest.mark.slow
-def test_governor_spring_rate_sweep(tmp_path):
-    """The governor study (Haug Sec. 12.6, models 1-3: k = 1000, 2000, 3000 N/m) on two
-    processes, with the collar's transition time and the final spindle speed per case."""
-    out = tmp_path / "gov"
-    r = invoke("sweep", MODELS / "governor.yaml", "--mode", "dynamic", "--param",
-               "k=1000,2000,3000", "-j", "2", "-o", out,
-               "--summary", "bodies.spindle.omega.y:final",
-               "--summary", "bodies.collar.r.y:settle_time")
-    if r.exit_code == 2 and "not available" in r.output:
-        pytest.skip("dynamic mode not available")
+@pytest.mark.parametrize("study", GOV_SWEEPS)
+def test_governor_sweeps(tmp_path, study):
+    """The governor's k and C sweeps as one `mbsim sweep` each on two processes; the index
+    holds the transition time and final speed per case, equal to the numbers of the deck's
+    study (tests/models/test_seed_studies.py: 9.443 / 8.686 rad/s, 6.3 / 9.75 s for
+    k = 2000 / 3000; growth 0.832, 1.266, 1.905 for C = 7 500, 12 500, 17 500)."""
+    param, extra = GOV_SWEEPS[study]
+    out = tmp_path / study
+    r = governor_sweep(out, param, *extra)
     assert r.exit_code == 0, r.output
-    rows = read_index(out / "index.h5")
-    assert [row["k"] for row in rows] == [1000.0, 2000.0, 3000.0]
-    for row in rows:
-        assert row["status"] == "complete"
-        assert np.isfinite(row["bodies.spindle.omega.y:final"])
-        t_end = read_result(out / row["file"]).t[-1]
-        assert 0.0 <= row["bodies.collar.r.y:settle_time"] <= t_end
-    with open(out / "index.csv", newline="") as fh:
-        assert "bodies.collar.r.y:settle_time" in next(csv.reader(fh))
+    v = {row["case"]: row for row in read_index(out / "index.h5")}
+    assert all(row["status"] == "complete" for row in v.values()) and len(v) == 3
+    speed, trans, grow = (lambda case, i=i: v[case][GOV_SUMS[i]] for i in range(3))
+    if study == "spring_rate":
+        assert speed("k=2000") == pytest.approx(9.443, abs=5e-3)
+        assert speed("k=3000") == pytest.approx(8.686, abs=5e-3)
+        assert trans("k=2000") == pytest.approx(6.3, abs=0.3)
+        assert trans("k=3000") == pytest.approx(9.75, abs=0.3)  # stiffer: longer transition
+        assert grow("k=1000") > 1.0 > 0.8 > grow("k=2000")  # k = 1000 unstable at C = 12 500
+    else:
+        g = [grow(f"C={c}") for c in (7500, 12500, 17500)]
+        assert g == pytest.approx([0.832, 1.266, 1.905], rel=0.03)
+        assert speed("C=7500") < 11.0174 and 0.0 < trans("C=7500") < 10.0

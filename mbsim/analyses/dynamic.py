@@ -75,6 +75,7 @@ def dynamic(model, options=None):
     wall0 = _time.perf_counter()
     opt = dict(DEFAULTS, **(model.spec.analysis.get("dynamic", {}) if model.spec else {}))
     opt.update({k: v for k, v in (options or {}).items() if v is not None})
+    progress = opt.pop("progress", None)  # progress(t, t_end) per output (mbsim.progress)
     cls = integrator_class(str(opt["integrator"]))
     t0, t1 = float(opt["t_start"]), float(opt["t_end"])
     times = output_times(t0, t1, float(opt["step"]))
@@ -103,6 +104,8 @@ def dynamic(model, options=None):
                        ("h", h), ("lam", lam_all)):
             mon[key].append(v)
         rec.add(t, q, qd, qdd)
+        if progress is not None:
+            progress(t, t1)
 
     status, message = "complete", ""
     record(t0, q, qd, 0.0, np.nan)

@@ -100,3 +100,85 @@ def test_round_trip_compares_exactly(tmp_path):
     r = make_result()
     ok, _, problems = compare_results(read_result(write_result(r, tmp_path / "r.h5")), r, 0, 0)
     assert ok and problems == []
+
+
+# --------------------------------------------------------------------------- mbsim compare
+
+
+def compare_cli(*args):
+    from click.testing import CliRunner
+
+    from mbsim.cli import main
+
+    return CliRunner().invoke(main, ["compare", *map(str, args)])
+
+
+@pytest.fixture
+def golden(tmp_path):
+    """A reference file and an identical copy written separately."""
+    return (write_result(make_result(), tmp_path / "golden.h5"),
+            write_result(make_result(), tmp_path / "new.h5"))
+
+
+def table_rows(output):
+    """The rows of the differences table: [channel, time, A, B, |A-B|, scaled]."""
+    lines = output.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.split()[:2] == ["channel", "time"])
+    return [line.split() for line in lines[start + 1:] if line.split()[0] not in
+            ("agree:", "DIFFER:")]
+
+
+def test_cli_identical_files_exit_0(golden):
+    new, ref = golden[1], golden[0]
+    for tol in (["--rtol", "0", "--atol", "0"], []):  # exact, and the defaults
+        r = compare_cli(new, ref, *tol)
+        assert r.exit_code == 0, r.output
+        assert r.output.splitlines()[-1].startswith("agree: 0 of 2 channels outside")
+
+
+@pytest.mark.parametrize("change, where", [
+    ("relative", (120, 1)),  # y of the crank at t = 1.2 s: 0.932 * (1 + 1e-6)
+    ("absolute", (0, 1)),  # sin(0) = 0 + 1e-6: a change at a zero value
+])
+def test_cli_catches_a_1e_6_change_in_one_channel(golden, tmp_path, change, where):
+    """One element of one channel changed by 1e-6 (relative, or absolute at zero): exit 1
+    at the default tolerances (rtol 1e-9, atol 0), the table names that channel first with
+    the time and both values; the other channel agrees. --rtol 1e-5 / --atol 1e-5 accept
+    it; --channels limited to the other channel passes."""
+    ref = golden[0]
+    a = make_result()
+    d = a.channels["bodies/crank/r"].data
+    old = d[where]
+    d[where] = old * (1 + 1e-6) if change == "relative" else old + 1e-6
+    new = write_result(a, tmp_path / "changed.h5")
+    r = compare_cli(new, ref)
+    assert r.exit_code == 1, r.output
+    assert r.output.splitlines()[-1].startswith("DIFFER: 1 of 2 channels outside rtol=1e-09")
+    rows = table_rows(r.output)
+    assert len(rows) == 1  # only the failing channel is listed
+    chan, t, va, vb, err = rows[0][0], *map(float, rows[0][1:5])
+    assert chan == "bodies.crank.r" and t == pytest.approx(a.t[where[0]], abs=1e-12)
+    assert va == pytest.approx(d[where], abs=1e-7) and vb == pytest.approx(old, abs=1e-7)
+    assert err == pytest.approx(abs(d[where] - old), rel=1e-3)  # the table's |A-B|, 3 digits
+    loose = ["--rtol", "1e-5"] if change == "relative" else ["--atol", "1e-5"]
+    assert compare_cli(new, ref, *loose).exit_code == 0
+    assert compare_cli(new, ref, "--channels", "drivers.crank.torque").exit_code == 0
+    assert compare_cli(new, ref, "--channels", "bodies.crank.r").exit_code == 1
+
+
+def test_cli_structural_problems_exit_1(golden, tmp_path):
+    a = make_result()
+    del a.channels["drivers/crank/torque"]
+    new = write_result(a, tmp_path / "fewer.h5")
+    r = compare_cli(new, golden[0], "--rtol", "0", "--atol", "0")
+    assert r.exit_code == 1
+    assert "problem: channel 'drivers/crank/torque' missing in a" in r.output
+    r = compare_cli(new, golden[0], "-n", "1")
+    assert r.exit_code == 1 and len(table_rows(r.output)) == 1
+
+
+def test_cli_bad_input_exit_2(golden, tmp_path):
+    text = tmp_path / "not.h5"
+    text.write_text("not HDF5")
+    assert compare_cli(text, golden[0]).exit_code == 2
+    assert compare_cli(golden[1], golden[0], "--rtol", "-1").exit_code == 2
