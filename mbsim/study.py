@@ -345,7 +345,9 @@ def study_figure(fig: dict, results: Sequence[tuple[str, Result]],
                  figsize: tuple[float, float] = (6.4, 4.2)):  # fmt: skip
     """One figure of a study: every channel of ``fig['y']`` from every case, one labelled
     curve per case (and per component or channel when there are several), the y values
-    times ``fig['scale']``, x times ``fig['xscale']``.
+    times ``fig['scale']``, x times ``fig['xscale']``.  ``fig['labels']`` (optional, one per
+    curve of a case) replaces the channel and component names in the legend; with several
+    cases each is preceded by the case label.
 
     Returns
     -------
@@ -356,6 +358,8 @@ def study_figure(fig: dict, results: Sequence[tuple[str, Result]],
     ------
     KeyError, IndexError
         A channel or component a result does not have (the message suggests close names).
+    ValueError
+        ``labels`` does not match the number of curves of a case; ``x`` is not one column.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -368,6 +372,7 @@ def study_figure(fig: dict, results: Sequence[tuple[str, Result]],
     colors = [f"C{i}" for i in range(10)]
     ylabel, xlabel = "", "time [s]"
     many = len(fig["y"]) > 1
+    labels = fig.get("labels") or []
     for ci, (label, result) in enumerate(results):
         mark = "" if result.complete else " (incomplete)"
         if fig["x"] == "time":
@@ -377,18 +382,25 @@ def study_figure(fig: dict, results: Sequence[tuple[str, Result]],
             if len(xcols) != 1:
                 raise ValueError(f"x {fig['x']!r} has {len(xcols)} components; name one")
             xdata, xlabel = xcols[0].data, header_name(xcols[0].name, xcols[0].unit)
-        k = 0
+        curves = []  # (selector, column, columns of its channel) of every curve of this case
         for sel in fig["y"]:
             cols = select_columns(result, sel)
             ylabel = ylabel or header_name(
                 cols[0].channel if len(cols) > 1 else cols[0].name, cols[0].unit
             )
-            for col in cols:
-                extra = (col.label or sel.rsplit(".", 1)[-1]) if (many or len(cols) > 1) else ""
-                ax.plot(np.asarray(xdata) * fig["xscale"], col.data * fig["scale"],
-                        color=colors[ci % len(colors)], linestyle=LINESTYLES[k % 4],
-                        label=f"{label} {extra}".strip() + mark)  # fmt: skip
-                k += 1
+            curves += [(sel, col, len(cols)) for col in cols]
+        if labels and len(labels) != len(curves):
+            raise ValueError(f"labels: {len(labels)} given for {len(curves)} curves of case "
+                             f"{label!r}; give one per channel or component")  # fmt: skip
+        for k, (sel, col, ncols) in enumerate(curves):
+            if labels:
+                text = f"{label} {labels[k]}" if len(results) > 1 else labels[k]
+            else:
+                extra = (col.label or sel.rsplit(".", 1)[-1]) if (many or ncols > 1) else ""
+                text = f"{label} {extra}".strip()
+            ax.plot(np.asarray(xdata) * fig["xscale"], col.data * fig["scale"],
+                    color=colors[ci % len(colors)], linestyle=LINESTYLES[k % 4],
+                    label=text + mark)  # fmt: skip
     ax.set_xlabel(fig["xlabel"] or xlabel)
     ax.set_ylabel(fig["ylabel"] or ylabel)
     ax.grid(True, alpha=0.3)

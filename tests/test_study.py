@@ -15,7 +15,7 @@ from mbsim.deck import load_deck, load_deck_text
 from mbsim.deck.schema import STUDY_STATS
 from mbsim.errors import DeckError
 from mbsim.output import read_result
-from mbsim.study import STATS, growth, period, run_study, settle, threshold
+from mbsim.study import STATS, growth, period, run_study, settle, study_figure, threshold
 
 ROOT = Path(__file__).resolve().parents[1]
 SLIDER = ROOT / "models" / "slider_crank.yaml"
@@ -186,6 +186,65 @@ def test_study_errors_name_file_key_path_and_line(text, message):
     assert re.search(rf"^deck\.yaml:{line}: .*{message}", str(err.value)), str(err.value)
 
 
+LABELS = """
+studies:
+  s:
+    cases:
+      - {label: a, mode: inverse, options: {t_end: 0.02, step: 0.01}}
+    figures:
+      - name: f
+        y: [bodies.slider.r, drivers.crank.torque]
+        labels: [x, y, z, torque]
+        caption: four curves per case
+      - name: g
+        y: [bodies.slider.r, drivers.crank.torque]
+        labels: [x, y, torque]
+"""
+
+
+def test_figure_labels_of_the_wrong_length_are_a_deck_error_at_their_line():
+    text = deck_text(LABELS)
+    with pytest.raises(DeckError) as err:
+        load_deck_text(text, "deck.yaml")
+    line = text.splitlines().index("        labels: [x, y, torque]") + 1
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert msg.startswith(f"deck.yaml:{line}: studies.s.figures[1].labels: 3 labels given for 4 "
+                          "curves per case (bodies.slider.r: 3, drivers.crank.torque: 1)"), msg
+    # a selector whose width only the result knows (constraints.lam) counts as at least one
+    bad = "studies: {s: {cases: [{label: a, mode: inverse}], figures: [{name: f, " \
+          "y: [constraints.lam, bodies.slider.r.x], labels: [a]}]}}"  # fmt: skip
+    with pytest.raises(DeckError, match=r"figures\[0\]\.labels: 1 labels given for at least 2"):
+        load_deck_text(deck_text(bad), "deck.yaml")
+    bad = "studies: {s: {cases: [{label: a, mode: inverse}], figures: [{name: f, y: q, " \
+          "labels: q}]}}"  # fmt: skip
+    with pytest.raises(DeckError, match=r"figures\[0\]\.labels: expected a list"):
+        load_deck_text(deck_text(bad), "deck.yaml")
+
+
+@pytest.mark.parametrize(("scene", "mode"), [(None, "inverse"), ("free", "dynamic")])
+def test_label_counts_at_load_match_the_channels_of_a_result(scene, mode):
+    """The widths the loader counts `labels` against (schema.STUDY_FIGURE_WIDTHS) are those
+    of the channels an analysis writes; channels it cannot count are left to drawing."""
+    from mbsim.api import load_model, run_model
+    from mbsim.deck.loader import _curve_count
+    from mbsim.output.export import select_columns
+
+    _, model = load_model(SLIDER, scene=scene)
+    res = run_model(model, mode, {"t_end": 0.02, "step": 0.01})
+    counted = 0
+    for name in res.channels:
+        cols = select_columns(res, name)
+        n = _curve_count(name.replace("/", "."))
+        if n is not None:
+            counted += 1
+            assert n == len(cols), name
+            for col in cols:  # one component, by label or index
+                pick = f"{name}.{col.label}" if col.label else f"{name}[0]"
+                assert _curve_count(pick.replace("/", ".")) == 1, pick
+    assert counted == len(res.channels) - 1  # all but constraints.lam (no force elements here)
+
+
 def test_a_scene_of_the_chosen_case_is_applied_only_when_run(deck):
     # loading with a scene leaves the studies as written (they are checked on the deck as is)
     spec = load_deck(deck, scene="free")
@@ -243,6 +302,46 @@ studies:
     assert not out.ok
     assert [p.name for p in out.figures] == ["f.png"]
     assert any("figure g" in p and "no channel" in p for p in out.problems)
+
+
+def legend(figure) -> list[str]:
+    return [t.get_text() for t in figure.axes[0].get_legend().get_texts()]
+
+
+def test_figure_labels_replace_channel_and_component_names(tmp_path):
+    path = tmp_path / "d.yaml"
+    path.write_text(deck_text("""
+studies:
+  s:
+    cases:
+      - {label: long, mode: inverse, set: {parameters.ell: 0.3}, options: {t_end: 0.02, step: 0.01}}
+      - {label: short, mode: inverse, set: {parameters.ell: 0.24},
+         options: {t_end: 0.02, step: 0.01}}
+    figures:
+      - {name: one, y: [bodies.slider.r.x, bodies.crank.p], cases: [long],
+         labels: [slider, e0, e1, e2, e3]}
+      - {name: two, y: bodies.slider.r.x, labels: [slider x]}
+      - {name: plain, y: [bodies.slider.r.x, bodies.slider.rd.x], cases: [long]}
+      - {name: lam, y: constraints.lam, labels: [first row]}
+"""))
+    spec = load_deck(path)
+    figs = {f["name"]: f for f in spec.studies["s"]["figures"]}
+    assert figs["one"]["labels"] == ["slider", "e0", "e1", "e2", "e3"]
+    assert figs["plain"]["labels"] == []
+    out = run_study(path, "s", tmp_path)
+    results = {c.name: (c.label, c.result) for c in out.cases}
+    # one case: the labels alone; several: each after the case label
+    one = legend(study_figure(figs["one"], [results["long"]]))
+    assert one == ["slider", "e0", "e1", "e2", "e3"]
+    assert legend(study_figure(figs["two"], list(results.values()))) == [
+        "long slider x", "short slider x"]  # fmt: skip
+    assert legend(study_figure(figs["plain"], [results["long"]])) == ["long x", "long x"]
+    # constraints.lam has a column per constraint row: counted when the figure is drawn
+    assert [p.name for p in out.figures] == ["one.png", "two.png", "plain.png"]
+    (problem,) = out.problems
+    assert re.fullmatch(r".*d\.yaml:\d+: studies\.s\.figures\[3\]: figure lam: labels: 1 given "
+                        r"for \d+ curves of case 'long'; give one per channel or component",
+                        problem), problem  # fmt: skip
 
 
 @pytest.mark.slow

@@ -580,7 +580,41 @@ def _study_figure(rd: Reader, node: Node, where: Where, known: dict[str, str]) -
     for key in ("scale", "xscale"):
         fig[key] = rd.number(*got[key]) if key in got else 1.0
     fig["cases"] = _case_list(rd, *got["cases"], known) if "cases" in got else []
+    fig["labels"] = _figure_labels(rd, *got["labels"], fig["y"]) if "labels" in got else []
     return fig
+
+
+def _curve_count(selector: str) -> int | None:
+    """Curves per case that a figure's channel selector gives: 1 for one component
+    (``bodies.b.r.x``, ``joints.A.force_j[0]``, ``forces.f.force.x``), the channel's width
+    for a channel of ``schema.STUDY_FIGURE_WIDTHS``; None when only the result can tell (the
+    quantities of a force element, ``constraints.lam``)."""
+    key = selector.replace(".", "/").strip("/")
+    if re.search(r"\[-?\d+\]$", key):
+        return 1
+    parts = key.split("/")
+    depth = 2 if parts[0] in ("monitors", "constraints") else 3  # monitors/energy, bodies/b/r
+    if len(parts) == depth and parts[-1] in schema.STUDY_FIGURE_WIDTHS.get(parts[0], {}):
+        return schema.STUDY_FIGURE_WIDTHS[parts[0]][parts[-1]]
+    if len(parts) == depth + 1 and parts[0] in ("bodies", "points", "joints", "forces"):
+        return 1  # a component label: bodies/b/r/x
+    return None
+
+
+def _figure_labels(rd: Reader, node: Node, where: Where, ys: list[str]) -> list[str]:
+    """``labels``: one legend text per curve of a case, counted against ``y`` where the
+    selectors tell (:func:`_curve_count`); the rest is checked when the figure is drawn."""
+    labels = [_text(rd, c, w) for c, w in _sequence(rd, node, where)]
+    counts = [_curve_count(y) for y in ys]
+    if None not in counts and len(labels) != sum(counts):
+        each = ", ".join(f"{y}: {n}" for y, n in zip(ys, counts))
+        raise rd.error(where, f"{len(labels)} labels given for {sum(counts)} curves per case "
+                       f"({each}); give one per channel or component")  # fmt: skip
+    known = sum(n for n in counts if n is not None) + counts.count(None)
+    if None in counts and len(labels) < known:
+        raise rd.error(where, f"{len(labels)} labels given for at least {known} curves per "
+                       "case; give one per channel or component")  # fmt: skip
+    return labels
 
 
 def _study_number(rd: Reader, node: Node, where: Where, known: dict[str, str]) -> dict:

@@ -31,7 +31,22 @@ ANALYSIS_MODES = ("assembly", "kinematic", "dynamic", "inverse", "equilibrium")
 STUDY_KEYS = ("description", "cases", "figures", "numbers")
 STUDY_CASE_KEYS = ("label", "name", "scene", "set", "mode", "options")
 STUDY_FIGURE_KEYS = ("name", "title", "y", "x", "xlabel", "ylabel", "scale", "xscale",
-                     "cases", "caption")
+                     "cases", "caption", "labels")
+# Components of the result channels whose width a deck fixes (docs/hdf5.md; written by
+# mbsim.analyses.common and the reactions), so that a figure's `labels` (one per curve) can be
+# counted when the deck is loaded: group -> {quantity: components}.  Other channels (force
+# elements, constraints/lam) are counted when the figure is drawn.
+STUDY_FIGURE_WIDTHS = {
+    "bodies": {"r": 3, "p": 4, "rd": 3, "rdd": 3, "omega": 3, "omega_local": 3, "omegad": 3,
+               "omegad_local": 3},
+    "points": {"position": 3, "velocity": 3, "acceleration": 3},
+    "joints": {f"{q}_{b}{frame}": 3 for q in ("force", "torque") for b in "ij"
+               for frame in ("", "_local")},
+    "drivers": {"torque": 1, "force": 1, "power": 1},
+    "monitors": {"position_violation": 1, "velocity_violation": 1, "energy": 1,
+                 "work_nonconservative": 1, "step_size": 1},
+    "constraints": {"residual": 1, "condition": 1},
+}
 STUDY_NUMBER_KEYS = ("name", "y", "stat", "scale", "unit", "cases", "from", "band")
 STUDY_MODES = ("kinematic", "equilibrium", "inverse", "dynamic")
 STUDY_STATS = ("final", "initial", "max", "min", "absmax", "mean", "range", "t_max", "t_min",
