@@ -60,6 +60,7 @@ import scipy.linalg as la
 from mbsim import equations as eq
 from mbsim.analyses.assembly import assemble, newton
 from mbsim.analyses.common import Recorder
+from mbsim.analyses.dynamic import dynamic
 from mbsim.analyses.reactions import add_reaction_channels
 from mbsim.errors import ConvergenceError, DeckError, ModelError
 from mbsim.forces.base import ForceElement
@@ -331,11 +332,6 @@ class ArtificialDamping(ForceElement):
 
 def settle(model, opt) -> Result:
     """Damped dynamic run until velocities and accelerations stay below settle_tol."""
-    try:
-        from mbsim.analyses.dynamic import dynamic
-    except ModuleNotFoundError as exc:
-        raise DeckError("equilibrium method 'settle' needs the dynamic analysis "
-                        "(mbsim.analyses.dynamic), which this version does not have") from exc
     run_model = model
     if opt["damping"]:
         run_model = dataclasses.replace(

@@ -18,18 +18,17 @@ Contract of a force type (a class registered in ``FORCES``):
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 
-class ForceElement:
+
+class ForceElement(ABC):
     type = ""
     description = ""
     name = ""
 
-    @classmethod
-    def from_spec(cls, spec, body_index):  # pragma: no cover - interface
-        raise NotImplementedError
-
-    def apply(self, st, t, F, n_local) -> None:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def apply(self, st, t, F, n_local) -> None:
+        """Contract item 3."""
 
     def potential(self, st) -> float:
         return 0.0

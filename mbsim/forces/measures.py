@@ -23,6 +23,7 @@ around the reference angle); multi-turn angles need a driver or a state variable
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -73,7 +74,7 @@ def _point(ms: MeasureSpec, body: str) -> np.ndarray:
     return np.zeros(3) if ps is None else np.asarray(ps.P, dtype=float)
 
 
-class Measure:
+class Measure(ABC):
     """A compiled measure: ``value(st, t) -> float``.  Class data: type, unit, keys (the deck
     keys it takes), required (those it must have), description."""
 
@@ -84,11 +85,13 @@ class Measure:
     description = ""
 
     @classmethod
-    def from_spec(cls, ms: MeasureSpec, body_index: dict) -> Measure:  # pragma: no cover
-        raise NotImplementedError
+    @abstractmethod
+    def from_spec(cls, ms: MeasureSpec, body_index: dict) -> Measure:
+        """Compile a measure of the deck (names -> indices)."""
 
-    def value(self, st, t: float) -> float:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def value(self, st, t: float) -> float:
+        """The measure at state ``st`` (:class:`mbsim.equations.State`) and time t."""
 
 
 class _Pair(Measure):

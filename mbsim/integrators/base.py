@@ -8,6 +8,8 @@ so output sampling never constrains the step size.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 
 SAFETY = 0.9  # times the asymptotically optimal step (Hairer, Norsett & Wanner, Sec. II.4)
@@ -15,7 +17,7 @@ MIN_FACTOR = 0.2  # largest decrease of the step after a rejected step
 MAX_FACTOR = 5.0  # largest increase after an accepted step
 
 
-class Integrator:
+class Integrator(ABC):
     """Base class of the multibody integrators.
 
     Contract of an integrator type (a class registered in ``INTEGRATORS``):
@@ -134,11 +136,13 @@ class Integrator:
     def _fail(self, message):
         return False, f"t = {self.t:.6g} s: {message}"
 
-    def _step_impl(self):  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def _step_impl(self):
+        """One step (contract above): returns (ok, message)."""
 
-    def _dense_output_impl(self):  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def _dense_output_impl(self):
+        """Interpolant of the last step (contract above)."""
 
 
 def rms_norm(x, scale) -> float:
