@@ -20,7 +20,14 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np  # noqa: E402
-from common import chain_model, chain_tip, cost_at, exudyn_available, exudyn_run, timed  # noqa: E402
+from common import (  # noqa: E402
+    chain_model,
+    chain_tip,
+    cost_at,
+    exudyn_available,
+    exudyn_run,
+    timed,
+)
 
 from mbsim.analyses.dynamic import dynamic  # noqa: E402
 
