@@ -40,3 +40,42 @@ def spec(bodies, joints=(), drivers=(), forces=(), gravity=(0, 0, 0), outputs=No
         drivers={d.name: d for d in drivers}, forces={f.name: f for f in forces},
         outputs=outputs or {}, analysis={},
     )
+
+
+def slider_crank_spec(ell=0.3, driven=True, g=9.81):
+    """The seed's spatial slider-crank (reference geometry §1; Table 12.2.1): crank about x
+    through (0, 0.1, 0.12), crank 0.08 m, rod `ell`, slider on the x axis, gravity -z.
+    driven: the crank turned at -2 pi rad/s from pi/2 (the deck's driver), else free.
+    Rod estimates close to the assembled ones for the tabulated lengths (others assemble
+    from the 0.3 m estimate)."""
+    from mbsim.expr import parse_expression
+
+    xC = np.sqrt(ell**2 - 0.1**2 - 0.2**2)
+    rod_p = {
+        0.3: (0.42926, 0.56191, -0.69455, -0.13265),
+        0.27: (0.46612, 0.53173, -0.68405, -0.17911),
+        0.24: (0.52244, 0.47650, -0.65984, -0.25419),
+    }.get(ell, (0.42926, 0.56191, -0.69455, -0.13265))
+    bodies = [
+        body("crank", 0.12, (1e-4, 1e-5, 1e-4), (0, 0.1, 0.12), (0.70711, 0.70711, 0, 0)),
+        body("rod", 0.5, (0.004, 0.0004, 0.004), (xC / 2, 0.05, 0.1), rod_p),
+        body("slider", 2.0, (1e-4, 1e-4, 1e-4), (xC, 0, 0)),
+        body("ground", ground=True),
+    ]
+    joints = [
+        joint("A", "revolute", "ground", "crank",
+              {"ground": pts((0, 0.1, 0.12), (1, 0.1, 0.12), (0, 1.1, 0.12)),
+               "crank": pts((0, 0, 0), (1, 0, 0), (0, 1, 0))}),
+        joint("B", "spherical", "crank", "rod",
+              {"crank": pts((0, 0.08, 0)), "rod": pts((0, ell / 2, 0))}),
+        joint("C", "universal", "rod", "slider",
+              {"rod": pts((0, -ell / 2, 0), (1, -ell / 2, 0)),
+               "slider": pts((0, 0, 0), (1, 0, 0))}),
+        joint("T", "translational", "slider", "ground",
+              {"slider": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)),
+               "ground": pts((0, 0, 0), (1, 0, 0), (0, 1, 0))}),
+    ]
+    drivers = ([driver("crank", "rotation",
+                       func("expression", expr=parse_expression("pi/2 - 2*pi*t")), joint="A")]
+               if driven else [])
+    return spec(bodies, joints, drivers, gravity=(0, 0, -g))

@@ -13,8 +13,8 @@ from mbsim import equations as eq
 from mbsim.analyses.initial import initial_state
 from mbsim.model import compile_model
 from mbsim.rotations import E as rot_E
-from tests.analyses.test_kinematic_slider_crank import closed_form, slider_crank_spec
-from tests.helpers import body, joint, pts, spec
+from tests.analyses.test_kinematic_slider_crank import closed_form
+from tests.helpers import body, joint, pts, slider_crank_spec, spec
 
 W = -2 * np.pi
 

@@ -11,8 +11,8 @@ from mbsim.deck.spec import ForceSpec, FunctionSpec
 from mbsim.errors import DeckError
 from mbsim.expr import parse_expression
 from mbsim.model import compile_model
-from tests.analyses.test_kinematic_slider_crank import slider_crank_model, slider_crank_spec
-from tests.helpers import body, driver, func, joint, pts, spec
+from tests.analyses.test_kinematic_slider_crank import slider_crank_model
+from tests.helpers import body, driver, func, joint, pts, slider_crank_spec, spec
 
 # pendulum: arm of mass m, centroid a distance l below the pivot at theta = 0, revolute axis x
 M_ARM, L_ARM, JXX, G = 2.0, 0.5, 0.3, 9.81

@@ -8,30 +8,8 @@ import pytest
 
 from mbsim.analyses.kinematic import kinematic
 from mbsim.api import load_model
-from mbsim.expr import parse_expression
 from mbsim.model import compile_model
-from tests.helpers import body, driver, func, joint, pts, spec
-
-
-def slider_crank_spec(ell=0.3):
-    xC = np.sqrt(ell**2 - 0.1**2 - 0.2**2)
-    bodies = [
-        body("crank", 0.12, (1e-4, 1e-5, 1e-4), (0, 0.1, 0.12), (0.70711, 0.70711, 0, 0)),
-        body("rod", 0.5, (0.004, 0.0004, 0.004), (xC / 2, 0.05, 0.1), (0.42926, 0.56191, -0.69455, -0.13265)),
-        body("slider", 2.0, (1e-4, 1e-4, 1e-4), (xC, 0, 0)),
-        body("ground", ground=True),
-    ]
-    joints = [
-        joint("A", "revolute", "ground", "crank",
-              {"ground": pts((0, 0.1, 0.12), (1, 0.1, 0.12), (0, 1.1, 0.12)), "crank": pts((0, 0, 0), (1, 0, 0), (0, 1, 0))}),
-        joint("B", "spherical", "crank", "rod", {"crank": pts((0, 0.08, 0)), "rod": pts((0, ell / 2, 0))}),
-        joint("C", "universal", "rod", "slider",
-              {"rod": pts((0, -ell / 2, 0), (1, -ell / 2, 0)), "slider": pts((0, 0, 0), (1, 0, 0))}),
-        joint("T", "translational", "slider", "ground",
-              {"slider": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)), "ground": pts((0, 0, 0), (1, 0, 0), (0, 1, 0))}),
-    ]
-    drivers = [driver("crank", "rotation", func("expression", expr=parse_expression("pi/2 - 2*pi*t")), joint="A")]
-    return spec(bodies, joints, drivers, gravity=(0, 0, -9.81))
+from tests.helpers import slider_crank_spec
 
 
 def slider_crank_model(ell, source):

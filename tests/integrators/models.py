@@ -17,7 +17,7 @@ from mbsim.analyses.assembly import assemble
 from mbsim.deck.spec import ForceSpec
 from mbsim.model import compile_model
 from mbsim.rotations import from_axis_angle, omega_to_pd
-from tests.helpers import body, joint, pts, spec
+from tests.helpers import body, joint, pts, slider_crank_spec, spec
 
 
 def tsda(name, bi, bj, si=(0, 0, 0), sj=(0, 0, 0), k=0.0, c=0.0, L0=0.0):
@@ -112,56 +112,8 @@ def top_state(model, theta, omega3, l=0.1, g=9.81):
 
 
 def slider_crank(ell=0.3, g=9.81):
-    """Undriven spatial slider-crank, reference geometry §1 (as tests/analyses kinematic test)."""
-    xC = np.sqrt(ell**2 - 0.1**2 - 0.2**2)
-    rod_p = {
-        0.3: (0.42926, 0.56191, -0.69455, -0.13265),
-        0.27: (0.46612, 0.53173, -0.68405, -0.17911),
-        0.24: (0.52244, 0.47650, -0.65984, -0.25419),
-    }[ell]
-    bodies = [
-        body("crank", 0.12, (1e-4, 1e-5, 1e-4), (0, 0.1, 0.12), (0.70711, 0.70711, 0, 0)),
-        body("rod", 0.5, (0.004, 0.0004, 0.004), (xC / 2, 0.05, 0.1), rod_p),
-        body("slider", 2.0, (1e-4, 1e-4, 1e-4), (xC, 0, 0)),
-        body("ground", ground=True),
-    ]
-    joints = [
-        joint(
-            "A",
-            "revolute",
-            "ground",
-            "crank",
-            {
-                "ground": pts((0, 0.1, 0.12), (1, 0.1, 0.12), (0, 1.1, 0.12)),
-                "crank": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)),
-            },
-        ),
-        joint(
-            "B",
-            "spherical",
-            "crank",
-            "rod",
-            {"crank": pts((0, 0.08, 0)), "rod": pts((0, ell / 2, 0))},
-        ),
-        joint(
-            "C",
-            "universal",
-            "rod",
-            "slider",
-            {"rod": pts((0, -ell / 2, 0), (1, -ell / 2, 0)), "slider": pts((0, 0, 0), (1, 0, 0))},
-        ),
-        joint(
-            "T",
-            "translational",
-            "slider",
-            "ground",
-            {
-                "slider": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)),
-                "ground": pts((0, 0, 0), (1, 0, 0), (0, 1, 0)),
-            },
-        ),
-    ]
-    return compile_model(spec(bodies, joints, gravity=(0, 0, -g)))
+    """Undriven spatial slider-crank, reference geometry §1 (tests/helpers.py)."""
+    return compile_model(slider_crank_spec(ell, driven=False, g=g))
 
 
 def slider_crank_state(model, omega0):
