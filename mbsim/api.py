@@ -22,6 +22,8 @@ ANALYSES: dict[str, tuple[str, str, str]] = {
                 "driving forces/torques and joint reactions of a driven system"),
     "equilibrium": ("mbsim.analyses.equilibrium", "equilibrium",
                     "static equilibrium (minimum potential energy, settling, steady spin)"),
+    "linear": ("mbsim.analyses.linear", "linear",
+               "eigenvalues, frequencies and modes about an equilibrium, steady spin or state"),
 }
 
 

@@ -97,7 +97,7 @@ def main(verbose: int) -> None:
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
 
 
-MODES = ["kinematic", "equilibrium", "inverse", "dynamic"]
+MODES = ["kinematic", "equilibrium", "inverse", "dynamic", "linear"]
 
 
 @main.command()
@@ -161,11 +161,29 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, me
         sys.exit(EXIT_FAILED)
 
 
+def _describe_estimate(key, v) -> str:
+    """One line for the dynamic analysis' error estimate or accuracy choice."""
+    if key == "accuracy":
+        met = "met" if v.get("met") else "NOT met"
+        step = f", h = {v['h']:.3g} s" if v.get("h") else f", rtol = atol = {v['rtol']:.3g}"
+        return (f"requested {v['requested']:.3g} (m, rad): {v['integrator']}{step}; estimated "
+                f"{v['estimate']:.3g}, {met}; {v['runs']} run(s), {v['cpu']:.3g} CPU s in all")
+    if v.get("position") is None:
+        return str(v.get("method", "not available"))
+    note = f"; {v['note']}" if v.get("note") else ""
+    return (f"position {v['position']:.3g} m, orientation {v['orientation']:.3g} rad, "
+            f"velocity {v['velocity']:.3g} m/s ({v['method']}; +{100 * v['relative_cost']:.0f} % "
+            f"CPU){note}")
+
+
 def _summary(result, out) -> None:
     nt = len(result.t)
     span = f"t = {result.t[0]:.6g} .. {result.t[-1]:.6g} s, {nt} outputs" if nt else "no outputs"
     click.echo(f"{result.mode}: {result.status}; {span}; wall {result.wall_time:.3g} s -> {out}")
     for k, v in result.summary.items():
+        if k in ("error_estimate", "accuracy") and isinstance(v, dict):
+            click.echo(f"  {k}: {_describe_estimate(k, v)}")
+            continue
         if isinstance(v, dict):
             v = f"({len(v)} entries, stored in the file's summary attribute)"
         elif isinstance(v, (list, tuple)) and len(v) > 8:

@@ -46,10 +46,11 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
 
     Example: mbsim study models/slider_crank.yaml inverse_rod_length -o out
     """
-    from mbsim.study import list_studies, load_studies, run_study, study_names
+    from mbsim.study import list_studies, open_deck, run_study, study_names
 
     try:
-        spec = load_studies(deck)
+        parsed = open_deck(deck)  # read and composed once for every case of every study
+        spec = parsed.spec()
         if list_only or not name:
             studies = list_studies(spec)
             if not studies:
@@ -83,7 +84,7 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
             click.echo(f"study {sname}: {spec.studies[sname]['description']}")
         try:
             outcome = run_study(
-                deck, sname, folder, jobs=jobs, spec=spec, on_case=progress, dpi=dpi
+                parsed, sname, folder, jobs=jobs, spec=spec, on_case=progress, dpi=dpi
             )
         except MbsimError as exc:
             _fail(exc, deck)

@@ -5,6 +5,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+QUOTE_LIMIT = 80  # characters of user text quoted in a message (a 1 MB name is not echoed)
+
+
+def quote(text: object, limit: int = QUOTE_LIMIT) -> str:
+    """``repr`` of user text, cut to about ``limit`` characters: 'abc...' (+1234 characters)."""
+    text = str(text)
+    if len(text) <= limit:
+        return repr(text)
+    return f"{text[:limit]!r}... (+{len(text) - limit} characters)"
+
 
 @dataclass(frozen=True)
 class Where:
@@ -61,7 +71,7 @@ class ExpressionError(MbsimError):
         self.text = text
         self.column = column
         col = f" (column {column})" if column is not None else ""
-        super().__init__(f"{message}{col} in {text!r}" if text else message)
+        super().__init__(f"{message}{col} in {quote(text)}" if text else message)
 
 
 class ModelError(MbsimError):

@@ -33,7 +33,10 @@ from mbsim.errors import ExpressionError
 
 MAX_LENGTH = 10_000  # characters; deck formulas are one-liners, longer text is abuse or a mistake
 MAX_DEPTH = 100  # nesting of the parsed tree; also bounds recursion in diff, str and compile
-RESERVED = {"pi": math.pi, "e": math.e}
+RESERVED = {"pi": math.pi, "e": math.e, "deg": math.pi / 180}
+"""Constants of every formula. ``deg`` is one degree in radians, so that ``30*deg`` is an angle
+of 30 degrees in SI (rad) and ``360*deg*t`` a turn per second; ``deg2rad``/``rad2deg`` convert
+a value that is already in degrees/radians."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -272,8 +275,8 @@ FUNCTIONS: dict[str, Function] = {f.name: f for f in (Function(*row) for row in 
       "step(x, x0, 0, x1, 1)"),
      "ADAMS cubic step: h0 for x <= x0, h1 for x >= x1, smooth s**2 (3 - 2 s) between"),
     ("heaviside(u)", lambda x: np.heaviside(x, 1.0), ("0",), "0 for u < 0, 1 for u >= 0"),
-    ("deg(u)", _vec(math.degrees, np.degrees), ("180/pi",), "radians to degrees"),
-    ("rad(u)", _vec(math.radians, np.radians), ("pi/180",), "degrees to radians"),
+    ("rad2deg(u)", _vec(math.degrees, np.degrees), ("180/pi",), "an angle u in radians, in degrees"),
+    ("deg2rad(u)", _vec(math.radians, np.radians), ("pi/180",), "an angle u in degrees, in radians"),
 ])}  # fmt: skip
 
 # ---- compilation to closures, printing ---------------------------------------------------------
@@ -443,6 +446,14 @@ _KINDS = {"List": "a list", "Tuple": "a tuple", "Dict": "a dict", "Set": "a set"
           "BoolOp": "'and'/'or' (multiply conditions, (a < b)*(c < d), or use where)"}  # fmt: skip
 
 
+_UNIT_CALLS = {
+    "deg": "'deg' is the constant pi/180 (one degree in radians), not a function: write "
+           "30*deg for 30 degrees, or deg2rad(x) / rad2deg(x) to convert a value",
+    "rad": "'rad' is not a function: angles in formulas are in radians already; write "
+           "deg2rad(x) for x in degrees (or x*deg), rad2deg(x) to get degrees",
+}  # fmt: skip
+
+
 class _Converter:
     """Python ast -> Node, whitelisting as it goes; ``src`` is the text wrapped in parentheses."""
 
@@ -510,6 +521,8 @@ class _Converter:
         if not isinstance(n.func, ast.Name):
             raise self.error("only functions named directly can be called, e.g. sin(x)", n)
         name, fn = n.func.id, FUNCTIONS.get(n.func.id)
+        if name in _UNIT_CALLS:  # 'deg(30)': the old helper read radians; say what is right
+            raise self.error(_UNIT_CALLS[name], n)
         if fn is None:
             hint = _suggest(name, FUNCTIONS) or f"; allowed: {', '.join(sorted(FUNCTIONS))}"
             raise self.error(f"unknown function '{name}'{hint}", n)

@@ -39,6 +39,9 @@ class Result:
     deck_text: str = ""
     wall_time: float = 0.0
     names: dict[str, list[str]] = field(default_factory=dict)  # 'bodies', 'joints', 'drivers', ...
+    # arrays without a time axis (e.g. 'linear/eigenvalues', complex): name -> (data, attrs)
+    arrays: dict[str, tuple[np.ndarray, dict]] = field(default_factory=dict)
+    attrs: dict[str, Any] = field(default_factory=dict)  # extra root attributes ('stable', ...)
 
     @property
     def complete(self) -> bool:

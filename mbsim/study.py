@@ -12,6 +12,12 @@ here as::
     outcome.figures    # the PNG files written
     outcome.table      # (header, rows) of the key numbers
 
+The deck is read and composed once (:func:`open_deck`, a
+:class:`~mbsim.deck.loader.ParsedDeck`); each case applies its scene and ``set`` to that
+tree copy-on-write and validates the result (its key paths were checked when the deck was
+loaded), so a study of n cases costs one parse, not n + 1.  Cases run in other processes
+(``jobs`` > 1) parse the deck text once per process.
+
 Each case writes ``<out_dir>/<study>/<case name>.h5`` (the result, with the study, case,
 scene and overrides in its ``settings``); each figure ``<out_dir>/<study>/<figure>.png``.
 A case that raises (a bad value, an analysis error) is ``failed`` with the message and the
@@ -35,12 +41,15 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from mbsim.errors import DeckError, MbsimError
 from mbsim.result import STATUS_COMPLETE, Result
+
+if TYPE_CHECKING:
+    from mbsim.deck.loader import ParsedDeck
 
 log = logging.getLogger(__name__)
 
@@ -80,8 +89,9 @@ def period(t: np.ndarray, y: np.ndarray, number: dict | None = None) -> float:
 def settle(t: np.ndarray, y: np.ndarray, number: dict | None = None) -> float:
     """Transition time: from the window's start t0 until y enters, for good, the band
     ``|y - y_end| <= band |y_end - y(t0)|`` around its final value (the 2 % settling time
-    with the default band 0.02).  0 when y never leaves it; the run must be long enough for
-    ``y_end`` to be the new steady state."""
+    with the default band 0.02).  0 when y never leaves it; NaN ("does not settle") when y
+    is still outside the band in the last tenth of the window: then ``y_end`` is no steady
+    state (a growing or undamped oscillation, or a run too short)."""
     number = number or {}
     t, y = _window(t, y, number)
     change = abs(y[-1] - y[0])
@@ -91,6 +101,8 @@ def settle(t: np.ndarray, y: np.ndarray, number: dict | None = None) -> float:
     if len(outside) == 0:
         return 0.0
     k = outside[-1]
+    if t[k] > t[-1] - 0.1 * (t[-1] - t[0]):
+        return float("nan")
     return float(t[min(k + 1, len(t) - 1)] - t[0])
 
 
@@ -168,11 +180,18 @@ class StudyOutcome:
         return not self.problems and all(c.status == STATUS_COMPLETE for c in self.cases)
 
 
-def load_studies(deck: str | Path):
-    """The deck's validated spec (``DeckSpec.studies`` holds the studies)."""
-    from mbsim.deck import load_deck
+def open_deck(deck: str | Path | ParsedDeck) -> ParsedDeck:
+    """``deck`` (a file name) read and composed once, as a
+    :class:`~mbsim.deck.loader.ParsedDeck`; a ParsedDeck is returned as it is."""
+    from mbsim.deck.loader import ParsedDeck, parse_deck
 
-    return load_deck(deck)
+    return deck if isinstance(deck, ParsedDeck) else parse_deck(deck)
+
+
+def load_studies(deck: str | Path | ParsedDeck):
+    """The deck's validated spec (``DeckSpec.studies`` holds the studies); ``deck`` a file
+    name or a ParsedDeck."""
+    return open_deck(deck).spec()
 
 
 def list_studies(spec) -> list[tuple[str, str, list[str]]]:
@@ -212,20 +231,32 @@ def overrides_of(case: dict) -> dict[str, str]:
     return {path: json.dumps(value) for path, value in case["set"].items()}
 
 
-def run_case(deck: str, study: str, case: dict, path: str | Path) -> CaseOutcome:
-    """Load the deck with the case's scene and overrides, run its analysis, write `path`.
+def case_model(deck: str | Path | ParsedDeck, case: dict, overrides: dict[str, str] | None = None):
+    """(spec, model) of a study case: the case's scene, then its ``set`` (or `overrides`),
+    applied to the parsed deck (:meth:`~mbsim.deck.loader.ParsedDeck.spec`, without
+    validating the ``studies:`` section again), compiled."""
+    from mbsim.model import compile_model
+
+    overrides = overrides_of(case) if overrides is None else overrides
+    spec = open_deck(deck).spec(case.get("scene"), overrides, studies=False)
+    return spec, compile_model(spec)
+
+
+def run_case(deck: str | Path | ParsedDeck, study: str, case: dict, path: str | Path) -> CaseOutcome:
+    """Apply the case's scene and overrides to the deck (a file name or a ParsedDeck), run
+    its analysis, write `path`.
 
     Never raises: a case whose loading or analysis raises is ``failed`` with the message
     (the exception logged at DEBUG level).  Module-level so that a process pool can run it.
     """
-    from mbsim.api import load_model, run_model
+    from mbsim.api import run_model
     from mbsim.output import write_result
 
     t0 = time.perf_counter()
     out = CaseOutcome(case["name"], case["label"], case["mode"], STATUS_FAILED)
     overrides = overrides_of(case)
     try:
-        spec, model = load_model(deck, overrides=overrides, scene=case["scene"])
+        spec, model = case_model(deck, case, overrides)
         out.warnings = list(spec.warnings)
         result = run_model(model, case["mode"], case["options"])
         result.settings.setdefault("overrides", overrides)
@@ -244,25 +275,32 @@ def run_case(deck: str, study: str, case: dict, path: str | Path) -> CaseOutcome
     return out
 
 
-def _run_in_pool(deck: str, study: str, case: dict, path: str) -> CaseOutcome:
+def _run_in_pool(text: str, file: str, study: str, case: dict, path: str) -> CaseOutcome:
+    from mbsim.deck.loader import parse_deck_cached
+
+    try:
+        deck = parse_deck_cached(text, file)  # once per worker process, not once per case
+    except MbsimError as exc:
+        return CaseOutcome(case["name"], case["label"], case["mode"], STATUS_FAILED, str(exc))
     out = run_case(deck, study, case, path)
     out.result = None  # the parent reads the file back (cheaper than pickling the Result)
     return out
 
 
 def run_cases(
-    deck: str | Path,
+    deck: str | Path | ParsedDeck,
     study: str,
     cases: Sequence[dict],
     out_dir: Path,
     jobs: int = 1,
     on_case: Callable[[CaseOutcome], None] | None = None,
 ) -> list[CaseOutcome]:
-    """Run `cases` (``jobs`` > 1: in that many processes) into ``out_dir/<name>.h5``."""
+    """Run `cases` (``jobs`` > 1: in that many processes) into ``out_dir/<name>.h5``;
+    `deck` a file name or a ParsedDeck (read once here)."""
     from mbsim.output import read_result
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    deck = str(deck)
+    deck = open_deck(deck)
     paths = [str(out_dir / f"{c['name']}.h5") for c in cases]
     if jobs <= 1 or len(cases) == 1:
         outcomes = []
@@ -276,7 +314,7 @@ def run_cases(
     ctx = mp.get_context("spawn")  # no forked copies of the parent's state
     outcomes: list[CaseOutcome | None] = [None] * len(cases)
     with cf.ProcessPoolExecutor(max_workers=min(jobs, len(cases)), mp_context=ctx) as ex:
-        futures = {ex.submit(_run_in_pool, deck, study, c, p): i
+        futures = {ex.submit(_run_in_pool, deck.text, deck.file, study, c, p): i
                    for i, (c, p) in enumerate(zip(cases, paths))}  # fmt: skip
         for fut in cf.as_completed(futures):
             i = futures[fut]
@@ -289,25 +327,26 @@ def run_cases(
     return [o for o in outcomes if o is not None]
 
 
-def run_study(deck: str | Path, name: str, out_dir: str | Path = ".", jobs: int = 1,
+def run_study(deck: str | Path | ParsedDeck, name: str, out_dir: str | Path = ".", jobs: int = 1,
               spec=None, on_case: Callable[[CaseOutcome], None] | None = None,
               dpi: float = 110) -> StudyOutcome:  # fmt: skip
     """Run every case of study `name` of `deck`, draw its figures, compute its numbers.
 
     Parameters
     ----------
-    deck : the deck file.
+    deck : the deck file, or the deck already read (:func:`open_deck`).
     name : the study (a key of the deck's ``studies:``).
     out_dir : files go to ``out_dir/<name>/``.
     jobs : cases run at once (processes); 1 runs them here, one after the other.
-    spec : the deck already loaded (saves loading it again).
+    spec : the deck already validated (``open_deck(deck).spec()``; saves validating it again).
     on_case : called with each CaseOutcome as it finishes (progress).
     dpi : resolution of the PNG figures.
     """
     from mbsim.output import save_figure
 
     t0 = time.perf_counter()
-    spec = spec if spec is not None else load_studies(deck)
+    deck = open_deck(deck)
+    spec = spec if spec is not None else deck.spec()
     study_names(spec, name)
     st = spec.studies[name]
     folder = Path(out_dir) / name
@@ -334,6 +373,50 @@ def _results_for(st: dict, names: list[str], by_name: dict[str, CaseOutcome]):
     wanted = names or [c["name"] for c in st["cases"]]
     return [(by_name[n].label, by_name[n].result) for n in wanted
             if n in by_name and by_name[n].result is not None]  # fmt: skip
+
+
+# --------------------------------------------------------------------------- derived columns
+
+
+def study_columns(result: Result, selector: str):
+    """The columns a figure or number selector names: a channel (``select_columns``), or one
+    of two derived series that no analysis writes as a channel.
+
+    - ``drivers.D.function``: driver D's function of time f(t) as the deck defines it (with
+      the case's scene and overrides), at the output times: the input curve itself (the
+      vehicle's rack displacement, which a dynamic run does not record).
+    - ``A - B`` or ``A + B`` (spaces around the sign): the difference or sum of two
+      one-column selectors (the compressor's motor torque, rotor driver minus twist driver).
+
+    Raises KeyError, IndexError, ValueError as ``select_columns`` does.
+    """
+    from mbsim.output.export import Column, select_columns
+
+    for sign in (" - ", " + "):
+        if sign in selector:
+            left, right = (study_columns(result, s.strip()) for s in selector.split(sign, 1))
+            if len(left) != 1 or len(right) != 1:
+                raise ValueError(f"{selector!r}: each side of {sign.strip()!r} must be one column")
+            (a,), (b,) = left, right
+            data = a.data - b.data if sign == " - " else a.data + b.data
+            return [Column(selector, data, a.unit, selector, "")]
+    parts = selector.split(".")
+    if len(parts) == 3 and parts[0] == "drivers" and parts[2] == "function":
+        from mbsim.deck import load_deck_text
+        from mbsim.functions import from_spec
+
+        spec = load_deck_text(result.deck_text, result.deck_file or "<deck>",
+                              overrides=result.settings.get("overrides") or {},
+                              scene=result.settings.get("scene"))  # fmt: skip
+        if parts[1] not in spec.drivers:
+            raise KeyError(f"no driver {parts[1]!r} (drivers: {', '.join(spec.drivers)})")
+        from mbsim.constraints import DRIVERS
+
+        driver = spec.drivers[parts[1]]
+        f = from_spec(driver.function)
+        data = np.asarray(f(np.asarray(result.t, float)), float) * np.ones(len(result.t))
+        return [Column(selector, data, DRIVERS[driver.type].unit, selector, "")]
+    return select_columns(result, selector)
 
 
 # --------------------------------------------------------------------------- figures
@@ -364,8 +447,9 @@ def study_figure(fig: dict, results: Sequence[tuple[str, Result]],
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from mbsim.output.export import header_name, select_columns
+    from mbsim.output.export import header_name
 
+    select_columns = study_columns
     figure = Figure(figsize=figsize, layout="constrained")
     FigureCanvasAgg(figure)
     ax = figure.add_subplot()
@@ -432,12 +516,10 @@ def summary_value(result: Result, key: str) -> Any:
 def number_values(result: Result, number: dict) -> list[tuple[str, Any]]:
     """[(column, value)] of one number for one result: one column per component of the
     selected channel (``name.x`` when it has several), or the summary or counter value."""
-    from mbsim.output.export import select_columns
-
     if number["y"].startswith(("summary.", "counters.")):
         return [(number["name"], summary_value(result, number["y"]))]
     stat = STATS[number["stat"]]
-    cols = select_columns(result, number["y"])
+    cols = study_columns(result, number["y"])
     out = []
     for col in cols:
         name = number["name"] if len(cols) == 1 else f"{number['name']}.{col.label}"
@@ -480,8 +562,19 @@ def number_table(st: dict, outcomes: Sequence[CaseOutcome], problems: list[str] 
                     columns.append(key)
                 values[o.name][key] = value
     header = ["case", "mode", "status", "wall [s]"] + columns
+    unsettled = {c for n in st["numbers"] if n["stat"] == "settle" for c in columns
+                 if c == f"{n['name']} [s]" or c.startswith(f"{n['name']}.")}  # fmt: skip
+
+    def text(values_of: dict, c: str) -> str:
+        if c not in values_of:
+            return ""
+        v = values_of[c]
+        if c in unsettled and isinstance(v, float) and np.isnan(v):
+            return "does not settle"
+        return _format(v)
+
     rows = [[o.label, o.mode, o.status, f"{o.wall_time:.3g}"]
-            + [_format(values[o.name][c]) if c in values[o.name] else "" for c in columns]
+            + [text(values[o.name], c) for c in columns]
             for o in outcomes]  # fmt: skip
     return header, rows, values
 
@@ -502,26 +595,28 @@ class Threshold:
         return 0.5 * (self.low + self.high)
 
 
-def threshold(deck: str | Path, case: dict, path: str, lo: float, hi: float,
+def threshold(deck: str | Path | ParsedDeck, case: dict, path: str, lo: float, hi: float,
               criterion: Callable[[Result], bool], rtol: float = 0.01,
               max_runs: int = 30) -> Threshold:  # fmt: skip
     """Bisection on one deck value (``path``, as for ``--set``) between `lo` and `hi`, at
     which ``criterion(result)`` of `case` (a study case: scene, set, mode, options) turns
-    from False (at `lo`) to True (at `hi`), to a relative width `rtol`.
+    from False (at `lo`) to True (at `hi`), to a relative width `rtol`.  `deck`: a file
+    name or a ParsedDeck (read once, not once per run).
 
     Raises
     ------
     MbsimError
         A run that fails; ValueError when the criterion does not differ at lo and hi.
     """
-    from mbsim.api import load_model, run_model
+    from mbsim.api import run_model
 
+    deck = open_deck(deck)
     runs: list[tuple[float, bool, float]] = []
 
     def judge(value: float) -> bool:
         t0 = time.perf_counter()
         overrides = overrides_of(case) | {path: json.dumps(float(value))}
-        _, model = load_model(deck, overrides=overrides, scene=case.get("scene"))
+        _, model = case_model(deck, case, overrides)
         result = run_model(model, case["mode"], case.get("options", {}))
         verdict = bool(criterion(result))
         runs.append((float(value), verdict, time.perf_counter() - t0))

@@ -1,4 +1,6 @@
-"""Every joint and driver type: analytic Phi_q, nu, gamma against finite differences of Phi.
+"""Every joint and driver type: analytic Phi_q, nu, gamma against finite differences of Phi,
+in both implementations: the numpy reference (mbsim.equations / constraints/basic.py) and the
+C kernels the integrators use (mbsim.fast, kernels.c), each differentiated against its own Phi.
 
 Checks (q random, off the constraint manifold; |p| off 1 too, since Phi_q is the exact
 derivative of Phi everywhere):
@@ -14,6 +16,7 @@ import numpy as np
 import pytest
 
 from mbsim import equations as eq
+from mbsim import fast
 from mbsim.constraints import DRIVERS, JOINTS
 from mbsim.model import compile_model
 from tests.helpers import body, driver, func, joint, pts, spec
@@ -70,46 +73,65 @@ def _driver_specs(type_):
     raise KeyError(type_)
 
 
-def _check(model, t=0.37):
+IMPLS = ["reference", "c"]
+
+
+def _evaluators(model, impl):
+    """(terms(q, t, qd) -> Terms with jac, gamma, nu; phi(q, t) -> Phi) of one implementation."""
+    if impl == "reference":
+        return (lambda q, t, qd: eq.constraints(model, q, t, qd=qd, gamma=True, nu=True),
+                lambda q, t: eq.phi(model, q, t))
+    fc = fast.FastConstraints(model, sparse=False)
+    return (lambda q, t, qd: fc.constraints(q, t, qd=qd, gamma=True, nu=True),
+            lambda q, t: fc.constraints(q, t, jac=False).phi)
+
+
+def _check(model, impl="reference", t=0.37):
+    terms, phi = _evaluators(model, impl)
     q = model.q0 + 0.1 * rng.normal(size=model.nq)
     qd = rng.normal(size=model.nq)
-    T = eq.constraints(model, q, t, qd=qd, gamma=True, nu=True)
+    T = terms(q, t, qd)
     h = 1e-6
     J_fd = np.empty_like(T.jac)
     for k in range(model.nq):
         dq = np.zeros(model.nq)
         dq[k] = h
-        J_fd[:, k] = (eq.phi(model, q + dq, t) - eq.phi(model, q - dq, t)) / (2 * h)
+        J_fd[:, k] = (phi(q + dq, t) - phi(q - dq, t)) / (2 * h)
     assert np.abs(T.jac - J_fd).max() < 1e-7
-    nu_fd = -(eq.phi(model, q, t + h) - eq.phi(model, q, t - h)) / (2 * h)
+    nu_fd = -(phi(q, t + h) - phi(q, t - h)) / (2 * h)
     assert np.abs(T.nu - nu_fd).max() < 1e-7
     s = 1e-4
-    d2 = (eq.phi(model, q + s * qd, t + s) - 2 * eq.phi(model, q, t)
-          + eq.phi(model, q - s * qd, t - s)) / s ** 2
+    d2 = (phi(q + s * qd, t + s) - 2 * phi(q, t) + phi(q - s * qd, t - s)) / s ** 2
     assert np.abs(T.gamma + d2).max() < 1e-5 * max(1.0, np.abs(d2).max())
     # sparse and dense Jacobians are the same matrix
-    Js = eq.constraints(model, q, t, sparse=True).jac.toarray()
+    if impl == "reference":
+        Js = eq.constraints(model, q, t, sparse=True).jac.toarray()
+    else:
+        Js = fast.FastConstraints(model, sparse=True).constraints(q, t).jac.toarray()
     assert np.array_equal(Js, T.jac)
 
 
+@pytest.mark.parametrize("impl", IMPLS)
 @pytest.mark.parametrize("type_", sorted(JOINTS))
-def test_joint_derivatives_match_finite_differences(type_):
+def test_joint_derivatives_match_finite_differences(type_, impl):
     js = _joint_spec(type_)
     model = compile_model(spec(_two_bodies(), [js]))
     assert model.item("J").rows.size == JOINTS[type_].n_eq
-    _check(model)
+    _check(model, impl)
 
 
+@pytest.mark.parametrize("impl", IMPLS)
 @pytest.mark.parametrize("type_", sorted(DRIVERS))
-def test_driver_derivatives_match_finite_differences(type_):
+def test_driver_derivatives_match_finite_differences(type_, impl):
     joints, drivers = _driver_specs(type_)
     model = compile_model(spec(_two_bodies(), joints, drivers))
-    _check(model)
+    _check(model, impl)
 
 
-def test_ground_and_normalization_rows():
+@pytest.mark.parametrize("impl", IMPLS)
+def test_ground_and_normalization_rows(impl):
     model = compile_model(spec([body("g", ground=True), body("a", r=(1, 2, 3))],
                                [joint("S", "spherical", "g", "a", {"g": pts([1, 0, 0]), "a": pts([0, 1, 0])})]))
     # book counting: 2 bodies x 7 = 14 coordinates; 3 (sph) + 6 (ground) + 2 (norm) = 11
     assert model.nq == 14 and model.m == 11
-    _check(model)
+    _check(model, impl)

@@ -39,8 +39,8 @@ FORMULAS = [
     ("where(y < 0, 10*x, -x)", lambda x, y, t: np.where(y < 0, 10 * x, -x)),
     ("3*x if y >= 0 else t", lambda x, y, t: np.where(y >= 0, 3 * x, t)),
     ("(x > y)*2 + (x != y) - (t == t)", lambda x, y, t: (x > y) * 2.0 + (x != y) - 1.0),
-    ("heaviside(x) + deg(y) + rad(t)",
-     lambda x, y, t: np.heaviside(x, 1.0) + np.degrees(y) + np.radians(t)),
+    ("heaviside(x) + rad2deg(y) + deg2rad(t) + 30*deg",
+     lambda x, y, t: np.heaviside(x, 1.0) + np.degrees(y) + np.radians(t) + np.pi / 6),
     ("e**t - exp(t)", lambda x, y, t: 0 * t),
 ]  # fmt: skip
 

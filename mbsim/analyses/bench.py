@@ -1,6 +1,10 @@
 """Work-precision: every integrator over a ladder of tolerances (or steps) against a tight
 reference run, as a table and a log-log plot of error against wall time.
 
+Columns ``err/tol`` (achieved error / requested rtol: does the method keep its word?) and
+``est/err`` (the run's own global error estimate / its error against the reference: is the
+estimate honest?).  Times are of the run alone; the estimate is computed in a second run.
+
 Error of a run: the largest absolute difference, over the output times and the chosen
 channels (default: every body's centroid position ``bodies/*/r``), from the reference run
 (``projection-dop853`` at rtol 1e-12 unless told otherwise).  Constraint drift: the largest
@@ -37,6 +41,18 @@ class BenchRow:
     status: str = "complete"
     error_end: float = float("nan")  # the same at t_end only
     cpu: float = float("nan")  # CPU s per simulated second (median)
+    requested: float = float("nan")  # the rtol asked for (nan for a fixed step)
+    estimate: float = float("nan")  # the run's own error estimate (error_estimate.position)
+
+    @property
+    def achieved_ratio(self) -> float:
+        """achieved error / requested tolerance: ~1 or below for a method that keeps its word"""
+        return self.error / self.requested if self.requested > 0 else float("nan")
+
+    @property
+    def estimate_ratio(self) -> float:
+        """the run's error estimate / its true error (1: exact; 0.1 .. 10: honest)"""
+        return self.estimate / self.error if self.error > 0 else float("nan")
 
 
 @dataclass
@@ -50,11 +66,13 @@ class Bench:
     def table(self) -> str:
         """Plain-text table, one line per run."""
         head = (f"{'integrator':<18} {'setting':<11} {'wall s/s':>9} {'steps':>7} "
-                f"{'f-evals':>8} {'max error':>10} {'drift':>9}  status")
+                f"{'f-evals':>8} {'max error':>10} {'err/tol':>8} {'est/err':>8} "
+                f"{'drift':>9}  status")
         lines = [head, "-" * len(head)]
         for r in self.rows:
             lines.append(f"{r.integrator:<18} {r.setting:<11} {r.wall:9.4f} {r.steps:7d} "
-                         f"{r.evaluations:8d} {r.error:10.3e} {r.drift:9.2e}  {r.status}")
+                         f"{r.evaluations:8d} {r.error:10.3e} {r.achieved_ratio:8.3g} "
+                         f"{r.estimate_ratio:8.3g} {r.drift:9.2e}  {r.status}")
         return "\n".join(lines)
 
     def cost_to_reach(self, target: float, key: str = "wall") -> dict[str, float]:
@@ -109,7 +127,7 @@ def work_precision(model, integrators=None, tolerances=TOLERANCES, steps=STEPS, 
     base = dict(options or {}, t_end=float(t_end),
                 step=float(output_step or t_end / 20.0))
     ref_opts = dict(REFERENCE, **(reference or {}))
-    ref = dynamic(model, dict(base, **ref_opts))
+    ref = dynamic(model, dict(base, error_estimate=False, **ref_opts))
     if not ref.complete:
         raise RuntimeError(f"the reference run failed: {ref.message}")
     channels = [c for c in select_channels(ref, outputs) if not c.startswith("bodies/ground")]
@@ -125,10 +143,12 @@ def work_precision(model, integrators=None, tolerances=TOLERANCES, steps=STEPS, 
             opts.update({"rtol": value, "atol": 1e-2 * value} if key == "rtol" else {"h": value})
             walls, cpus, res = [], [], None
             for _ in range(max(1, int(repeats))):
+                # the run's cost without its error estimate (the estimate is timed apart)
                 c0 = time.process_time()
-                res = dynamic(model, opts)
+                res = dynamic(model, dict(opts, error_estimate=False))
                 cpus.append(time.process_time() - c0)
                 walls.append(res.wall_time)
+            est = dynamic(model, opts).summary.get("error_estimate", {}).get("position")
             n = min(len(res.t), len(ref.t))
             full = n == len(ref.t)
             dev = np.abs(_stack(res, channels)[:n] - yref[:n]) if n else np.zeros((0, 1))
@@ -138,7 +158,9 @@ def work_precision(model, integrators=None, tolerances=TOLERANCES, steps=STEPS, 
             row = BenchRow(cls.name, f"{key}={value:g}", float(np.median(walls)) / t_end,
                            int(res.counters.get("steps", 0)),
                            int(res.counters.get("function_evaluations", 0)), err, drift,
-                           res.status, err_end, float(np.median(cpus)) / t_end)
+                           res.status, err_end, float(np.median(cpus)) / t_end,
+                           value if key == "rtol" else float("nan"),
+                           float("nan") if est is None else float(est))
             bench.rows.append(row)
             if progress is not None:
                 progress(row)

@@ -1,11 +1,29 @@
 """Dynamic analysis (Haug Ch. 11): integrate the constrained equations of motion from
-consistent initial conditions with one of the integrators of :mod:`mbsim.integrators`.
+consistent initial conditions with one of the integrators of :mod:`mbsim.integrators`,
+and estimate the global error of what it computed.
 
 Output sampling is independent of the step size: the integrator steps freely and its dense
 output is evaluated at the output times t_start + k step; at each output the accelerations
-and multipliers are solved from the sampled (q, qd).  The equations of motion come from
-:mod:`mbsim.fast` (numba, one compiled call per evaluation) when it is available, else from
-the numpy :class:`mbsim.integrators.System`; option ``compiled: false`` forces the latter.
+and multipliers are solved from the sampled (q, qd).
+
+Global error estimate (on by default, option ``error_estimate``).  After the run, a
+*companion* integration of the same model with the same method repeats it more accurately:
+an adaptive method at the tolerances divided by ``estimate_ratio`` (rho, default 5), a
+fixed-step method at half the step.  The difference of the two at the output times
+estimates the global error of the run (Shampine 1985, "global error estimation by
+reintegration"; Hairer, Norsett & Wanner I, Sec. II.12):
+
+- adaptive: err ~ |y - y_c|; the companion's own error is about rho^-0.9 of the run's
+  (tolerance proportionality), so the estimate is low by at most that fraction;
+- fixed step h, method of order p: err ~ |y - y_c| 2^p / (2^p - 1) (Richardson).
+
+It costs one more integration (about rho^(1/(p+1)) of the run's steps for an adaptive
+method of order p: 1.2x for DOP853, 1.3x for Dormand-Prince 5(4); 2x for a fixed step),
+without output post-processing.  It can be wrong where the error does not shrink with the
+tolerance: steps limited by h_max or by stability rather than accuracy, chaotic motion over
+long times, a solution that jumps branch at a bifurcation.  ``accuracy`` (a position error
+in m, orientation in rad) chooses the tolerance from it (:func:`_accuracy_run`).
+
 Monitors written with the standard body and point channels:
 
 - ``monitors/position_violation``  max |Phi| (all rows)
@@ -15,39 +33,45 @@ Monitors written with the standard body and point channels:
   work of damping, actuators, non-potential loads and drivers, so that energy - W_nc stays
   constant (dT/dt = Q.qd - lam.nu along the exact motion)
 - ``monitors/step_size``           the step the integrator took across each output time
+  (at t_start: the first step it took)
 - ``constraints/lam``              (nt, m) Lagrange multipliers, one column per row
-  (components = row labels; zero on redundant rows).
+  (components = row labels; zero on redundant rows)
+- ``error/position``, ``error/orientation``, ``error/velocity``,
+  ``error/angular_velocity``: the estimated global error at each output time (max over
+  bodies and output points).
 """
 
 from __future__ import annotations
 
 import difflib
+import logging
+import math
 import time as _time
 
 import numpy as np
 
 from mbsim.analyses.common import Recorder, rank_and_redundant, singular_rows
 from mbsim.analyses.kinematic import output_times
-from mbsim.errors import DeckError
+from mbsim.errors import DeckError, Where
 from mbsim.integrators import ALIASES, DEFAULT, INTEGRATORS, System
+from mbsim.integrators.base import NUMERICAL_ERRORS, IntegratorFailure
 from mbsim.result import STATUS_INCOMPLETE
+
+log = logging.getLogger(__name__)
 
 DEFAULTS = {"t_start": 0.0, "t_end": 1.0, "step": 0.01, "integrator": DEFAULT, "rtol": 1e-6,
             "atol": 1e-8, "h": None, "max_steps": 1_000_000, "tol": 1e-10, "sparse": None,
-            "compiled": True}
+            "error_estimate": True, "estimate_ratio": 5.0, "accuracy": None}
 
+ACCURACY_START = 0.2
+"""--accuracy: first tolerance = this x the requested error (rtol = atol).  Measured:
+benchmarks/accuracy.py (projection-dop853 reaches 0.3-3 x rtol in position on the seed
+decks and the reference problems)."""
+ACCURACY_MARGIN = 0.5  # a refinement aims at this fraction of the request
 
-def make_system(model, rows, sparse=None, compiled=True):
-    """The equations of motion the integrators call: the compiled :mod:`mbsim.fast` path
-    (numba) when available and asked for, else :class:`mbsim.integrators.System` (numpy);
-    both have the same interface and results."""
-    if compiled:
-        try:
-            from mbsim import fast
-        except ImportError:
-            fast = None
-        if fast is not None:
-            return fast.make_system(model, rows, sparse)
+def make_system(model, rows, sparse=None):
+    """The equations of motion the integrators call: :class:`mbsim.integrators.System`
+    (the C kernels of :mod:`mbsim.fast`)."""
     return System(model, rows, sparse)
 
 
@@ -61,39 +85,101 @@ def integrator_class(name: str):
     return INTEGRATORS[key]
 
 
+
+
+def check_tolerances(opt, file=None):
+    """rtol, atol, accuracy, estimate_ratio must be finite numbers in their ranges: a deck or
+    usage error otherwise (exit 2), never a run that hangs or a traceback."""
+    def bad(key, v, want):
+        opt_name = "--" + key.replace("_", "-")
+        raise DeckError(f"expected {want}, got {v!r} (deck key or option {opt_name})",
+                        Where(file or "<options>", f"analysis.dynamic.{key}"))
+
+    for key in ("rtol", "atol"):
+        v = opt.get(key)
+        if v is None:
+            continue
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            bad(key, v, "a number")
+        if not (math.isfinite(x) and 0 < x < 1):
+            bad(key, v, "a number in (0, 1), e.g. 1e-6 (0 would ask for exact arithmetic)")
+    if opt.get("accuracy") is not None:
+        try:
+            x = float(opt["accuracy"])
+        except (TypeError, ValueError):
+            bad("accuracy", opt["accuracy"], "a position error in m")
+        if not (math.isfinite(x) and 0 < x < 1):
+            bad("accuracy", opt["accuracy"], "a position error in m (and rad) in (0, 1), e.g. 1e-6")
+    try:
+        r = float(opt.get("estimate_ratio", 5.0))
+    except (TypeError, ValueError):
+        r = float("nan")
+    if not (math.isfinite(r) and r > 1):
+        bad("estimate_ratio", opt.get("estimate_ratio"), "a number > 1, e.g. 5")
+    for key in ("step", "h", "h_max"):
+        v = opt.get(key)
+        if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            bad(key, v, "a positive time in s")
+
+
 def dynamic(model, options=None):
     """Run a dynamic analysis; returns a Result (status incomplete, with the data up to the
     failure, when the integrator fails).
 
     options: t_start, t_end, step (output step, s), integrator (name, see
     ``mbsim list integrators``), rtol, atol, h (fixed step: no error control; a fixed-step
-    method without h steps at ``step``), h_max, max_steps, sparse (None: by size), compiled
-    (False: the numpy System instead of mbsim.fast), q0/qd0 (a consistent initial state
-    instead of the deck's), and the integrator's own options
-    (alpha, beta, rho_inf, repartition_ratio, jacobian, newton_tol).
+    method without h steps at ``step``), h_max, max_steps, sparse (None: by size), q0/qd0 (a
+    consistent initial state instead of the deck's), error_estimate (bool, default True),
+    estimate_ratio (rho, default 5), accuracy (the position error wanted, m, and
+    orientation error, rad: chooses the tolerances, see :func:`_accuracy_run`), and the
+    integrator's own options (alpha, beta, rho_inf, repartition_ratio, jacobian,
+    newton_tol).
     """
     wall0 = _time.perf_counter()
-    opt = dict(DEFAULTS, **(model.spec.analysis.get("dynamic", {}) if model.spec else {}))
-    opt.update({k: v for k, v in (options or {}).items() if v is not None})
+    deck_opt = model.spec.analysis.get("dynamic", {}) if model.spec else {}
+    given = {k: v for k, v in (options or {}).items() if v is not None}
+    opt = dict(DEFAULTS, **deck_opt)
+    opt.update(given)
     progress = opt.pop("progress", None)  # progress(t, t_end) per output (mbsim.progress)
+    check_tolerances(opt, model.file)
+    if opt.get("accuracy") is not None:
+        explicit = {k for k in ("integrator", "h") if k in given or k in deck_opt}
+        res = _accuracy_run(model, opt, progress, explicit)
+    else:
+        res = _single_run(model, opt, progress)
+    res.wall_time = _time.perf_counter() - wall0
+    return res
+
+
+def _single_run(model, opt, progress=None):
+    """One integration with its error estimate: the Result of :func:`dynamic`."""
+    cpu0 = _time.process_time()
+    opt = dict(opt)
     cls = integrator_class(str(opt["integrator"]))
     t0, t1 = float(opt["t_start"]), float(opt["t_end"])
     times = output_times(t0, t1, float(opt["step"]))
     if not cls.adaptive and opt.get("h") is None:
         opt["h"] = float(opt["step"])
     q, qd, summary = _initial(model, t0, opt)
+    q_start, qd_start = q.copy(), qd.copy()
     rank, red = rank_and_redundant(model, _jac(model, q, t0))
     rows = np.setdiff1d(np.arange(model.m), red)
-    system = make_system(model, rows, opt.get("sparse"), bool(opt.get("compiled", True)))
+    system = make_system(model, rows, opt.get("sparse"))
     solver = cls(system, t0, q, qd, t1, opt)
     rec = Recorder(model)
     mon = {k: [] for k in ("pos", "vel", "energy", "work", "h", "lam")}
+    states = {"q": [], "qd": []}  # the outputs' states, for the error estimate
     V0 = system.energy(q, qd)[1]
     n_out_eval = 0
 
     def record(t, q, qd, w, h):
         nonlocal n_out_eval
-        qdd, lam, _ = system.accelerations(q, qd, t)
+        try:
+            qdd, lam, _ = system.accelerations(q, qd, t)
+        except NUMERICAL_ERRORS:  # exactly at a singular position: least squares
+            qdd, lam = _accelerations_lstsq(model, system, q, qd, t)
         n_out_eval += 1
         T, V = system.energy(q, qd)
         pv, vv = system.violations(q, qd, t)
@@ -103,46 +189,37 @@ def dynamic(model, options=None):
         for key, v in (("pos", pv), ("vel", vv), ("energy", T + V), ("work", w + V - V0),
                        ("h", h), ("lam", lam_all)):
             mon[key].append(v)
+        states["q"].append(np.array(q, float))
+        states["qd"].append(np.array(qd, float))
         rec.add(t, q, qd, qdd)
         if progress is not None:
             progress(t, t1)
 
     status, message = "complete", ""
-    record(t0, q, qd, 0.0, np.nan)
-    k = 1
-    steps = 0
     try:
-        while k < len(times):
-            ok, msg = solver.step()
-            steps += 1
-            if not ok:
-                status, message = STATUS_INCOMPLETE, _explain(model, system, solver, msg)
-                break
-            if k < len(times) and times[k] <= solver.t + 1e-12 * max(1.0, abs(solver.t)):
-                dense = solver.dense_output()
-                while k < len(times) and times[k] <= solver.t + 1e-12 * max(1.0, abs(solver.t)):
-                    tk = min(times[k], solver.t)
-                    qk, qdk, wk = (solver.q, solver.qd, solver.w) if tk == solver.t else dense(tk)
-                    record(times[k], qk, qdk, wk, solver.h_last)
-                    k += 1
-            if steps >= int(opt["max_steps"]) and k < len(times):
-                status = STATUS_INCOMPLETE
-                message = (f"t = {solver.t:.6g} s: max_steps = {int(opt['max_steps'])} reached "
-                           f"before t_end = {t1:g} s (step size {solver.h_last:.3g} s)")
-                break
+        record(t0, q, qd, 0.0, np.nan)
+        status, message = _integrate(solver, times, record, int(opt["max_steps"]))
+        if mon["h"] and not np.isfinite(mon["h"][0]):  # the step across t_start: the first one
+            mon["h"][0] = solver.h_last if solver.counters["steps"] else 0.0
+        if status != "complete":
+            message = _explain(model, system, solver, message)
     except KeyboardInterrupt:  # Ctrl-C: keep what was computed, marked incomplete
         status = STATUS_INCOMPLETE
         message = f"t = {solver.t:.6g} s: interrupted (Ctrl-C) before t_end = {t1:g} s"
-        for v in mon.values():
-            del v[len(rec):]
+    n = len(rec)
+    for v in list(mon.values()) + list(states.values()):
+        del v[n:]
+    if mon["h"] and not np.isfinite(mon["h"][0]):
+        mon["h"][0] = 0.0
     res = rec.result("dynamic")
-    if len(rec):
+    if n:
         res.add("monitors/position_violation", mon["pos"], "", "max |Phi| over all rows")
         res.add("monitors/velocity_violation", mon["vel"], "", "max |Phi_q qd - nu|")
         res.add("monitors/energy", mon["energy"], "J", "kinetic + potential energy T + V")
         res.add("monitors/work_nonconservative", mon["work"], "J",
                 "work of non-conservative forces and drivers; energy - work is conserved")
-        res.add("monitors/step_size", mon["h"], "s", "integrator step across each output")
+        res.add("monitors/step_size", mon["h"], "s",
+                "integrator step across each output (t_start: the first step)")
         res.add("constraints/lam", mon["lam"], "", "Lagrange multipliers per constraint row",
                 model.row_label)
     res.status, res.message = status, message
@@ -155,14 +232,210 @@ def dynamic(model, options=None):
     counters["output_evaluations"] = n_out_eval
     res.counters = counters
     summary.update({"integrator": cls.name, "formulation": cls.formulation,
+                    "rtol": float(opt["rtol"]), "atol": float(opt["atol"]),
+                    "h": None if opt.get("h") is None else float(opt["h"]),
                     "dof": model.nq - rank, "rank": rank,
                     "redundant": model.items_of_rows(red) if red.size else [],
                     "sparse": system.sparse, "equations": type(system).__name__,
                     "t_reached": float(solver.t)})
+    cpu_run = _time.process_time() - cpu0
+    summary["cpu"] = cpu_run
+    if opt.get("error_estimate", True) and n >= 2:
+        try:
+            est = _estimate(model, cls, opt, rows, q_start, qd_start, res.t,
+                            np.array(states["q"]), np.array(states["qd"]))
+        except KeyboardInterrupt:
+            est = {"method": "interrupted (Ctrl-C) before it finished"}
+        est["relative_cost"] = est.get("cpu", 0.0) / max(cpu_run, 1e-9)
+        summary["error_estimate"] = {k: v for k, v in est.items() if k != "channels"}
+        for name, (data, unit, desc) in est.get("channels", {}).items():
+            res.add(name, data, unit, desc)
+        if est.get("position") is not None:
+            res.attrs["error_estimate"] = float(est["position"])
     res.summary = summary
-    res.wall_time = _time.perf_counter() - wall0
     return res
 
+
+def _integrate(solver, times, record, max_steps):
+    """Step ``solver`` to times[-1], calling ``record(t, q, qd, w, h)`` at times[1:].
+
+    Returns (status, message); every numerical failure (a step, the dense output, a stall)
+    ends as ('incomplete', message with the time), never as an exception."""
+    k, steps = 1, 0
+    while k < len(times):
+        ok, msg = solver.step()
+        steps += 1
+        if not ok:
+            return STATUS_INCOMPLETE, msg
+        eps = 1e-12 * max(1.0, abs(solver.t))
+        if times[k] <= solver.t + eps:
+            try:
+                dense = solver.dense_output_safe()
+                while k < len(times) and times[k] <= solver.t + eps:
+                    tk = min(times[k], solver.t)
+                    qk, qdk, wk = (solver.q, solver.qd, solver.w) if tk == solver.t else dense(tk)
+                    record(times[k], qk, qdk, wk, solver.h_last)
+                    k += 1
+            except IntegratorFailure as exc:
+                return STATUS_INCOMPLETE, str(exc)
+        if steps >= max_steps and k < len(times):
+            return STATUS_INCOMPLETE, (f"t = {solver.t:.6g} s: max_steps = {max_steps} reached "
+                                       f"before t_end = {times[-1]:g} s (step size "
+                                       f"{solver.h_last:.3g} s)")
+    return "complete", ""
+
+
+def _estimate(model, cls, opt, rows, q0, qd0, t, Q, QD):
+    """The global error estimate of a run with outputs (t, Q, QD) (module doc): a companion
+    integration and the differences at the output times.  Returns a dict for the summary
+    with the channels to add."""
+    cpu0 = _time.process_time()
+    copt = dict(opt)
+    copt["h0"] = None
+    rho = float(opt.get("estimate_ratio", 5.0))
+    if opt.get("h") is not None:  # fixed step: half of it, Richardson's factor
+        copt["h"] = 0.5 * float(opt["h"])
+        factor = 2.0 ** cls.order / (2.0 ** cls.order - 1.0)
+        method = (f"companion run at h/2 = {copt['h']:.3g} s, Richardson factor "
+                  f"2^p/(2^p - 1) = {factor:.3g} (p = {cls.order})")
+    else:
+        copt["rtol"] = max(float(opt["rtol"]) / rho, 2.5e-14)
+        copt["atol"] = max(float(opt["atol"]) / rho, 1e-300)
+        factor = 1.0
+        method = (f"companion run at rtol/{rho:g} = {copt['rtol']:.3g}, "
+                  f"atol/{rho:g} = {copt['atol']:.3g}")
+    times = np.asarray(t, float)
+    system = make_system(model, rows, opt.get("sparse"))
+    solver = cls(system, float(times[0]), q0, qd0, float(times[-1]), copt)
+    got = {"q": [np.array(q0, float)], "qd": [np.array(qd0, float)]}
+
+    def record(tk, q, qd, w, h):
+        got["q"].append(np.array(q, float))
+        got["qd"].append(np.array(qd, float))
+
+    status, msg = _integrate(solver, times, record, int(opt["max_steps"]))
+    n = len(got["q"])
+    err = state_differences(model, Q[:n], QD[:n], np.array(got["q"]), np.array(got["qd"]))
+    out = {"method": method, "cpu": _time.process_time() - cpu0,
+           "steps": int(solver.counters["steps"])}
+    if status != "complete":
+        out["note"] = f"companion run stopped early ({msg}); estimate up to t = {times[n-1]:.6g} s"
+    units = {"position": ("m", "estimated global error of positions (bodies, output points)"),
+             "orientation": ("rad", "estimated global error of orientations (rotation angle)"),
+             "velocity": ("m/s", "estimated global error of centroid and point velocities"),
+             "angular_velocity": ("rad/s", "estimated global error of angular velocities")}
+    chans = {}
+    for key, (unit, desc) in units.items():
+        e = factor * err[key]
+        full = np.full(times.size, np.nan)
+        full[:n] = e
+        out[key] = float(np.max(e))
+        if n == times.size:
+            chans[f"error/{key}"] = (full, unit, desc)
+    out["channels"] = chans
+    log.info("error estimate: position %.3g m, orientation %.3g rad (%s)", out["position"],
+             out["orientation"], method)
+    return out
+
+
+def state_differences(model, Q, QD, Qc, QDc):
+    """Per output time (nt,): max over bodies and output points of |r - r_c| (position, m),
+    the rotation angle between the orientations (rad), |velocity differences| (m/s) and
+    |omega - omega_c| (rad/s).  Q, QD, Qc, QDc: (nt, nq)."""
+    from mbsim.rotations import A as rot_A
+    from mbsim.rotations import E as rot_E
+
+    nt, nb = Q.shape[0], model.nb
+    X, V = Q.reshape(nt, nb, 7), QD.reshape(nt, nb, 7)
+    Xc, Vc = Qc.reshape(nt, nb, 7), QDc.reshape(nt, nb, 7)
+    r, p, rc, pc = X[..., :3], X[..., 3:], Xc[..., :3], Xc[..., 3:]
+    pos = np.linalg.norm(r - rc, axis=2).max(axis=1)
+    # rotation from the companion's orientation to the run's: vector part of conj(pc) (x) p
+    vec = (pc[..., :1] * p[..., 1:] - p[..., :1] * pc[..., 1:]
+           - np.cross(pc[..., 1:], p[..., 1:]))
+    s = np.linalg.norm(vec, axis=2) / np.maximum(
+        np.linalg.norm(p, axis=2) * np.linalg.norm(pc, axis=2), 1e-300)
+    ori = (2 * np.arcsin(np.clip(s, 0.0, 1.0))).max(axis=1)
+    pf, pcf = p.reshape(-1, 4), pc.reshape(-1, 4)
+    w = 2 * np.einsum("kij,kj->ki", rot_E(pf), V[..., 3:].reshape(-1, 4)).reshape(nt, nb, 3)
+    wc = 2 * np.einsum("kij,kj->ki", rot_E(pcf), Vc[..., 3:].reshape(-1, 4)).reshape(nt, nb, 3)
+    vel = np.linalg.norm(V[..., :3] - Vc[..., :3], axis=2).max(axis=1)
+    angv = np.linalg.norm(w - wc, axis=2).max(axis=1)
+    if model.outputs:
+        A = rot_A(pf).reshape(nt, nb, 3, 3)
+        Ac = rot_A(pcf).reshape(nt, nb, 3, 3)
+        for _, b, sl in model.outputs:
+            sg, sgc = A[:, b] @ sl, Ac[:, b] @ sl
+            pos = np.maximum(pos, np.linalg.norm(r[:, b] + sg - rc[:, b] - sgc, axis=1))
+            vp = V[:, b, :3] + np.cross(w[:, b], sg)
+            vpc = Vc[:, b, :3] + np.cross(wc[:, b], sgc)
+            vel = np.maximum(vel, np.linalg.norm(vp - vpc, axis=1))
+    return {"position": pos, "orientation": ori, "velocity": vel, "angular_velocity": angv}
+
+
+def _accuracy_run(model, opt, progress, explicit):
+    """``accuracy`` = TOL: the run whose estimated position (m) and orientation (rad) errors
+    are at most TOL.  The integrator is the user's, else the default; an adaptive method
+    starts at rtol = atol = ACCURACY_START x TOL, a fixed-step one at its step; the error
+    estimate of that run decides, and if it missed, the tolerance (or step) is refined once
+    by the measured ratio, assuming the error proportional to the tolerance (h^p for a
+    fixed step), aiming at ACCURACY_MARGIN x TOL."""
+    tol = float(opt["accuracy"])
+    opt = dict(opt, error_estimate=True)
+    cls = integrator_class(str(opt["integrator"]))
+    fixed = (not cls.adaptive) or ("h" in explicit and opt.get("h") is not None)
+    if fixed:
+        opt["h"] = float(opt.get("h") or opt["step"])
+    else:
+        opt["rtol"] = opt["atol"] = ACCURACY_START * tol
+    runs, cpu = [], 0.0
+    while True:
+        res = _single_run(model, opt, progress)
+        est = res.summary.get("error_estimate", {})
+        e = max(est.get("position") or 0.0, est.get("orientation") or 0.0)
+        cpu += res.summary.get("cpu", 0.0) + est.get("cpu", 0.0)
+        runs.append({"rtol": float(opt["rtol"]), "atol": float(opt["atol"]),
+                     "h": opt.get("h"), "estimate": e, "status": res.status})
+        if e <= tol or not res.complete or len(runs) == 2 or est.get("position") is None:
+            break
+        ratio = min(max(ACCURACY_MARGIN * tol / e, 1e-4), 0.5)
+        if fixed:
+            opt["h"] = float(opt["h"]) * ratio ** (1.0 / max(cls.order, 1))
+        else:
+            opt["rtol"] = max(float(opt["rtol"]) * ratio, 1e-13)
+            opt["atol"] = max(float(opt["atol"]) * ratio, 1e-15)
+        log.info("accuracy %.3g: estimate %.3g missed; refining (rtol %.3g, h %s)", tol, e,
+                 opt["rtol"], opt.get("h"))
+    res.summary["accuracy"] = {
+        "requested": tol, "integrator": cls.name, "rtol": float(opt["rtol"]),
+        "atol": float(opt["atol"]), "h": opt.get("h"), "runs": len(runs), "estimate": e,
+        "met": bool(e <= tol), "cpu": cpu, "history": runs}
+    if not res.complete:
+        pass
+    elif e > tol:
+        res.summary.setdefault("warnings", []).append(
+            f"accuracy {tol:g} not reached: estimated error {e:.3g} after {len(runs)} runs")
+    res.settings["accuracy"] = tol
+    return res
+
+
+def _accelerations_lstsq(model, system, q, qd, t):
+    """qdd and lam at a configuration where the active rows are singular (a change point):
+    the minimum-norm solution of the KKT equations on all rows (reference equations)."""
+    import scipy.linalg as la
+
+    from mbsim import equations as eq
+
+    T = eq.constraints(model, q, t, qd=qd, phi=False, gamma=True)
+    Q = system.generalized_forces(q, qd, t) if hasattr(system, "generalized_forces") else \
+        eq.applied_forces(model, q, qd, t)[0]
+    M = eq.mass_matrix(model, q)
+    J, g = T.jac, T.gamma
+    n, m = model.nq, J.shape[0]
+    K = np.zeros((n + m, n + m))
+    K[:n, :n], K[:n, n:], K[n:, :n] = M, J.T, J
+    sol = la.lstsq(K, np.concatenate([Q, g]), cond=1e-12)[0]
+    return sol[:n], sol[n:][system.rows]
 
 def _jac(model, q, t):
     from mbsim import equations as eq

@@ -18,10 +18,17 @@ Methods (``METHODS``, option ``method``):
     differences of the generalized force along the columns of N.  Steps N dz with
     H' dz = r (H' = H with eigenvalues replaced by max(|e|, delta), so every step goes
     downhill), a backtracking line search on V, and Newton's projection back onto Phi = 0.
-    Stability: the eigenvalues of H at the solution (mixed units: N/m for translations,
-    N m per unit Euler parameter for rotations); all positive = a strict minimum = stable.
-    Where N^T M N is positive definite the small-oscillation frequencies (H z = w^2 M z)
-    are reported too.  Other estimates reach other minima.
+    Stability (:func:`verdict`): the eigenvalues of H at the solution (summary
+    ``eigenvalues``, mixed units: N/m along translations, N m per unit Euler parameter along
+    rotations); all positive = a strict minimum = ``stable``; some negative = ``unstable``;
+    the others ~ 0 (|e| <= 1e-7 max |e|) = ``neutral``: directions without stiffness (the
+    free spin of a link about its own axis, a mechanism that moves at no cost), each named
+    in ``neutral_modes`` by the bodies it turns or moves.  ``stable`` (bool) is true unless
+    some direction is unstable (a neutral direction is not an instability) or the method
+    did not converge.  Where N^T M N is positive definite the small-oscillation frequencies
+    (H z = w^2 M z) are reported: ``frequencies`` (rad/s) and ``frequencies_hz`` of the
+    non-neutral stable directions, ascending, and ``growth_rates`` (1/s, sqrt(-w^2)) of the
+    unstable ones.  Other estimates reach other minima.
 
 ``settle``
     A damped dynamic run (:func:`mbsim.analyses.dynamic.dynamic`), released at rest from the
@@ -121,6 +128,9 @@ class Stationary:
     message: str = ""
     energy_consistent: bool = True
     warnings: list[str] = field(default_factory=list)
+    basis: np.ndarray | None = None  # (nq, n) N at q
+    vectors: np.ndarray | None = None  # (n, n) eigenvectors of H (columns), as eigenvalues
+    w2: np.ndarray | None = None  # (n,) generalized eigenvalues H z = w^2 N^T M N z
 
 
 class Problem:
@@ -147,6 +157,31 @@ class Problem:
         KN = np.column_stack([(resid(q + h * n) - resid(q - h * n)) / (2 * h) for n in N.T])
         H = -N.T @ KN
         return 0.5 * (H + H.T)
+
+
+def verdict(model, q, eigenvalues, vectors=None, basis=None, w2=None, rtol=1e-7,
+            converged=True) -> dict:
+    """stability, stable, neutral_modes (named) and the frequencies of a stationary point
+    (module doc).  eigenvalues (n,) of H with their vectors (n, n) and N (nq, n) at q."""
+    from mbsim.analyses.linear import body_modes, describe_mode
+
+    e = np.asarray(eigenvalues, float)
+    tol = rtol * max(1.0, float(np.abs(e).max(initial=0.0)))
+    neutral = np.abs(e) <= tol
+    out = {"stability": classify(e, rtol), "neutral_modes": []}
+    if vectors is not None and basis is not None and neutral.any():
+        shapes = body_modes(model, q, basis @ vectors[:, neutral])
+        out["neutral_modes"] = [describe_mode(model, q, sh) for sh in shapes]
+    out["stable"] = bool(converged and out["stability"] != "unstable")
+    if w2 is not None:
+        w2 = np.sort(np.asarray(w2, float))
+        wtol = rtol * max(1.0, float(np.abs(w2).max(initial=0.0)))
+        pos = np.sqrt(w2[w2 > wtol])
+        out["frequencies"] = pos.tolist()
+        out["frequencies_hz"] = (pos / (2 * np.pi)).tolist()
+        if (w2 < -wtol).any():
+            out["growth_rates"] = np.sqrt(-w2[w2 < -wtol]).tolist()
+    return out
 
 
 def classify(eigenvalues, rtol=1e-7):
@@ -231,15 +266,15 @@ def stationary_point(prob: Problem, q0, opt) -> Stationary:
         q, g, J, N, r, V = qt, gt, Jt, Nt, rt, Vt
     lam_a = prob.multipliers(J, g)
     H = prob.hessian(q, lam_a, N, h)
-    w = la.eigvalsh(H) if H.size else np.zeros(0)
-    freq = None
+    w, U = la.eigh(H) if H.size else (np.zeros(0), np.zeros((0, 0)))
+    freq = w2 = None
     if H.size and prob.tangent is None:
         Mr = N.T @ eq.mass_matrix(model, q) @ N
         try:
             w2 = la.eigh(H, 0.5 * (Mr + Mr.T), eigvals_only=True)
             freq = np.sign(w2) * np.sqrt(np.abs(w2))
         except la.LinAlgError:  # N^T M N not positive definite (zero inertias)
-            freq = None
+            freq = w2 = None
     lam = np.zeros(model.m)
     lam[rows] = lam_a
     if not converged and not message:
@@ -254,7 +289,7 @@ def stationary_point(prob: Problem, q0, opt) -> Stationary:
                    f"{np.abs(r).max():.3g} (tolerance {opt['tol'] * scale:.3g}), largest "
                    f"residual forces at {worst_coordinates(model, resid)}{cause}")
     return Stationary(q, lam, converged, it, float(np.abs(r).max(initial=0.0)), w, freq, V,
-                      message, consistent, warnings)
+                      message, consistent, warnings, N, U, w2)
 
 
 def _options(model, options):
@@ -282,12 +317,10 @@ def _result(model, mode_method, t, q, qd, qdd, lam, sol: Stationary | None, extr
     if sol is not None:
         s.update(converged=sol.converged, iterations=sol.iterations,
                  reduced_force=sol.reduced_force, eigenvalues=sol.eigenvalues.tolist(),
-                 stability=classify(sol.eigenvalues),
-                 stable=classify(sol.eigenvalues) == "stable",
+                 **verdict(model, sol.q, sol.eigenvalues, sol.vectors, sol.basis, sol.w2,
+                           converged=sol.converged),
                  **{"effective_potential" if mode_method == "steady" else
                     "potential_energy": sol.energy})
-        if sol.frequencies is not None:
-            s["frequencies"] = sol.frequencies.tolist()
         if sol.warnings:
             s["warnings"] = list(sol.warnings)
         if not sol.converged:
@@ -379,10 +412,10 @@ def settle(model, opt) -> Result:
     g = prob.force(q)
     lam = prob.multipliers(J, g)
     H = prob.hessian(q, lam, N, float(opt["fd_step"]))
-    w = la.eigvalsh(H) if H.size else np.zeros(0)
+    w, U = la.eigh(H) if H.size else (np.zeros(0), np.zeros((0, 0)))
     summary.update(settled=True, settling_time=float(res.t[k]), configuration=_configuration(
         model, q), reduced_force=float(np.abs(N.T @ g).max(initial=0.0)),
-        eigenvalues=w.tolist(), stability=classify(w), stable=classify(w) == "stable")
+        eigenvalues=w.tolist(), **verdict(model, q, w, U, N))
     res.summary = summary
     return res
 

@@ -4,11 +4,16 @@ Steps: read the text; compose the YAML into a line-aware tree (:mod:`mbsim.deck.
 apply the scene (remove, set, analysis) and then the ``--set`` overrides to that tree;
 validate it section by section, converting numbers to SI floats.  Every problem is a
 one-line :class:`DeckError` naming file, key path and line.
+
+The first two steps are done once per deck (:func:`parse_deck` -> :class:`ParsedDeck`);
+studies and sweeps then build each case's spec from the parsed tree
+(:meth:`ParsedDeck.spec`): the scene and overrides are applied copy-on-write, so neither
+the file nor the whole tree is read or copied again per case.
 """
 
 from __future__ import annotations
 
-import copy
+import functools
 import math
 import re
 from collections.abc import Mapping
@@ -17,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from mbsim import rotations
-from mbsim.deck import schema
+from mbsim.deck import limits, schema
 from mbsim.deck.schema import FIELD_DIMENSIONS as DIM
 from mbsim.deck.spec import (
     BodySpec,
@@ -34,6 +39,7 @@ from mbsim.deck.tree import (
     apply_override,
     apply_scene,
     compose,
+    cow,
     scene_names,
     set_path,
     to_plain,
@@ -54,8 +60,17 @@ def load_deck(
     overrides : {key path: value} from ``mbsim run --set PATH=VALUE``; values are YAML text.
     scene : name of an entry of the deck's ``scenes:`` to apply before the overrides.
     """
+    return parse_deck(path, scene).spec(scene, overrides)
+
+
+def parse_deck(path: str | Path, scene: str | None = None) -> ParsedDeck:
+    """Read the deck file at ``path`` and compose it, once (see :class:`ParsedDeck`);
+    ``scene``: as for :func:`parse_deck_text`."""
     file = str(path)
     try:
+        size = Path(path).stat().st_size if Path(path).is_file() else 0
+        if size > limits.DECK_BYTES.value:  # before reading it: a 1 GB 'deck' is refused at once
+            raise DeckError(limits.DECK_BYTES.exceeded(size), Where(file))
         data = Path(path).read_bytes()
     except FileNotFoundError:
         raise DeckError("no such deck file", Where(file)) from None
@@ -71,7 +86,7 @@ def load_deck(
             f"not a text file: byte 0x{data[exc.start]:02x} at offset {exc.start} is not UTF-8",
             Where(file, "", line),
         ) from None
-    return load_deck_text(text, file, overrides, scene)
+    return parse_deck_text(text, file, scene)
 
 
 def load_deck_text(
@@ -79,6 +94,12 @@ def load_deck_text(
     scene: str | None = None,
 ) -> DeckSpec:  # fmt: skip
     """Validate deck ``text``; ``file`` is the name used in messages (see :func:`load_deck`)."""
+    return parse_deck_text(text, file, scene).spec(scene, overrides)
+
+
+def parse_deck_text(text: str, file: str = "<deck>", scene: str | None = None) -> ParsedDeck:
+    """Compose deck ``text`` once (see :class:`ParsedDeck`); every scene but ``scene`` (the
+    one about to be applied, which reports its own errors) is checked to apply."""
     root = compose(text, file)
     if root is None or root.kind != "map":
         got = "an empty file" if root is None else describe(root)
@@ -86,42 +107,97 @@ def load_deck_text(
             f"expected a mapping of top-level keys (bodies, joints, ...), got {got}",
             Where(file, "", None if root is None else root.line),
         )
-    for name in scene_names(root):  # every scene must apply, not only the one asked for
-        if name != scene:
-            apply_scene(copy.deepcopy(root), name, file)
-    base = copy.deepcopy(root) if "studies" in root.value else None  # cases apply to the deck
-    if scene is not None:                                           # as written
-        apply_scene(root, scene, file)
-    for key, value in (overrides or {}).items():
-        apply_override(root, key, value, file)
-    _drop_inactive(root, file)
-    return _build(root, Reader(file), text, scene, base)
+    parsed = ParsedDeck(file, text, root)
+    parsed.check_scenes(skip=scene)
+    return parsed
+
+
+@functools.lru_cache(maxsize=4)
+def parse_deck_cached(text: str, file: str = "<deck>") -> ParsedDeck:
+    """:func:`parse_deck_text`, remembered per (text, file) in this process: a sweep or
+    study worker parses its deck once, not once per case."""
+    return parse_deck_text(text, file)
+
+
+class ParsedDeck:
+    """A deck composed once; each variant (a scene, ``--set`` overrides) is validated from it.
+
+    ``root`` is the tree as written and is never edited: :meth:`spec` applies the scene and
+    the overrides to a copy-on-write view (:func:`mbsim.deck.tree.cow`: only the containers
+    on the edited paths are copied), so a study or sweep case costs its own edits and the
+    validation of the model sections, not a new read, parse or deep copy of the deck.
+    Errors are those of :func:`load_deck` (same code path, same file, key path and line).
+    """
+
+    def __init__(self, file: str, text: str, root: Node):
+        self.file = file  # the name used in messages
+        self.text = text  # the YAML text (stored in results)
+        self.root = root  # the tree as written: read only
+        self._checked: set[str] = set()  # scenes known to apply
+
+    def check_scenes(self, skip: str | None = None) -> None:
+        """Every scene (but ``skip``) must apply, not only the one asked for."""
+        for name in scene_names(self.root):
+            if name != skip and name not in self._checked:
+                apply_scene(cow(self.root), name, self.file)
+                self._checked.add(name)
+
+    def spec(self, scene: str | None = None, overrides: Mapping[str, str] | None = None,
+             studies: bool = True) -> DeckSpec:  # fmt: skip
+        """The validated deck with ``scene`` and then ``overrides`` applied (as
+        :func:`load_deck`).  ``studies=False`` skips validating the ``studies:`` section
+        (``DeckSpec.studies`` is then empty): a study or sweep case, whose studies are those
+        of the deck as written, validated once by the spec that planned the cases."""
+        self.check_scenes(skip=scene)
+        root = cow(self.root)
+        if scene is not None:
+            apply_scene(root, scene, self.file)
+        for key, value in (overrides or {}).items():
+            apply_override(root, key, value, self.file)
+        _drop_inactive(root, self.file)
+        base = self.root if studies and "studies" in self.root.value else None
+        return _build(root, Reader(self.file), self.text, scene, base, studies)
+
+    def variant(self, scene: str | None = None) -> Node:
+        """A copy-on-write tree of the deck with ``scene`` applied (no validation), for
+        checking key paths (:func:`mbsim.sweep.plan_sweep`)."""
+        root = cow(self.root)
+        if scene is not None:
+            apply_scene(root, scene, self.file)
+        return root
 
 
 def _drop_inactive(root: Node, file: str) -> None:
     """Items with ``active: false`` are left out of the model (a scene or --set may switch
-    them on or off: ``--set joints.BC.active=true``); ``active`` itself must be a boolean."""
+    them on or off: ``--set joints.BC.active=true``); ``active`` itself must be a boolean.
+
+    ``root`` is edited (a copy-on-write tree); the sections and items below it are not: an
+    edited section or item is replaced by a copy."""
     for section in ("bodies", "joints", "drivers", "forces"):
         sec = root.value.get(section)
         if sec is None or sec.kind != "map":
             continue
-        for name in list(sec.value):
-            item = sec.value[name]
+        kept: dict[str, Node] = {}
+        for name, item in sec.value.items():
             if item.kind != "map" or "active" not in item.value:
+                kept[name] = item
                 continue
             flag = item.value["active"]
             if flag.kind != "scalar" or not isinstance(flag.value, bool):
                 raise DeckError(f"expected true or false, got {flag.text or describe(flag)}",
                                 Where(file, f"{section}.{name}.active",
                                       item.key_lines.get("active")))
-            del item.value["active"]
-            if not flag.value:
-                del sec.value[name]
+            if flag.value:
+                kept[name] = item = cow(item)
+                del item.value["active"]
+        if len(kept) != len(sec.value) or any(kept[n] is not sec.value[n] for n in kept):
+            sec = root.value[section] = cow(sec)
+            sec.value = kept
 
 
 # -- the deck -----------------------------------------------------------------------------------
 def _build(root: Node, rd: Reader, text: str, scene: str | None,
-           base: Node | None = None) -> DeckSpec:  # fmt: skip
+           base: Node | None = None, studies: bool = True) -> DeckSpec:  # fmt: skip
     top = rd.fields(root, Where(rd.file, "", root.line), schema.TOP_KEYS, ("bodies",), "a deck")
     title = ""
     if "title" in top:
@@ -148,15 +224,15 @@ def _build(root: Node, rd: Reader, text: str, scene: str | None,
     if "scenes" in top:
         for _name, node, w in rd.items(*top["scenes"]):
             rd.fields(node, w, schema.SCENE_KEYS, what="a scene")
-    studies = {}
-    if "studies" in top and not (top["studies"][0].kind == "scalar"
-                                 and top["studies"][0].value is None):  # fmt: skip
-        studies = _studies(rd, *top["studies"], base if base is not None else root)
+    cases = {}
+    if studies and "studies" in top and not (top["studies"][0].kind == "scalar"
+                                             and top["studies"][0].value is None):  # fmt: skip
+        cases = _studies(rd, *top["studies"], base if base is not None else root)
     return DeckSpec(
         title=title, file=rd.file, text=text, gravity=gravity, parameters=dict(rd.params),
         bodies=bodies, joints=joints, drivers=drivers, forces=forces, outputs=outputs,
         analysis=analysis, raw=to_plain(root), warnings=rd.warnings, scene=scene,
-        studies=studies,
+        studies=cases,
     )  # fmt: skip
 
 
@@ -172,6 +248,8 @@ def _section(rd: Reader, top: dict, key: str, build, *known) -> dict:
 def _parameters(rd: Reader, node: Node, where: Where) -> None:
     """Evaluated in order; a parameter may use the ones before it."""
     items = rd.items(node, where) if not (node.kind == "scalar" and node.value is None) else []
+    if len(items) > limits.PARAMETERS.value:
+        raise rd.error(where, limits.PARAMETERS.exceeded(len(items)))
     names = [k for k, _, _ in items]
     for i, (name, child, w) in enumerate(items):
         if not NAME_RE.fullmatch(name) or name in RESERVED or name in FUNCTIONS or name == "t":
@@ -449,13 +527,17 @@ def _outputs(rd: Reader, node: Node, where: Where, bodies: dict) -> dict[str, Ou
 
 def _analysis(rd: Reader, node: Node, where: Where) -> dict[str, dict]:
     got = rd.fields(node, where, schema.ANALYSIS_MODES, what="analysis")
-    return {
-        mode: {
-            key: rd.setting(child, w, schema.ANALYSIS_DIMENSIONS.get(key))
-            for key, child, w in rd.items(*got[mode])
-        }
-        for mode in got
-    }
+    out = {}
+    for mode in got:
+        items = rd.items(*got[mode])
+        out[mode] = {key: rd.setting(child, w, schema.ANALYSIS_DIMENSIONS.get(key))
+                     for key, child, w in items}  # fmt: skip
+        wheres = {key: w for key, _, w in items}
+        # Tolerances, steps and the number of output times, before any analysis allocates
+        # (documented defaults t_start 0, step 0.01 s stand in for those not given).
+        for key, message in limits.setting_problems(out[mode], {"t_start": 0.0, "step": 0.01}):
+            raise rd.error(wheres.get(key, got[mode][1]), message)
+    return out
 
 
 # -- studies ------------------------------------------------------------------------------------
@@ -467,7 +549,8 @@ def _studies(rd: Reader, node: Node, where: Where, base: Node) -> dict[str, dict
 
     Plain data for :mod:`mbsim.study` (format: docs/studies.md).  Each case's scene and
     ``set`` paths are applied to a copy of the deck as written (``base``), so a path that
-    does not exist is an error here, for every study, as for scenes.
+    does not exist is an error here, for every study, as for scenes (on copy-on-write
+    views of ``base``, which stays as it is).
     """
     out = {}
     for name, child, w in rd.items(node, where):
@@ -532,7 +615,7 @@ def _study_case(rd: Reader, node: Node, where: Where, base: Node) -> dict:
         raise rd.error(got["name"][1], f"case name {case['name']!r} is not a name "
                        "(letters, digits, _ . + -)")  # fmt: skip
     case["mode"] = rd.choice(*got["mode"], schema.STUDY_MODES, "mode")
-    trial = copy.deepcopy(base)
+    trial = cow(base)  # set_path copies what it edits: base stays as written
     case["scene"] = None
     if "scene" in got:
         case["scene"] = rd.name(*got["scene"], scene_names(base), "scene")
@@ -541,7 +624,7 @@ def _study_case(rd: Reader, node: Node, where: Where, base: Node) -> dict:
     if "set" in got:
         for path, value, w in rd.items(*got["set"]):
             try:
-                set_path(trial, path, copy.deepcopy(value), schema.can_add)
+                set_path(trial, path, value, schema.can_add)
             except PathError as exc:
                 raise rd.error(w, f"cannot set {path}: {exc.message}") from None
             case["set"][path] = to_plain(value)

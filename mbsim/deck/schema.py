@@ -23,7 +23,7 @@ POINT_KEYS = ("P", "Q", "R")
 OUTPUT_KEYS = ("points",)
 OUTPUT_POINT_KEYS = ("body", "point")
 SCENE_KEYS = ("description", "set", "remove", "analysis")
-ANALYSIS_MODES = ("assembly", "kinematic", "dynamic", "inverse", "equilibrium")
+ANALYSIS_MODES = ("assembly", "kinematic", "dynamic", "inverse", "equilibrium", "linear")
 
 # Studies (`studies:`; run by `mbsim study`, mbsim/study.py): a list of cases, the figures
 # drawn from them and the key numbers tabulated.  STUDY_STATS is implemented by

@@ -4,7 +4,9 @@ PyYAML's loaders forget where a value came from and silently keep the last of tw
 equal keys.  Here the text is only *composed* (``yaml.compose``, safe tags) and the node
 graph is turned into our own tree, so that every value knows its line and duplicate keys
 are errors.  Scenes and ``--set`` overrides edit this tree (:func:`set_path`,
-:func:`remove_path`) before validation; :func:`to_plain` gives the plain ``raw`` tree.
+:func:`remove_path`) before validation, copy-on-write (:func:`cow`): the containers on the
+edited paths are copied, the rest is shared with the tree as parsed; :func:`to_plain` gives
+the plain ``raw`` tree.
 """
 
 from __future__ import annotations
@@ -17,10 +19,17 @@ from typing import Any
 
 import yaml
 
+from mbsim.deck import limits
 from mbsim.deck.schema import SCENE_KEYS, can_add
-from mbsim.errors import DeckError, Where
+from mbsim.errors import DeckError, Where, quote
 
 MERGE_TAG = "tag:yaml.org,2002:merge"
+# Tags a list or mapping may carry: YAML's own (and none).  Anything else (`!!python/...`,
+# `!!omap`, a local `!tag`) is refused rather than read as a plain list.
+CONTAINER_TAGS = ("tag:yaml.org,2002:seq", "tag:yaml.org,2002:map")
+# libyaml's parser when PyYAML has it: 15x faster on a 2.5 MB table (1.2 s instead of 20 s),
+# same nodes and marks; the pure-Python one otherwise.
+LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 @dataclass(eq=False)
@@ -48,7 +57,15 @@ class Node:
 def compose(text: str, file: str, origin: str | None = None) -> Node | None:
     """Parse YAML ``text`` into a Node tree (None for an empty document)."""
     try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        # The composer recurses once per nesting level (libyaml's in C: a segfault past some
+        # 10^5 levels), so the depth is checked first on the parser's events, which do not.
+        line = _too_deep_line(text)
+        if line is not None:
+            raise DeckError(limits.DEPTH.exceeded(), Where(file, "", line if origin is None
+                                                           else None))  # fmt: skip
+        root = yaml.compose(text, Loader=LOADER)
+    except RecursionError:  # pragma: no cover - the depth check comes first
+        raise DeckError(limits.DEPTH.exceeded(), Where(file)) from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         what = exc.problem or ""
@@ -58,7 +75,9 @@ def compose(text: str, file: str, origin: str | None = None) -> Node | None:
             what = f"{exc.context}{at}: {what}"
         line = mark.line + 1 if mark is not None and origin is None else None
         col = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-        raise DeckError(_one_line(f"not valid YAML: {what}{col}"), Where(file, "", line)) from None
+        hint = _indent_hint(text, mark.line) if mark is not None and origin is None else ""
+        raise DeckError(_one_line(f"not valid YAML: {what}{col}{hint}"),
+                        Where(file, "", line)) from None
     except yaml.YAMLError as exc:  # ReaderError: control characters, bad encoding
         pos = getattr(exc, "position", None)
         line = text.count("\n", 0, pos) + 1 if pos is not None and origin is None else None
@@ -69,6 +88,44 @@ def compose(text: str, file: str, origin: str | None = None) -> Node | None:
     if root is None:
         return None
     return _Converter(file, origin).convert(root, "")
+
+
+def _indent_hint(text: str, row: int) -> str:
+    """A block-structure error shows where YAML noticed it, usually one line after the
+    mis-indented one: name both lines when their indentation differs."""
+    lines = text.split("\n")
+    if not 0 < row < len(lines):
+        return ""
+    prev = row - 1
+    while prev > 0 and not lines[prev].strip():
+        prev -= 1
+
+    def indent(k: int) -> int:
+        return len(lines[k]) - len(lines[k].lstrip(" "))
+
+    if "\t" in lines[row][: indent(row) + 1] or "\t" in lines[prev][: indent(prev) + 1]:
+        return "; YAML indents with spaces, not tabs"
+    if indent(prev) == indent(row) or not lines[row].strip():
+        return ""
+    return (f"; check the indentation of lines {prev + 1} and {row + 1} ({indent(prev)} and "
+            f"{indent(row)} spaces): keys of one mapping start in the same column")
+
+
+def _too_deep_line(text: str) -> int | None:
+    """Line of the first list/mapping nested deeper than the limit, else None (a YAML error
+    is left for the composer to report).  Walking the parser's events does not recurse."""
+    depth, limit = 0, limits.DEPTH.value
+    try:
+        for event in yaml.parse(text, Loader=LOADER):
+            if isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
+                depth += 1
+                if depth > limit:
+                    return event.start_mark.line + 1
+            elif isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
+                depth -= 1
+    except yaml.YAMLError:
+        return None
+    return None
 
 
 class _Converter:
@@ -85,48 +142,58 @@ class _Converter:
     def fail(self, ynode: yaml.Node, message: str) -> DeckError:
         return DeckError(message, Where(self.file, "", self.line(ynode)))
 
-    def convert(self, ynode: yaml.Node, path: str) -> Node:
+    def convert(self, ynode: yaml.Node, path: str, depth: int = 0) -> Node:
         key = id(ynode)
         if key in self.done:
             return self.done[key]
         if key in self.active:
             raise self.fail(ynode, "recursive YAML alias")
+        if depth > limits.DEPTH.value:
+            raise self.fail(ynode, limits.DEPTH.exceeded(depth))
+        if not isinstance(ynode, yaml.ScalarNode):
+            if ynode.tag not in CONTAINER_TAGS:
+                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}")
+            if len(ynode.value) > limits.ITEMS.value:
+                raise self.fail(ynode, limits.ITEMS.exceeded(len(ynode.value)))
         self.active.add(key)
         if isinstance(ynode, yaml.MappingNode):
-            node = self.mapping(ynode, path)
+            node = self.mapping(ynode, path, depth)
         elif isinstance(ynode, yaml.SequenceNode):
-            items = [self.convert(v, f"{path}[{i}]") for i, v in enumerate(ynode.value)]
+            items = [self.convert(v, f"{path}[{i}]", depth + 1) for i, v in enumerate(ynode.value)]
             node = Node("seq", items, self.line(ynode))
         else:
             try:
                 value = self.constructor.construct_object(ynode)
-            except yaml.YAMLError:
-                raise self.fail(ynode, f"unsupported YAML tag {ynode.tag!r}") from None
+            except (yaml.YAMLError, ValueError, OverflowError):  # ValueError: a bad !!timestamp
+                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}") from None
             node = Node("scalar", value, self.line(ynode), text=ynode.value)
         node.origin = self.origin
         self.active.discard(key)
         self.done[key] = node
         return node
 
-    def mapping(self, ynode: yaml.MappingNode, path: str) -> Node:
+    def mapping(self, ynode: yaml.MappingNode, path: str, depth: int = 0) -> Node:
         node = Node("map", {}, self.line(ynode))
         merged: list[Node] = []
         for knode, vnode in ynode.value:
             if knode.tag == MERGE_TAG:  # `<<: *defaults`: keys not given here are merged in
                 sources = vnode.value if isinstance(vnode, yaml.SequenceNode) else [vnode]
-                merged += [self.convert(s, path) for s in sources]
+                merged += [self.convert(s, path, depth + 1) for s in sources]
                 continue
             if not isinstance(knode, yaml.ScalarNode):
                 raise self.fail(knode, "a mapping key must be a plain name, not a list or mapping")
             name = knode.value
+            if len(name) > limits.NAME_CHARS.value:
+                raise self.fail(knode, f"key {quote(name, 40)}: "
+                                f"{limits.NAME_CHARS.exceeded(len(name))}")
             here = f"{path}.{name}" if path else name
             if name in node.value:
                 first = node.key_lines[name]
                 raise DeckError(
-                    f"duplicate key {name!r} (first given on line {first})",
+                    f"duplicate key {quote(name)} (first given on line {first})",
                     Where(self.file, here, self.line(knode)),
                 )
-            node.value[name] = self.convert(vnode, here)
+            node.value[name] = self.convert(vnode, here, depth + 1)
             node.key_lines[name] = self.line(knode)
         for source in merged:
             if source.kind != "map":
@@ -151,6 +218,18 @@ def to_plain(node: Node | None) -> Any:
     if node.kind == "seq":
         return [to_plain(v) for v in node.value]
     return node.value
+
+
+def cow(node: Node) -> Node:
+    """A shallow copy of a map or list node, to be edited without touching ``node``.
+
+    Copy-on-write: :func:`set_path` and :func:`remove_path` copy every container below the
+    one they are given on the way to the key they change, so ``cow(root)`` is all a
+    scene, a ``--set`` or a study case needs to edit a deck tree that stays as parsed
+    (:class:`mbsim.deck.loader.ParsedDeck`); the untouched branches stay shared.
+    """
+    return Node(node.kind, type(node.value)(node.value), node.line, node.text,
+                dict(node.key_lines), node.origin)  # fmt: skip
 
 
 def from_value(value: Any, file: str, path: str, origin: str = "--set") -> Node:
@@ -248,14 +327,7 @@ def _descend(root: Node, segs: list[str | int], can_add: Callable[[list], bool],
         if child is None:
             child = Node("map", {}, None, origin="--set")
         elif child.kind != "scalar":  # copy on descent: never edit a node shared by an alias
-            child = Node(
-                child.kind,
-                type(child.value)(child.value),
-                child.line,
-                child.text,
-                dict(child.key_lines),
-                child.origin,
-            )
+            child = cow(child)  # or by the parsed deck and its other variants
         if node.kind == "map" and key not in node.value:
             node.key_lines[key] = None
         node.value[key] = child

@@ -19,8 +19,8 @@ from mbsim import units
 from mbsim.deck.schema import DIMENSIONS, FUNCTION_FORMS, HARMONIC_KEYS, INTERPOLATIONS
 from mbsim.deck.spec import FunctionSpec, PointSet
 from mbsim.deck.tree import Node
-from mbsim.errors import DeckError, ExpressionError, MbsimError, Where
-from mbsim.expr import Expression, parse_expression
+from mbsim.errors import QUOTE_LIMIT, DeckError, ExpressionError, MbsimError, Where, quote
+from mbsim.expr import FUNCTIONS, RESERVED, Expression, parse_expression
 
 NAME_RE = re.compile(r"[A-Za-z_][A-Za-z_0-9]*")
 
@@ -35,10 +35,10 @@ def describe(node: Node | None, limit: int = 80) -> str:
     """A short, one-line rendering of what the deck gave: [0.0, 1.0], 'abc', a mapping."""
     if node is None:
         return "nothing"
-    if node.kind == "map":
-        text = "a mapping {" + ", ".join(node.value) + "}"
+    if node.kind == "map":  # at most `limit` characters are built (a 10^5-item list is cut)
+        text = "a mapping {" + _joined(node.value, limit, str) + "}"
     elif node.kind == "seq":
-        text = "[" + ", ".join(describe(v, limit) for v in node.value) + "]"
+        text = "[" + _joined(node.value, limit, lambda v: describe(v, limit)) + "]"
     elif node.value is None:
         text = "nothing (null)"
     elif isinstance(node.value, bool):
@@ -46,12 +46,24 @@ def describe(node: Node | None, limit: int = 80) -> str:
     elif isinstance(node.value, (int, float)):
         text = repr(float(node.value))
     else:
-        text = repr(node.value)
+        text = quote(node.value, limit)
     return text if len(text) <= limit else text[: limit - 4] + " ...]"
+
+
+def _joined(items, limit: int, fmt) -> str:
+    parts, n = [], 0
+    for item in items:
+        parts.append(fmt(item))
+        n += len(parts[-1]) + 2
+        if n > limit:
+            break
+    return ", ".join(parts)
 
 
 def suggest(word: str, options) -> str:
     """'; did you mean 'mass'?' or '' (difflib)."""
+    if len(str(word)) > QUOTE_LIMIT:  # difflib is quadratic; a long word is no typo
+        return ""
     close = difflib.get_close_matches(str(word), [str(o) for o in options], n=1)
     return f"; did you mean {close[0]!r}?" if close else ""
 
@@ -98,7 +110,7 @@ class Reader:
         for key, child, w in self.items(node, where):
             if key not in allowed:
                 hint = suggest(key, allowed) or f"; expected one of: {', '.join(allowed)}"
-                raise self.error(w, f"unknown key {key!r}{' in ' + what if what else ''}{hint}")
+                raise self.error(w, f"unknown key {quote(key)}{' in ' + what if what else ''}{hint}")
             got[key] = (child, w)
         for key in required:
             if key not in got:
@@ -114,8 +126,8 @@ class Reader:
             raise self.error(where, f"expected a {what}, got {describe(node)}", node)
         if known is not None and name not in known:
             listed = ", ".join(known) or "none"
-            hint = suggest(name, known) or f" (known: {listed})"
-            raise self.error(where, f"unknown {what} {name!r}{hint}", node)
+            hint = suggest(name, known) or f" (known: {_cut(listed)})"
+            raise self.error(where, f"unknown {what} {quote(name)}{hint}", node)
         return name
 
     def choice(self, node: Node, where: Where, options, what: str = "value") -> str:
@@ -155,7 +167,7 @@ class Reader:
 
     def _finite(self, x: float, node: Node, where: Where, text: str | None = None) -> float:
         if not math.isfinite(x):
-            got = f"{text!r} = {x}" if text else describe(node)
+            got = f"{quote(text)} = {x}" if text else describe(node)
             raise self.error(where, f"expected a finite number, got {got}", node)
         return x
 
@@ -163,10 +175,19 @@ class Reader:
         try:
             value, got_dim = units.parse_quantity(text)
         except (MbsimError, ValueError, KeyError) as exc:
-            raise self.error(where, f"bad quantity {text!r}: {_message(exc)}", node) from None
+            hint = ""
+            if set(NAME_RE.findall(text)) & (set(self.params) | {"t"}):  # '360 deg * t'
+                fixed = re.sub(r"(?<=[\d.])\s*(deg|°)(?![A-Za-z_])", "*deg", text)
+                fixed = re.sub(r"\s*\*\s*", "*", fixed)
+                hint = (f"; a formula takes no units except the constant deg (pi/180): write "
+                        f"{quote(fixed)}" if "*deg" in fixed else "; a formula takes no units "
+                        "(the constant deg = pi/180 aside): give the others to a parameter, "
+                        "e.g. L: '12 in'")  # fmt: skip
+            why = _message(exc) if not hint else "a quantity is a number and a unit"
+            raise self.error(where, f"bad quantity {quote(text)}: {why}{hint}", node) from None
         if dim is not None and got_dim != self._dim(dim):
             unit, words = DIMENSIONS[dim]
-            got = f"{text!r} ({got_dim})"
+            got = f"{quote(text)} ({got_dim})"
             raise self.error(where, f"expected {_an(words)} (SI unit {unit}), got {got}", node)
         return self._finite(float(value), node, where, text)
 
@@ -195,9 +216,12 @@ class Reader:
             if unknown:
                 bare = NAME_RE.fullmatch(text.strip())
                 what = "parameter" if bare else "name"
-                known = ", ".join(sorted(allowed)) or "none"
-                hint = suggest(unknown[0], allowed) or f" (known: {known})"
-                return f"unknown {what} {unknown[0]!r}{'' if bare else f' in {text!r}'}{hint}"
+                known = ", ".join(sorted(allowed)) or "no parameters"
+                # a misspelt constant or function ('pie', 'sine') is as likely as a parameter
+                hint = suggest(unknown[0], sorted(allowed) + sorted(RESERVED) + sorted(FUNCTIONS))
+                hint = hint or f" (known: {_cut(known)}; constants {', '.join(RESERVED)})"
+                in_text = "" if bare else f" in {quote(text)}"
+                return f"unknown {what} {quote(unknown[0])}{in_text}{hint}"
         return f"bad formula: {_message(exc)}"
 
     def vector(self, node: Node, where: Where, n: int = 3, dim: str | None = None) -> np.ndarray:
@@ -358,7 +382,7 @@ class Reader:
         for key, (_, w) in got.items():
             if key not in needs:
                 listed = ", ".join(needs)
-                raise self.error(w, f"{key!r} is not a body of this item (bodies: {listed})"
+                raise self.error(w, f"{quote(key)} is not a body of this item (bodies: {listed})"
                                  f"{suggest(key, needs)}")  # fmt: skip
         for body in needs:
             if body not in got:
@@ -435,6 +459,10 @@ class Reader:
                 wheres["R"],
                 f"P→R is {math.degrees(angle):.2f}° from P→Q; orthogonalised against it",
             )
+
+
+def _cut(text: str, limit: int = 2 * QUOTE_LIMIT) -> str:
+    return text if len(text) <= limit else text[:limit] + ", ..."
 
 
 def _join(path: str, key: str) -> str:

@@ -1,10 +1,22 @@
-"""FastConstraints(model): Phi, Phi_q, gamma and nu of a Model in one compiled call.
+"""FastConstraints(model): Phi, Phi_q, gamma and nu of a Model in one C call.
 
 Built once per Model (and row selection): the kernel Blocks are flattened into the tables
-of :mod:`mbsim.fast._compiled`, the output buffers and the CSR pattern are allocated, and
-every evaluation is then one call of :func:`~mbsim.fast._compiled.eval_constraints` plus one
-fill of the dense or CSR Jacobian.  Time targets (driver functions) stay Python callables:
-f, f', f'' of the few time-dependent rows are evaluated here and passed in as an array.
+of mbsim/fast/kernels.c (``ci``, ``cf``: one line per basic constraint, layout below), the
+output buffers and the CSR pattern are allocated and handed to C once (an ``mb_model``
+struct, :mod:`mbsim.fast._lib`); every evaluation is then one C call (``mb_terms``) that
+evaluates all kernels and fills the dense or CSR Jacobian of the rows asked for.  Time
+targets (driver functions) stay Python callables: f, f', f'' of the few time-dependent
+rows are evaluated here and passed in as ``tv`` (nf, 3).
+
+Tables (k = 0 .. nc-1):
+
+- ``ci`` (nc, NI) int64: kernel code (``KERNELS``), body i, body j (-1: one body), first
+  global row, flag (dot2: 1 when a is on body j; absolute: axis 0/1/2), time-target index
+  (-1: none), the body of each of the three vector slots (-1: slot unused);
+- ``cf`` (nc, NF) float64: the three body-fixed vectors (columns 0-8, the kernel's
+  arguments in the slots listed in ``VECTORS``) and up to six constant targets (9-14);
+- ``Jc`` (m, 14): the compact Jacobian, columns 0-6 d Phi_r / d[r_i, p_i], 7-13
+  d Phi_r / d[r_j, p_j].
 """
 
 from __future__ import annotations
@@ -13,9 +25,25 @@ import numpy as np
 import scipy.sparse as sp
 
 from mbsim.equations import Terms
-from mbsim.fast import _compiled as K
+from mbsim.fast import _lib
 
-SPARSE_NQ = 700  # the same switch as mbsim.integrators.system: CSR Jacobian from here on
+KERNELS = ("dot1", "dot2", "spherical", "distance", "angle", "absolute", "ground", "normalization")
+KERNEL_CODE = {name: code for code, name in enumerate(KERNELS)}
+"""kernel name -> code in ``ci[:, 0]`` (the enum of kernels.c)."""
+VECTORS = {
+    "dot1": (("ai", "i"), ("aj", "j")),
+    "dot2": (("a", "i"), ("si", "i"), ("sj", "j")),  # a on body j when the flag says so
+    "spherical": (None, ("si", "i"), ("sj", "j")),
+    "distance": (None, ("si", "i"), ("sj", "j")),
+    "angle": (("gi", "i"), ("hi", "i"), ("gj", "j")),
+    "absolute": (("s", "i"),),
+    "ground": (),
+    "normalization": (),
+}
+"""kernel name -> per vector slot 0, 1, 2 (cf[:, 0:3], 3:6, 6:9): (Block.vecs key, body)."""
+I_SLOT, NI, F_CONST, NF = 6, 9, 9, 15
+
+SPARSE_NQ = 250  # CSR Jacobians from about 35 bodies on (measured crossover, spherical chain)
 
 
 class FastConstraints:
@@ -43,15 +71,23 @@ class FastConstraints:
             raise ValueError(f"rows: expected row numbers in [0, {model.m}), got {rows!r}")
         self.sparse = (model.nq >= SPARSE_NQ) if sparse is None else bool(sparse)
         self.ci, self.cf, self.rb, self.funcs = flatten(model)
-        self.tv = np.zeros((len(self.funcs), 3))  # (nf, 3) c(t), c'(t), c''(t)
-        m, ma = self.m, self.rows.size
-        self.phi_all, self.gamma_all, self.nu_all = np.zeros(m), np.zeros(m), np.zeros(m)
-        self.Jc = np.zeros((m, 14))  # compact Phi_q: d/d[r_i, p_i], d/d[r_j, p_j] per row
-        self._phi, self._gamma, self._nu = np.zeros(ma), np.zeros(ma), np.zeros(ma)
+        self.lib = _lib.library()
+        m, ma, nq = self.m, self.rows.size, self.nq
+        self.c = _lib.Model(nb=self.nb, nq=nq, m=m, ma=ma, nc=self.ci.shape[0])
+        self.c.set(ci=self.ci, cf=self.cf, rb=self.rb, rows=self.rows)
+        # inputs: q, qd (copied in per call), tv (nf, 3): c(t), c'(t), c''(t)
+        self._q, self._qd, self.tv = self.c.set(
+            q=np.zeros(nq), qd=np.zeros(nq), tv=np.zeros((len(self.funcs), 3))
+        )
+        # all m rows: phi, compact Phi_q (m, 14), gamma, nu
+        self.phi_all, self.Jc, self.gamma_all, self.nu_all = self.c.set(
+            phi=np.zeros(m), Jc=np.zeros((m, 14)), gamma=np.zeros(m), nu=np.zeros(m)
+        )
+        self._phi, self._gamma, self._nu = self.c.set(
+            phi_a=np.zeros(ma), gamma_a=np.zeros(ma), nu_a=np.zeros(ma)
+        )
         self._J = None  # dense (m_a, nq), allocated on first use (pattern-only writes)
         self._csr = None  # (indptr, indices, dpos, data), built on first use
-        self._no_J = np.zeros((0, 0))  # placeholders of the compiled call's fixed types
-        self._no_csr = (None, None, np.zeros((0, 14), dtype=np.int64), np.zeros(0))
 
     # -- time targets ----------------------------------------------------------------------
     def targets(self, t: float, derivatives: bool = True) -> np.ndarray:
@@ -68,46 +104,51 @@ class FastConstraints:
         return tv
 
     # -- evaluation ------------------------------------------------------------------------
+    def load(self, q, t, qd=None):
+        """Copy q (and qd) into the C inputs and evaluate the time targets at t."""
+        self.vector(q, "q", self._q)
+        if qd is not None:
+            self.vector(qd, "qd", self._qd)
+        if self.funcs:
+            self.targets(t)
+
     def compact(self, q, t=0.0, qd=None, jac=True, gamma=False):
         """All m rows into the buffers phi_all, Jc (m, 14), gamma_all, nu_all (module
-        :mod:`mbsim.fast._compiled`); returns nothing."""
-        q = self.vector(q, "q")
+        doc); returns nothing."""
         if gamma and qd is None:
             raise ValueError("gamma needs the velocities qd")
-        qd = q if qd is None else self.vector(qd, "qd")  # not read unless gamma
-        tv = self.targets(t) if self.funcs else self.tv
-        out = (self.phi_all, self.Jc, self.gamma_all, self.nu_all)
-        K.eval_constraints(q, qd, tv, self.ci, self.cf, bool(jac), bool(gamma), *out)
+        self.load(q, t, qd)
+        self.lib.mb_constraints(self.c.ptr, bool(jac), bool(gamma))
 
-    def vector(self, x, name="q") -> np.ndarray:
-        """x as the C-contiguous float64 (nq,) array the compiled code reads (it does not
-        check bounds: a wrong shape is an error here, not a wrong read there)."""
-        x = np.ascontiguousarray(x, dtype=np.float64)
-        if not x.flags.writeable:  # a read-only array is another numba type: another compile
-            x = x.copy()
-        if x.shape != (self.nq,):
-            raise ValueError(f"{name}: expected shape ({self.nq},), got {x.shape}")
-        return x
+    def vector(self, x, name="q", out=None) -> np.ndarray:
+        """x copied into ``out`` (default: a fresh (nq,) float64 array); a wrong shape is
+        an error here (the C code does not check bounds)."""
+        if np.shape(x) != (self.nq,):
+            raise ValueError(f"{name}: expected shape ({self.nq},), got {np.shape(x)}")
+        if out is None:
+            return np.array(x, dtype=np.float64)
+        out[:] = x
+        return out
 
     def evaluate(self, q, t=0.0, qd=None, jac=True, gamma=False, sparse=None) -> Terms:
         """Phi, Phi_q, gamma (when asked; needs qd) and nu on ``rows`` at (q, qd, t), in this
         object's buffers: Terms(phi (m_a,), jac (m_a, nq) dense or csr, gamma, nu)."""
-        self.compact(q, t, qd, jac, gamma)
+        if gamma and qd is None:
+            raise ValueError("gamma needs the velocities qd")
+        self.load(q, t, qd)
         sparse = self.sparse if sparse is None else sparse
         mode = 0 if not jac else (2 if sparse else 1)
         if mode == 1 and self._J is None:
-            self._J = np.zeros((self.rows.size, self.nq))  # pattern-only writes from here on
-        J = self._J if mode == 1 else self._no_J
-        indptr, indices, dpos, data = self.csr_pattern() if mode == 2 else self._no_csr
-        out = (self._phi, self._nu, self._gamma, J, dpos, data)
-        all_ = (self.phi_all, self.nu_all, self.gamma_all, self.Jc)
-        K.gather(self.rows, self.rb, *all_, bool(gamma), mode, *out)
+            (self._J,) = self.c.set(J=np.zeros((self.rows.size, self.nq)))
+        if mode == 2:
+            indptr, indices, _, data = self.csr_pattern()
+        self.lib.mb_terms(self.c.ptr, bool(jac), bool(gamma), mode)
         T = Terms()
         T.phi, T.nu = self._phi, self._nu
         T.gamma = self._gamma if gamma else None
         T.jac = None
         if mode == 1:
-            T.jac = J
+            T.jac = self._J
         elif mode == 2:
             T.jac = _csr(data, indices, indptr, (self.rows.size, self.nq))
         return T
@@ -142,7 +183,8 @@ class FastConstraints:
                 indices += uniq
                 indptr[k + 1] = indptr[k] + len(uniq)
             indices = np.array(indices, dtype=np.int32)
-            self._csr = (indptr.astype(np.int32), indices, dpos, np.zeros(indices.size))
+            dpos, data = self.c.set(dpos=dpos, data=np.zeros(indices.size))
+            self._csr = (indptr.astype(np.int32), indices, dpos, data)
         return self._csr
 
 
@@ -156,21 +198,21 @@ def _csr(data, indices, indptr, shape):
 
 
 def flatten(model):
-    """The model's kernel Blocks as tables (module doc of :mod:`mbsim.fast._compiled`).
+    """The model's kernel Blocks as tables (module doc).
 
     Returns ci (nc, NI) int64, cf (nc, NF) float64, rb (m, 2) int64 bodies of each row and
     funcs: [(TimeFunction, squared)] indexed by ci[:, I_FUNC]."""
     ci_rows, cf_rows, funcs = [], [], []
     rb = np.full((model.m, 2), -1, dtype=np.int64)
     for blk in model.blocks:
-        code = K.KERNEL_CODE[blk.kernel]
+        code = KERNEL_CODE[blk.kernel]
         fn_of = {}
         for n, f, sq in blk.funcs:
             fn_of[n] = len(funcs)
             funcs.append((f, bool(sq)))
         for n in range(len(blk.bi)):
-            ci = np.zeros(K.NI, dtype=np.int64)
-            cf = np.zeros(K.NF)
+            ci = np.zeros(NI, dtype=np.int64)
+            cf = np.zeros(NF)
             bi, bj = int(blk.bi[n]), int(blk.bj[n])
             if blk.kernel == "dot2":
                 flag = int(bool(blk.vecs["on_j"][n]))
@@ -178,19 +220,19 @@ def flatten(model):
                 flag = int(blk.vecs["axis"][n])
             else:
                 flag = 0
-            ci[: K.I_SLOT] = (code, bi, bj, blk.rows[n, 0], flag, fn_of.get(n, -1))
-            ci[K.I_SLOT :] = -1
-            for v, slot in enumerate(K.VECTORS[blk.kernel]):
+            ci[: I_SLOT] = (code, bi, bj, blk.rows[n, 0], flag, fn_of.get(n, -1))
+            ci[I_SLOT :] = -1
+            for v, slot in enumerate(VECTORS[blk.kernel]):
                 if slot is not None:
                     key, side = slot
                     on_j = side == "j" or (blk.kernel == "dot2" and key == "a" and flag)
-                    ci[K.I_SLOT + v] = bj if on_j else bi
+                    ci[I_SLOT + v] = bj if on_j else bi
                     cf[3 * v : 3 * v + 3] = blk.vecs[key][n]
-            cf[K.F_CONST : K.F_CONST + blk.ne] = blk.c_const[n]
+            cf[F_CONST : F_CONST + blk.ne] = blk.c_const[n]
             ci_rows.append(ci)
             cf_rows.append(cf)
             rb[blk.rows[n], 0] = bi
             rb[blk.rows[n], 1] = bj
-    ci = np.array(ci_rows, dtype=np.int64).reshape(-1, K.NI)
-    cf = np.array(cf_rows, dtype=np.float64).reshape(-1, K.NF)
+    ci = np.array(ci_rows, dtype=np.int64).reshape(-1, NI)
+    cf = np.array(cf_rows, dtype=np.float64).reshape(-1, NF)
     return ci, cf, rb, funcs

@@ -1,12 +1,47 @@
-"""FastDynamics(model, rows): the equations of motion of mbsim.integrators.system.System,
-compiled, with the same method names and signatures (see :mod:`mbsim.fast` for plugging in).
+"""System(model, rows): the constrained equations of motion the integrators call.
 
-Per call of :meth:`FastDynamics.accelerations`: the Python time targets and Python force
-elements (if any), then one compiled call that evaluates the constraints, the applied
-forces (gravity, TSDA, constant forces/torques, the gyroscopic term), assembles the Schur
-matrix Phi_q Mt^-1 Phi_q^T of the modified mass matrix in envelope form, factors and solves.
-Models with a singular J' (e.g. the four-bar's Izz = 0, Table 12.3.1) have no Mt^-1: they
-solve the full KKT matrix by dense LU instead (``self.kkt``).
+Equations of motion (Haug eq. 11.1.x, Euler-parameter form):
+
+    M(q) qdd + Phi_q^T lam = Q(q, qd, t),    Phi_q qdd = gamma(q, qd, t)
+
+solved by the Schur complement of a *modified* mass matrix.  The Euler-parameter block
+M_p = 4 G^T J' G is singular along p; the normalisation row p^T p = 1 fixes p^T pdd =
+gamma_norm / 2, so adding c p p^T pdd to both sides changes nothing:
+
+    Mt_p = 4 G^T J' G + c p p^T,   Qt_p = Q_p + c p gamma_norm / 2,   c = 4 tr(J') / 3.
+
+With s = p^T p, [G; p^T] [G; p^T]^T = s I, hence the exact block inverse
+
+    Mt_p^-1 = (G^T J'^-1 G / 4 + p p^T / c) / s^2,
+
+and lam = (Phi_q Mt^-1 Phi_q^T)^-1 (Phi_q Mt^-1 Qt - gamma), qdd = Mt^-1 (Qt - Phi_q^T lam).
+Only the m x m Schur matrix S is factored, never the (nq + m) KKT matrix: S is assembled
+body by body in the envelope of its reverse Cuthill-McKee ordering and factored by envelope
+Cholesky (George and Liu 1981, Ch. 4), so a chain costs O(m b^2), b its bandwidth.  Models
+with a singular J' (the four-bar's Izz = 0, Table 12.3.1) have no Mt^-1: their accelerations
+solve the full KKT matrix by dense LU (``self.kkt``) and the projections use the identity
+metric (min-norm corrections).
+
+Per call of :meth:`System.accelerations`: the Python time targets and Python force elements
+(if any), then one C call (mbsim/fast/kernels.c, ``mb_accelerations``) that evaluates the
+constraints, the applied forces (gravity, TSDA, constant forces/torques, the gyroscopic
+term), assembles S, factors and solves.
+
+Tables (besides the constraint tables of :mod:`mbsim.fast.constraints`), built once:
+
+- ``bt`` (nb, NB) float64 per body: mass (col 0), J' (1-9, row-major), J'^-1 (10-18,
+  zero when J' is singular), c = 4 tr(J') / 3 (19), weight m g (20-22), 1 / m (23);
+- ``ei`` (ne, 3) int64 / ``ef`` (ne, 9) float64 per compiled force element: kind
+  (``EL_*``), bodies b1, b2 and data (TSDA: s_i', s_j', k, c, L0; force: vector, s'; torque:
+  vector); other elements are applied in Python and arrive as ``loads`` (2, nb, 3):
+  their forces F and body-frame torques n';
+- ``sidx`` (4, m_a) int64: active rows (in the caller's order), the fill-reducing order of
+  the Schur matrix (``order[k]``: the active row at position k, reverse Cuthill-McKee),
+  the envelope's first column ``fc`` and offset ``off`` per position;
+- ``inc`` (ninc, 3) int64: the incidences (active row u, column offset of the body in the
+  row's compact Jacobian (0: body i, 7: body j), body), grouped by body;
+- ``pairs`` (np, 3) int64: one line per (incidence g_u, incidence g_v) of the same body
+  with pos(u) >= pos(v): envelope index of S[u, v], g_u, g_v.
 """
 
 from __future__ import annotations
@@ -16,37 +51,37 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from mbsim import equations as eq
-from mbsim.fast import _compiled as C
-from mbsim.fast.constraints import FastConstraints
+from mbsim.fast.constraints import SPARSE_NQ, FastConstraints
+
+NB = 24
+EL_TSDA, EL_FORCE, EL_FORCE_LOCAL, EL_TORQUE, EL_TORQUE_LOCAL = range(5)
+STATUS_OK, STATUS_NOT_PD, STATUS_SINGULAR = range(3)
 
 
-def _solve_error(message):
-    from mbsim.integrators.system import SolveError  # the integrators catch this class
-
-    return SolveError(message)
+class SolveError(Exception):
+    """A factorisation that failed inside a step (the integrator turns it into a message)."""
 
 
-class FastDynamics:
-    """One model's equations of motion on its active rows, compiled; a stand-in for
-    :class:`mbsim.integrators.system.System` (same attributes, counters and methods).
+_NOT_PD = "singular constraint Jacobian (Phi_q M^-1 Phi_q^T not positive definite)"
+
+
+class System:
+    """One model's equations of motion on its active constraint rows, with counters.
 
     model: compiled Model; rows: (m_a,) active (independent) constraint rows, default all;
-    sparse: CSR Jacobians from :meth:`terms`; None chooses as System does (its SPARSE_NQ).
+    sparse: CSR Jacobians from :meth:`terms`; None chooses by size (nq >= SPARSE_NQ).
+    Arrays returned by the methods are fresh.
     """
 
     def __init__(self, model, rows=None, sparse=None):
         self.model = model
-        nb = model.nb
-        self.nb, self.nq = nb, model.nq
+        nb, nq = model.nb, model.nq
+        self.nb, self.nq = nb, nq
         self.rows = np.ascontiguousarray(
             np.arange(model.m) if rows is None else rows, dtype=np.int64
         )
         self.all_rows = self.rows.size == model.m
-        self.m = self.rows.size
-        if sparse is None:  # the same choice as System's (CSR Jacobians for GCP's LU)
-            from mbsim.integrators.system import SPARSE_NQ
-
-            sparse = model.nq >= SPARSE_NQ
+        self.m = ma = self.rows.size
         self.fc = FastConstraints(model, self.rows, sparse)
         self.sparse = self.fc.sparse
         self.rheonomic = any(it.kind == "driver" or it.func is not None for it in model.items)
@@ -65,54 +100,77 @@ class FastDynamics:
         self.kkt = bool(self.singular)  # no exact Mt^-1: dense LU of the KKT matrix
         self.ei, self.ef, self.py_forces = element_tables(model.forces)
         self.sidx, self.inc, self.pairs = schur_structure(self.fc.rb, self.rows, nb)
-        self._no_loads = np.zeros((2, nb, 3))  # (F, n') of the Python force elements
-        self._no_jac = np.zeros((0, 14))
-        self._par0 = np.zeros(3)  # Baumgarte (alpha, beta, on)
-        fc = self.fc  # the model arguments of the compiled call
-        self._static = (fc.ci, fc.cf, fc.rb, self.sidx, self.inc, self.pairs, self.bt)
-        self._static += (self.norm_pos, self.ei, self.ef)
+        # the model's struct (shared with self.fc) gets the dynamics tables and buffers
+        c = self.c = self.fc.c
+        nenv = _env_size(self.sidx)
+        ninc = self.inc.shape[0]
+        c.size(ninc=ninc, npairs=self.pairs.shape[0], nenv=nenv, ne=self.ei.shape[0])
+        c.set(sidx=self.sidx, inc=self.inc, pairs=self.pairs, bt=self.bt, nrm=self.norm_pos,
+              ei=self.ei, ef=self.ef)
+        nk = nq + ma if self.kkt else 0
+        self._loads, self._par, self._Jg, self._rhs = c.set(
+            loads=np.zeros((2, nb, 3)), par=np.zeros(3), Jg=np.zeros((model.m, 14)),
+            rhs=np.zeros(ma))
+        self._Q, self._qdd, self._lam, self._dq, self._out = c.set(
+            Q=np.zeros(nq), qdd=np.zeros(nq), lam=np.zeros(ma), dq=np.zeros(nq), out=np.zeros(1))
+        c.set(Qt=np.zeros(nq), g=np.zeros(ma), Mi=np.zeros((nb, 4, 4)), XG=np.zeros((ninc, 8)),
+              JG=np.zeros((ninc, 8)), env=np.zeros(nenv), srhs=np.zeros(ma), z=np.zeros(ma),
+              K=np.zeros(nk * nk), kr=np.zeros(nk), A=np.zeros((nb, 3, 3)),
+              F=np.zeros((nb, 3)), n=np.zeros((nb, 3)), w=np.zeros((nb, 3)))
+        (self._Mb,) = c.set(Mb=np.zeros((nb, 7, 7)))
+        self._v = np.zeros(model.m)
+        lib = self.fc.lib
+        self._acc, self._project = lib.mb_accelerations, lib.mb_project
+        self._forces, self._mass = lib.mb_applied_forces, lib.mb_mass_blocks
+        self._jac_times, self._gather_dense = lib.mb_jac_times, lib.mb_gather_dense
 
     # -- constraint terms on the active rows -----------------------------------------------
     def terms(self, q, t, qd=None, phi=True, jac=True, gamma=False, nu=False):
-        """Phi, Phi_q (dense or csr), gamma, nu on the active rows (fresh arrays)."""
+        """Phi, Phi_q (dense or csr), gamma, nu on the active rows (fresh arrays; None for
+        the parts not asked for)."""
         self.counters["constraint_evaluations"] += 1
         return self.fc.constraints(q, t, qd, phi=phi, jac=jac, gamma=gamma, nu=nu)
 
     def nu(self, q, t):
+        """nu = c'(t) on the active rows (zero for a scleronomic model)."""
         if not self.rheonomic:
             return np.zeros(self.m)
         return self.terms(q, t, phi=False, jac=False, nu=True).nu
 
     # -- forces and masses -----------------------------------------------------------------
-    def _python_loads(self, q, qd, t):
-        """(2, nb, 3): forces F and body torques n' of the force elements that are not
-        compiled, from their own ``apply``."""
-        if not self.py_forces:
-            return self._no_loads
-        st = eq.State(self.model, q, qd)
-        loads = np.zeros((2, self.nb, 3))
-        for el in self.py_forces:
-            el.apply(st, t, loads[0], loads[1])
-        return loads
+    def _load(self, q, qd, t):
+        """q, qd, the time targets and the Python elements' loads into the C inputs."""
+        fc = self.fc
+        fc.load(q, t, qd)
+        if self.py_forces:
+            loads = self._loads
+            loads[:] = 0.0
+            st = eq.State(self.model, fc._q, fc._qd)
+            for el in self.py_forces:
+                el.apply(st, t, loads[0], loads[1])
 
     def applied_forces(self, st, t) -> np.ndarray:
-        """Q (nq,) at the state st (:class:`mbsim.equations.State`) as System.applied_forces
-        and :func:`mbsim.equations.applied_forces`: gravity, force elements, gyroscopic term."""
+        """Q (nq,) at the state st (:class:`mbsim.equations.State`) as
+        :func:`mbsim.equations.applied_forces`: gravity, force elements, gyroscopic term."""
         q = np.concatenate([st.r, st.p], axis=1).reshape(-1)
         qd = np.concatenate([st.rd, st.pd], axis=1).reshape(-1)
         return self.generalized_forces(q, qd, t)
 
     def generalized_forces(self, q, qd, t=0.0) -> np.ndarray:
         """Q (nq,) at (q, qd, t): :meth:`applied_forces` without building a State."""
-        q, qd = self._vector(q, "q"), self._vector(qd, "qd")
-        Q = np.empty(self.nq)
-        C.applied_forces(q, qd, self.bt, self.ei, self.ef, self._python_loads(q, qd, t), Q)
-        return Q
+        self._load(q, qd, t)
+        self._forces(self.c.ptr)
+        return self._Q.copy()
+
+    def mass_blocks(self, q) -> np.ndarray:
+        """(nb, 7, 7) diagonal blocks of M = diag(m I, 4 G^T J' G) (Haug eq. 11.1.x)."""
+        self.fc.vector(q, "q", self.fc._q)
+        self._mass(self.c.ptr)
+        return self._Mb.copy()
 
     def mass_matrix(self, q) -> np.ndarray:
         """M (nq, nq) = diag(m I, 4 G^T J' G) (mbsim.equations.mass_matrix)."""
-        Mb = np.empty((self.nb, 7, 7))
-        C.mass_blocks(self._vector(q, "q"), self.bt, Mb)
+        Mb = self.mass_blocks(q)
         M = np.zeros((self.nq, self.nq))
         for b in range(self.nb):
             M[7 * b : 7 * b + 7, 7 * b : 7 * b + 7] = Mb[b]
@@ -120,57 +178,49 @@ class FastDynamics:
 
     # -- accelerations ---------------------------------------------------------------------
     def accelerations(self, q, qd, t, baumgarte=None, jac=None):
-        """Solve the equations of motion at (q, qd, t); returns (qdd, lam, power) as
-        System.accelerations: lam (m_a,) on the active rows, power = Q.qd - lam.nu.
-        baumgarte: (alpha, beta); jac: Phi_q on the active rows when the caller has it."""
+        """Solve the equations of motion at (q, qd, t); returns (qdd, lam, power).
+
+        lam: (m_a,) multipliers of the active rows; power = Q.qd - lam.nu, the rate of
+        work of applied and driving forces (the kinetic energy's rate).  baumgarte: (alpha,
+        beta) replaces gamma by gamma - 2 alpha Phi_dot - beta^2 Phi (Baumgarte 1972).
+        jac: Phi_q on the active rows at q when the caller has it (coordinate
+        partitioning)."""
         c = self.counters
         c["function_evaluations"] += 1
         c["constraint_evaluations"] += 1
         c["factorizations"] += 1
-        q, qd = self._vector(q, "q"), self._vector(qd, "qd")
-        fc = self.fc
-        tv = fc.targets(t) if fc.funcs else fc.tv
-        loads = self._python_loads(q, qd, t)
+        self._load(q, qd, t)
+        par = self._par
         if baumgarte is None:
-            par = self._par0
+            par[2] = 0.0
         else:
-            par = np.array([baumgarte[0], baumgarte[1], 1.0])
-        Jg = self._no_jac if jac is None else self._compact(jac)
-        qdd = np.empty(self.nq)
-        lam = np.empty(self.m)
-        try:
-            status, power = C.accelerations(
-                q, qd, tv, *self._static, loads, par, self.kkt, Jg, qdd, lam
-            )
-        except np.linalg.LinAlgError as exc:  # the KKT path's LU
-            raise _solve_error(f"singular KKT matrix ({exc})") from exc
-        if status != C.STATUS_OK:
-            raise _solve_error(
-                "singular constraint Jacobian (Phi_q M^-1 Phi_q^T not positive definite)"
-            )
-        return qdd, lam, power
-
-    def _vector(self, x, name):
-        return self.fc.vector(x, name)
+            par[0], par[1], par[2] = baumgarte[0], baumgarte[1], 1.0
+        if jac is not None:
+            self._compact(jac)
+        status = self._acc(self.c.ptr, self.kkt, jac is not None)
+        if status != STATUS_OK:
+            raise SolveError("singular KKT matrix" if status == STATUS_SINGULAR else _NOT_PD)
+        return self._qdd.copy(), self._lam.copy(), float(self._out[0])
 
     def _compact(self, jac):
-        """Compact (m, 14) rows from a Jacobian on the active rows (dense or sparse)."""
+        """Compact rows (into Jg) from a Jacobian on the active rows (dense or sparse)."""
         if jac.shape != (self.m, self.nq):
             raise ValueError(f"jac: expected shape ({self.m}, {self.nq}), got {jac.shape}")
-        Jc = np.zeros((self.model.m, 14))
-        rb = self.fc.rb
+        Jc = self._Jg
         if not sp.issparse(jac):
-            C.gather_dense(np.ascontiguousarray(jac, dtype=np.float64), rb, self.rows, Jc)
-            return Jc
+            J = np.ascontiguousarray(jac, dtype=np.float64)
+            self._gather_dense(self.c.ptr, J.ctypes.data, Jc.ctypes.data)
+            return
         coo = sp.coo_matrix(jac)
         coo.sum_duplicates()
+        rb = self.fc.rb
         r = self.rows[coo.row]
-        body, c = coo.col // 7, coo.col % 7
+        body, col = coo.col // 7, coo.col % 7
         slot = np.where(body == rb[r, 0], 0, 1)
         if np.any(body != rb[r, slot]):
             raise ValueError("jac: entries outside the columns of the rows' bodies")
-        Jc[r, 7 * slot + c] = coo.data
-        return Jc
+        Jc[self.rows] = 0.0
+        Jc[r, 7 * slot + col] = coo.data
 
     def full_lam(self, lam):
         """(m,) multipliers on all rows, zero on the redundant ones."""
@@ -181,24 +231,19 @@ class FastDynamics:
         return out
 
     # -- projections -----------------------------------------------------------------------
-    def _correction(self, q, rhs):
-        """Mt^-1 Phi_q^T S^-1 rhs with Phi_q of the last constraint evaluation (identity
-        metric when some J' is singular)."""
+    def _correction(self, rhs):
+        """Mt^-1 Phi_q^T S^-1 rhs with Phi_q of the last constraint evaluation, at the q
+        loaded then (identity metric when some J' is singular)."""
         self.counters["factorizations"] += 1
-        dq = np.empty(self.nq)
-        rhs = np.ascontiguousarray(rhs, dtype=np.float64)
-        args = (self.fc.Jc, self.bt, self.kkt, self.sidx, self.inc, self.pairs, rhs, dq)
-        ok = C.schur_project(q, *args)
-        if not ok:
-            raise _solve_error(
-                "singular constraint Jacobian (Phi_q M^-1 Phi_q^T not positive definite)"
-            )
-        return dq
+        self._rhs[:] = rhs
+        if self._project(self.c.ptr, self.kkt) != STATUS_OK:
+            raise SolveError(_NOT_PD)
+        return self._dq
 
     def project_positions(self, q, t, tol=1e-12, max_iter=10):
         """Mass-weighted Newton projection of q onto Phi(q, t) = 0 (dq = -Mt^-1 Phi_q^T S^-1
         Phi).  Returns (q, converged, iterations, max|Phi|)."""
-        q = self._vector(q, "q").copy()
+        q = self.fc.vector(q, "q")
         res = np.inf
         for it in range(max_iter + 1):
             self.counters["constraint_evaluations"] += 1
@@ -210,23 +255,22 @@ class FastDynamics:
             if it == max_iter:
                 break
             self.counters["newton_iterations"] += 1
-            q -= self._correction(q, phi)
+            q -= self._correction(phi)
         return q, False, max_iter, res
 
     def project_velocities(self, q, qd, t):
         """Mass-weighted projection of qd onto Phi_q qd = nu."""
         self.counters["constraint_evaluations"] += 1
-        q = self._vector(q, "q")
         rhs = self._velocity_residual(q, qd, t)[self.rows]
-        return qd - self._correction(q, rhs)
+        return self.fc._qd - self._correction(rhs)
 
     def _velocity_residual(self, q, qd, t):
-        """(m,) Phi_q qd - nu on all rows (phi_all, Jc left in the buffers)."""
+        """(m,) Phi_q qd - nu on all rows (phi_all, Jc left in the buffers; qd loaded)."""
         fc = self.fc
         fc.compact(q, t, jac=True)
-        v = np.empty(fc.m)
-        C.jac_times(fc.Jc, fc.rb, self._vector(qd, "qd"), v)
-        return v - fc.nu_all
+        fc.vector(qd, "qd", fc._qd)
+        self._jac_times(self.c.ptr, fc._qd.ctypes.data, self._v.ctypes.data)
+        return self._v - fc.nu_all
 
     def violations(self, q, qd, t):
         """(max |Phi|, max |Phi_q qd - nu|) over all rows."""
@@ -238,11 +282,17 @@ class FastDynamics:
         return eq.kinetic_energy(self.model, q, qd), eq.potential_energy(self.model, q)
 
 
+def _env_size(sidx):
+    """Entries of the envelope (rows fc..k of each position k)."""
+    n = sidx.shape[1]
+    return int(sidx[3, n - 1] + n - sidx[2, n - 1]) if n > 0 else 0
+
+
 def body_table(model):
-    """bt (nb, NB) (module doc of :mod:`mbsim.fast._compiled`) and the names of the bodies
+    """bt (nb, NB) (module doc) and the names of the bodies
     without an exact Mt^-1: J' singular (smallest eigenvalue <= 1e-12 x largest) or m <= 0."""
     nb = model.nb
-    bt = np.zeros((nb, C.NB))
+    bt = np.zeros((nb, NB))
     singular = []
     for b in range(nb):
         J = np.asarray(model.J_local[b], dtype=float)
@@ -270,13 +320,13 @@ def element_tables(forces):
     for el in forces:
         cls = type(el)
         if cls is TSDA and el.law is None and el.actuator is None:
-            ei.append((C.EL_TSDA, el.bi, el.bj))
+            ei.append((EL_TSDA, el.bi, el.bj))
             ef.append(np.concatenate([el.si, el.sj, [el.k, el.c, el.L0]]))
         elif cls is PointForce and el.vec is not None:
-            ei.append((C.EL_FORCE_LOCAL if el.local else C.EL_FORCE, el.b, -1))
+            ei.append((EL_FORCE_LOCAL if el.local else EL_FORCE, el.b, -1))
             ef.append(np.concatenate([el.vec, el.s, np.zeros(3)]))
         elif cls is Torque and el.vec is not None:
-            ei.append((C.EL_TORQUE_LOCAL if el.local else C.EL_TORQUE, el.bj, el.bi))
+            ei.append((EL_TORQUE_LOCAL if el.local else EL_TORQUE, el.bj, el.bi))
             ef.append(np.concatenate([el.vec, np.zeros(6)]))
         else:
             py.append(el)
@@ -287,7 +337,7 @@ def element_tables(forces):
 
 def schur_structure(rb, rows, nb):
     """(sidx (4, m_a), inc (ninc, 3), pairs (np, 3)) of the Schur matrix on ``rows`` (module
-    doc of :mod:`mbsim.fast._compiled`): reverse Cuthill-McKee order, envelope, incidences
+    doc): reverse Cuthill-McKee order, envelope, incidences
     (row, column offset, body) and the products that fill the envelope."""
     ma = rows.size
     inc = [(u, 7 * s, rb[r, s]) for u, r in enumerate(rows) for s in range(2) if rb[r, s] >= 0]

@@ -12,9 +12,25 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from mbsim.integrators.system import SolveError  # singular matrices
+
 SAFETY = 0.9  # times the asymptotically optimal step (Hairer, Norsett & Wanner, Sec. II.4)
 MIN_FACTOR = 0.2  # largest decrease of the step after a rejected step
 MAX_FACTOR = 5.0  # largest increase after an accepted step
+MAX_REJECTS = 100  # rejected trials in a row before a step loop gives up (no progress)
+STALL_FLOOR = 1e-11  # an accepted step below this x max(1, |t|) makes no real progress
+STALL_STEPS = 200  # ... and that many of them in a row is a stall
+
+
+class IntegratorFailure(Exception):
+    """A failure outside a step (dense output); the dynamic analysis turns it into an
+    incomplete result."""
+
+
+NUMERICAL_ERRORS = (SolveError, ArithmeticError, np.linalg.LinAlgError, ValueError)
+"""What a numerical failure of the equations of motion may raise: singular matrices, NaN
+checks of LAPACK (ValueError), overflow.  Stage failures of the RK families derive from
+ArithmeticError so that they are caught here too."""
 
 
 class Integrator(ABC):
@@ -78,17 +94,28 @@ class Integrator(ABC):
         self.status = "running"
         self._err_old = 1e-4
         self.counters = {"steps": 0, "rejected_steps": 0}
+        self._tiny_steps = 0
 
     # -- what the driver calls ------------------------------------------------------------
     def step(self):
-        """Advance by one accepted step; returns (ok, message)."""
+        """Advance by one accepted step; returns (ok, message).
+
+        Never raises for a numerical failure: an exception from the equations of motion
+        (singular matrix, NaN, Newton failure) that a family did not turn into a rejected
+        step ends here as ``(False, message)``, and so does a step loop that makes no
+        progress (:meth:`_check_progress`)."""
         if self.status != "running":
             return False, "integrator is not running"
         if self.t >= self.t_bound:
             self.status = "finished"
             return True, ""
         t = self.t
-        ok, message = self._step_impl()
+        try:
+            ok, message = self._step_impl()
+        except NUMERICAL_ERRORS as exc:
+            ok, message = self._fail(f"{type(exc).__name__}: {exc}")
+        if ok:
+            ok, message = self._check_progress(t)
         if not ok:
             self.status = "failed"
             return False, message
@@ -96,6 +123,46 @@ class Integrator(ABC):
         self.counters["steps"] += 1
         if self.t >= self.t_bound:
             self.status = "finished"
+        return True, ""
+
+    def dense_output_safe(self):
+        """The dense output, with failures as values: ``f(t) -> (q, qd, w)`` or raises
+        :class:`IntegratorFailure` with the time and the reason (a dense output may solve
+        the constraints again, e.g. coordinate partitioning's Newton iteration)."""
+        try:
+            dense = self._dense_output_impl()
+        except NUMERICAL_ERRORS as exc:
+            raise IntegratorFailure(f"t = {self.t:.6g} s: dense output failed: {exc}") from exc
+
+        def out(t):
+            try:
+                q, qd, w = dense(t)
+            except NUMERICAL_ERRORS as exc:
+                raise IntegratorFailure(
+                    f"t = {t:.6g} s: dense output failed: {exc}") from exc
+            if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+                raise IntegratorFailure(f"t = {t:.6g} s: the state is not finite (NaN or inf)")
+            return q, qd, w
+
+        return out
+
+    def _check_progress(self, t_before):
+        """Stall watchdog: fail instead of crawling.  A step loop stalls when accepted steps
+        become negligible against t (below ``STALL_FLOOR`` x max(1, |t|), ``STALL_STEPS`` in
+        a row) or when the state stops being finite; rejected trials in a row are bounded
+        by the families themselves (``MAX_REJECTS``)."""
+        h = self.t - t_before
+        if not (np.isfinite(self.t) and np.all(np.isfinite(self.q))
+                and np.all(np.isfinite(self.qd))):
+            return self._fail("the state is not finite (NaN or inf) after a step")
+        if h < STALL_FLOOR * max(1.0, abs(self.t)) and self.t < self.t_bound:
+            self._tiny_steps += 1
+            if self._tiny_steps >= STALL_STEPS:
+                return self._fail(
+                    f"no progress: {STALL_STEPS} accepted steps in a row below "
+                    f"{STALL_FLOOR:g} x max(1, |t|) (last step {h:.3g} s)")
+        else:
+            self._tiny_steps = 0
         return True, ""
 
     def dense_output(self):

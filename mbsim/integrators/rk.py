@@ -12,11 +12,10 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim.integrators import dop853_coefficients as dop
-from mbsim.integrators.base import Integrator, hermite, rms_norm
-from mbsim.integrators.system import SolveError
+from mbsim.integrators.base import MAX_REJECTS, NUMERICAL_ERRORS, Integrator, hermite, rms_norm
 
 
-class StageFailure(Exception):
+class StageFailure(ArithmeticError):
     """A right-hand side that could not be evaluated (Newton failure, singular matrix)."""
 
 
@@ -187,13 +186,19 @@ class RungeKuttaIntegrator(Integrator):
         d0, d1 = rms_norm(self.y[:n], scale), rms_norm(self.f[:n], scale)
         h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
         h0 = min(h0, self.t_bound - self.t)
+        if not np.isfinite(h0) or h0 <= 0:
+            h0 = 1e-6 * max(1.0, self.t_bound - self.t)
+        h0 = min(h0, self.t_bound - self.t)
         try:
             f1 = self._rhs(self.t + h0, self.y + h0 * self.f)
-        except (StageFailure, SolveError):
+        except NUMERICAL_ERRORS:
             return h0
         d2 = rms_norm((f1 - self.f)[:n], scale) / h0
         order = self.tableau.error_order + 1
-        h1 = max(1e-6, h0 * 1e-3) if max(d1, d2) <= 1e-15 else (0.01 / max(d1, d2)) ** (1 / order)
+        dm = max(d1, d2)
+        if not np.isfinite(dm):
+            return h0
+        h1 = max(1e-6, h0 * 1e-3) if dm <= 1e-15 else (0.01 / dm) ** (1 / order)
         return min(100 * h0, h1, self.h_max)
 
     def _trial(self, h):
@@ -211,16 +216,34 @@ class RungeKuttaIntegrator(Integrator):
         t = self.t
         rejected = False
         recovered = False
+        rejects = 0
         h_abs = min(self.h_abs, self.h_max)
         while True:
             h = self._clip(h_abs)
+            if not np.isfinite(h):
+                return self._fail(f"step size is not finite ({h}); the error norm is NaN "
+                                  f"(check atol > 0 and the forces)")
             if h < self._min_step() and h < self.t_bound - t:
                 why = f"; last failure: {self._last_failure}" if self._last_failure else ""
                 return self._fail(f"{self.TOO_SMALL_STEP} ({h:.3g} s){why}")
+            if rejects >= MAX_REJECTS:
+                why = f"; last failure: {self._last_failure}" if self._last_failure else ""
+                return self._fail(f"no progress: {rejects} rejected steps in a row "
+                                  f"(step {h:.3g} s){why}")
             try:
                 y_new, f_new = self._trial(h)
-            except (StageFailure, SolveError) as exc:
+                err = 0.0
+                if self.tableau.embedded and self.h_fixed is None:
+                    err = self.tableau.error_norm(self.K, h, self._scale(self.y, y_new))
+                    if not np.isfinite(err):  # NaN/inf in a stage: reject hard
+                        raise StageFailure(f"error norm {err} at step {h:.3g} s")
+                if err <= 1:
+                    K, ctx = self.K.copy(), self._context()
+                    y_acc, f_acc = self._accept(t + h, y_new, f_new)
+            except NUMERICAL_ERRORS as exc:
                 self.counters["rejected_steps"] += 1
+                rejects += 1
+                self._last_failure = str(exc)
                 if not recovered and self._recover():
                     recovered = True
                     continue
@@ -228,21 +251,18 @@ class RungeKuttaIntegrator(Integrator):
                     return self._fail(str(exc))
                 h_abs = 0.25 * h
                 rejected = True
-                self._last_failure = str(exc)
                 continue
             if not self.tableau.embedded or self.h_fixed is not None:
                 break
-            err = self.tableau.error_norm(self.K, h, self._scale(self.y, y_new))
             factor = self._step_factor(err, self.error_exponent, rejected)
-            if err <= 1:
-                h_abs = h * factor
-                break
             h_abs = h * factor
+            if err <= 1:
+                break
             rejected = True
+            rejects += 1
             self.counters["rejected_steps"] += 1
-        self._dense_args = (t, h, self.y, y_new, self.K.copy(), self._context())
-        y_new, f_new = self._accept(t + h, y_new, f_new)
-        self.t, self.y, self.f, self.h_last = t + h, y_new, f_new, h
+        self._dense_args = (t, h, self.y, y_new, K, ctx)
+        self.t, self.y, self.f, self.h_last = t + h, y_acc, f_acc, h
         self.h_abs = self.h_fixed if self.h_fixed is not None else h_abs
         self.q, self.qd, self.w = self._state_from_y(self.t, self.y)
         return True, ""

@@ -27,7 +27,7 @@ import numpy as np
 
 from mbsim.result import STATUS_COMPLETE, Channel, Result
 
-RESERVED = ("time", "deck", "names")  # top-level names that channels may not use
+RESERVED = ("time", "deck", "names", "linear")  # top-level names that channels may not use
 COMPRESS_MIN_SIZE = 1000  # datasets with more elements are chunked and gzip-compressed
 GZIP_LEVEL = 4
 CHUNK_ELEMENTS = 65536  # target elements per chunk (chunks span whole rows, cut along time)
@@ -147,6 +147,15 @@ def _write_file(f: h5py.File, result: Result, paths: list[str]) -> None:
     names = f.create_group("names")
     for kind, items in result.names.items():
         names.create_dataset(kind, data=np.array([str(s) for s in items], dtype=_STR))
+    for key, value in result.attrs.items():  # e.g. 'stable' (bool) of a linear analysis
+        a[key] = value
+    for path, (data, attrs) in result.arrays.items():  # no time axis; complex kept complex
+        data = np.asarray(data)
+        ds = f.create_dataset(path, data=data.astype(_STR) if data.dtype.kind in "US" else data)
+        for k, v in attrs.items():
+            ds.attrs[k] = v
+    if result.arrays:
+        a["arrays"] = json.dumps(list(result.arrays))
 
 
 def write_result(result: Result, path: str | Path) -> Path:
@@ -242,6 +251,12 @@ def read_result(path: str | Path) -> Result:
                 _attr_str(ds.attrs, "description"),
                 _components(ds),
             )
+        arrays = {}
+        for path in json.loads(_attr_str(a, "arrays", "[]")):
+            ds = f[path]
+            data = ds.asstr()[()] if ds.dtype.kind == "O" else ds[()]
+            arrays[path] = (np.asarray(data), {k: ds.attrs[k] for k in ds.attrs})
+        extra = {k: a[k] for k in ("stable", "stability") if k in a}
         names = {}
         if "names" in f:
             for kind, ds in f["names"].items():
@@ -259,6 +274,8 @@ def read_result(path: str | Path) -> Result:
             deck_text=f["deck"].asstr()[()] if "deck" in f else "",
             wall_time=float(a.get("wall_time_s", 0.0)),
             names=names,
+            arrays=arrays,
+            attrs=extra,
         )
 
 

@@ -235,3 +235,80 @@ def chain(n, g=9.81, angle=0.3):
         )
         top = r + Ai @ np.array([0, -0.25, 0])
     return compile_model(spec(bodies, joints, gravity=(0, -g, 0)))
+
+
+# ------------------------------------------- issue 11: problems with independent references
+
+
+def top_spinning_state(model, theta, omega3, l=0.1):
+    """Heavy top released with spin only: symmetry axis tilted by theta about x, angular
+    velocity omega3 e3 (no precession rate), so it nutates (the "fast heavy top" of issue 11
+    with omega3 ~ 150 rad/s)."""
+    from mbsim.rotations import A as rot_A
+
+    p = from_axis_angle((1, 0, 0), theta)
+    e3 = rot_A(p)[:, 2]
+    q = model.q0.copy()
+    q[10:14] = p
+    q[7:10] = l * e3
+    return consistent_state(model, q, omega={"top": omega3 * e3})
+
+
+PENDULUM = {"L": 0.5, "m": 1.0, "Ic": 0.01, "g": 9.81}
+
+
+def pendulum(L=0.5, m=1.0, Ic=0.01, g=9.81, theta0=np.radians(150.0)):
+    """Planar compound pendulum "bob": revolute about global z at the origin (body point
+    (0, L, 0) above its centroid), centroidal moment Ic about z, gravity -y; started at rest
+    at theta0 from the downward vertical."""
+    p0 = from_axis_angle((0, 0, 1), theta0)
+    r0 = (L * np.sin(theta0), -L * np.cos(theta0), 0.0)
+    bodies = [body("ground", ground=True), body("bob", m, (Ic, Ic, Ic), r0, p0)]
+    joints = [
+        joint("pivot", "revolute", "ground", "bob",
+              {"ground": pts((0, 0, 0), (0, 0, 1), (1, 0, 0)),
+               "bob": pts((0, L, 0), (0, L, 1))})
+    ]
+    return compile_model(spec(bodies, joints, gravity=(0, -g, 0)))
+
+
+FOURBAR = {"L": 0.2, "m_crank": 0.5, "M": 2.0, "spacing": 0.3, "g": 9.81}
+
+
+def fourbar_crank_inertia(L=0.2, m_crank=0.5):
+    """Centroidal moments of a crank: a slender bar along x' (m L^2 / 12 about y', z')."""
+    return (1e-4, m_crank * L * L / 12, m_crank * L * L / 12)
+
+
+def parallel_fourbar(N=4, theta0=-np.pi / 2, L=0.2, m_crank=0.5, M=2.0, spacing=0.3, g=9.81):
+    """N parallel cranks (N >= 2, N - 1 four-bar loops) carrying one coupler: crank<i>
+    turns about global z on revolute G<i> at (x_i, 0, 0), x_i = i spacing; its tip carries
+    the coupler on revolute C<i>.  All revolute axes along z, gravity -y in the plane.  Every
+    crank after the second adds 4 redundant equations in 3-D; at theta = 0, pi (cranks
+    along the ground line) the constraint Jacobian loses one more rank (singular position).
+    Started at crank angle theta0 (all cranks parallel, coupler level)."""
+    xs = [i * spacing for i in range(N)]
+    xbar = float(np.mean(xs))
+    c, s = np.cos(theta0), np.sin(theta0)
+    p0 = from_axis_angle((0, 0, 1), theta0)
+    Jc = fourbar_crank_inertia(L, m_crank)
+    W = xs[-1] - xs[0]
+    bodies = [body("ground", ground=True)]
+    bodies += [body(f"crank{i}", m_crank, Jc, (x + L / 2 * c, L / 2 * s, 0), p0)
+               for i, x in enumerate(xs)]
+    bodies.append(body("coupler", M, (1e-3, M * W * W / 12, M * W * W / 12 + 1e-3),
+                       (xbar + L * c, L * s, 0)))
+    joints = []
+    for i, x in enumerate(xs):
+        joints.append(joint(f"G{i}", "revolute", "ground", f"crank{i}",
+                            {"ground": pts((x, 0, 0), (x, 0, 1), (x + 1, 0, 0)),
+                             f"crank{i}": pts((-L / 2, 0, 0), (-L / 2, 0, 1))}))
+        joints.append(joint(f"C{i}", "revolute", f"crank{i}", "coupler",
+                            {f"crank{i}": pts((L / 2, 0, 0), (L / 2, 0, 1), (L / 2 + 1, 0, 0)),
+                             "coupler": pts((x - xbar, 0, 0), (x - xbar, 0, 1))}))
+    return compile_model(spec(bodies, joints, gravity=(0, -g, 0)))
+
+
+def parallel_fourbar_state(model, thetad0):
+    """Consistent state with every crank turning at thetad0 about +z."""
+    return consistent_state(model, omega={"crank0": (0, 0, thetad0)})

@@ -1,0 +1,111 @@
+"""Size limits on decks, checked while loading before anything big is allocated.
+
+Decks come from other people: a limit turns a deck that would take minutes or gigabytes
+(a 10^7-point table, a 100 000-deep list, 10^12 output times) into one ``error:`` line that
+names the limit and the environment variable that raises it (docs/deck.md, "Limits").
+The defaults are far above the seed's decks (largest: 25 kB, nesting 7, lists of 12 items,
+38 parameters, 2001 output times) and bound the load time to about a second.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Limit:
+    key: str  # MBSIM_MAX_<KEY> raises it
+    default: int
+    what: str  # 'a deck file of {n} bytes'-style words for the message
+
+    @property
+    def env(self) -> str:
+        return f"MBSIM_MAX_{self.key}"
+
+    @property
+    def value(self) -> int:
+        """The default, or the environment's value when it is a positive integer."""
+        raw = os.environ.get(self.env, "")
+        try:
+            n = int(raw)
+        except ValueError:
+            return self.default
+        return n if n > 0 else self.default
+
+    def exceeded(self, got: int | float | None = None) -> str:
+        """The message for ``got`` over the limit: names the limit and how to raise it."""
+        if got is None:
+            over = f"over the limit of {self.value}"
+        else:
+            over = f"over the limit: {f'{got:.3g}' if isinstance(got, float) else got} > {self.value}"
+        return f"{self.what} is {over} (set the environment variable {self.env} to raise it)"
+
+
+DECK_BYTES = Limit("DECK_BYTES", 16 * 2**20, "deck file size (bytes)")
+DEPTH = Limit("DEPTH", 64, "nesting depth of lists and mappings")
+ITEMS = Limit("ITEMS", 100_000, "number of entries of one list or mapping")
+NAME_CHARS = Limit("NAME_CHARS", 200, "length of a key (characters)")
+TABLE_POINTS = Limit("TABLE_POINTS", 100_000, "number of points of a table or polynomial")
+PARAMETERS = Limit("PARAMETERS", 10_000, "number of parameters")
+OUTPUTS = Limit("OUTPUTS", 1_000_000, "number of output times (t_end - t_start)/step")
+FORMULA_CHARS = 10_000  # mbsim.expr.MAX_LENGTH: fixed, a formula is one line
+
+ALL = (DECK_BYTES, DEPTH, ITEMS, NAME_CHARS, TABLE_POINTS, PARAMETERS, OUTPUTS)
+
+
+# -- analysis settings ---------------------------------------------------------------------------
+# Tolerances are relative or absolute error bounds: 0 makes an adaptive integrator shrink its
+# step forever (issue 13: `atol: 0` hung the compressor), 1 or more accepts any error.
+OPEN_UNIT = {"rtol": "a relative tolerance", "atol": "an absolute tolerance",
+             "accuracy": "a length in metres"}  # fmt: skip
+POSITIVE = ("step", "h", "h_max", "max_steps")
+
+
+def setting_problems(settings: dict, defaults: dict | None = None) -> list[tuple[str, str]]:
+    """What is wrong with an analysis's settings: [(key, message)], empty when all is well.
+
+    ``settings`` are the values given (deck and command line), ``defaults`` the analysis's
+    own (``DEFAULTS`` of its module) for the time grid.  Checks: tolerances in (0, 1), positive
+    steps, ``t_end > t_start``, and the number of output times against :data:`OUTPUTS`.
+    """
+    out: list[tuple[str, str]] = []
+    eff = {**(defaults or {}), **{k: v for k, v in settings.items() if v is not None}}
+
+    def number(key):
+        v = eff.get(key)
+        if v is None or isinstance(v, bool) or not isinstance(v, (int, float)):
+            return None
+        return float(v)
+
+    for key, what in OPEN_UNIT.items():
+        v = settings.get(key)
+        if v is None:
+            continue
+        x = number(key)
+        if x is None or not (0 < x < 1):  # also NaN
+            out.append((key, f"{key} must be > 0 and < 1 ({what}), got {v!r}"))
+    for key in POSITIVE:
+        if settings.get(key) is None:
+            continue
+        x = number(key)
+        if x is None or not x > 0 or x == float("inf"):
+            out.append((key, f"{key} must be a finite number > 0, got {settings[key]!r}"))
+    t0, t1, step = number("t_start"), number("t_end"), number("step")
+    for key, x in (("t_start", t0), ("t_end", t1)):
+        if settings.get(key) is not None and (x is None or x != x or abs(x) == float("inf")):
+            out.append((key, f"expected a finite time, got {settings[key]!r}"))
+    if out or t1 is None:
+        return out
+    t0 = t0 or 0.0
+    if not t1 > t0:
+        key = "t_end" if settings.get("t_end") is not None else "t_start"
+        out.append((key, f"t_end must be greater than t_start, got t_end = {t1:g} s, "
+                         f"t_start = {t0:g} s"))  # fmt: skip
+    elif step is not None and step > 0:
+        n = (t1 - t0) / step + 1
+        if n > OUTPUTS.value:
+            key = "step" if settings.get("step") is not None else "t_end"
+            out.append((key, f"t_end = {t1:g} s, t_start = {t0:g} s, step = {step:g} s: "
+                             f"{OUTPUTS.exceeded(float(n))}"))  # fmt: skip
+    return out

@@ -1,0 +1,912 @@
+/* The compiled physics of mbsim: constraint kernels and equations of motion (plain C99).
+ *
+ * One file, no dependencies, no Python.h: mbsim.fast._lib compiles it into a shared library
+ * (at install time through setup.py, else at first use into ~/.cache/mbsim) and calls it
+ * through ctypes.  Every table and buffer belongs to the caller (numpy arrays kept alive by
+ * mbsim.fast); the pointers arrive once, in an mb_model struct built at construction, so a
+ * call passes only that struct and a few flags.  Nothing here allocates.
+ *
+ * Tables (one line per basic constraint k = 0 .. nc-1, all row-major):
+ *   ci (nc, NI) int64: kernel code, body i, body j (-1: one body), first global row, flag
+ *                      (dot2: 1 when a is on body j; absolute: axis 0/1/2), time-target index
+ *                      (-1: none), the body of each of the three vector slots (-1: unused);
+ *   cf (nc, NF) double: the three body-fixed vectors (0-8) and up to six constant targets.
+ *   Jc (m, 14): compact Phi_q, columns 0-6 d Phi_r / d[r_i, p_i], 7-13 d Phi_r / d[r_j, p_j].
+ *   tv (nf, 3): time targets c(t) (squared where the driver says so), c'(t), c''(t).
+ *   bt (nb, NB) per body: mass (0), J' (1-9), J'^-1 (10-18, zero when J' is singular),
+ *                      c = 4 tr(J') / 3 (19), weight m g (20-22), 1 / m (23);
+ *   ei (ne, 3) / ef (ne, 9): compiled force elements (EL_*), bodies b1, b2 and data;
+ *   sidx (4, ma): active rows, Schur order (RCM), envelope first column fc, offset off;
+ *   inc (ninc, 3): incidences (active row u, column offset 0/7, body), grouped by body;
+ *   pairs (np, 3): envelope index of S[u, v], incidence g_u, incidence g_v.
+ * (mbsim/fast/constraints.py and dynamics.py build them; their module docs say more.)
+ *
+ * Equations: Haug, Computer-Aided Kinematics and Dynamics of Mechanical Systems (1989),
+ * Ch. 6 (Euler parameters), Ch. 9 (basic constraints), Ch. 11 (equations of motion).  The
+ * plain numpy reference of the same equations is mbsim/constraints/basic.py and
+ * mbsim/equations.py; tests/test_kernels.py checks that both agree to round-off.
+ */
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+typedef int64_t idx;
+
+enum { DOT1, DOT2, SPHERICAL, DISTANCE, ANGLE, ABSOLUTE, GROUND, NORMALIZATION };
+enum { I_KERNEL, I_BI, I_BJ, I_ROW, I_FLAG, I_FUNC, I_SLOT, NI = 9 };
+enum { F_CONST = 9, NF = 15, NB = 24 };
+enum { EL_TSDA, EL_FORCE, EL_FORCE_LOCAL, EL_TORQUE, EL_TORQUE_LOCAL };
+enum { STATUS_OK = 0, STATUS_NOT_PD = 1, STATUS_SINGULAR = 2 };
+
+#ifndef MB_SOURCE_HASH
+#define MB_SOURCE_HASH "unknown"
+#endif
+
+/* SHA-256 (16 hex digits) of the kernels.c this library was built from (mbsim.fast._lib
+ * compares it with the source beside it, so an edit never runs a stale build). */
+const char *mb_source_hash(void) { return MB_SOURCE_HASH; }
+
+static const int NE[8] = {1, 1, 3, 1, 1, 1, 6, 1}; /* equations per constraint, by code */
+
+/* The caller's view of one model: sizes, static tables, per-call inputs, outputs, work.
+ * The field order is mirrored by mbsim.fast._lib.Model (ctypes.Structure). */
+typedef struct {
+    idx nb, nq, m, ma, nc, ninc, npairs, nenv, ne;
+    const idx *ci;
+    const double *cf;
+    const idx *rb;    /* (m, 2) bodies of each row */
+    const idx *rows;  /* (ma,) the rows returned by mb_terms */
+    const idx *dpos;  /* (ma, 14) CSR position of each compact entry (-1: none) */
+    const idx *sidx, *inc, *pairs;
+    const double *bt;
+    const idx *nrm;   /* (nb,) active position of each body's normalisation row, -1 */
+    const idx *ei;
+    const double *ef;
+    /* inputs, written by the caller before a call */
+    double *q, *qd, *tv, *loads, *par, *Jg, *rhs;
+    /* outputs on all rows */
+    double *phi, *Jc, *gamma, *nu;
+    /* outputs on the rows `rows` */
+    double *phi_a, *gamma_a, *nu_a, *J, *data;
+    /* dynamics outputs: Q (nq), qdd (nq), lam (ma), dq (nq), out[0] = power */
+    double *Q, *qdd, *lam, *dq, *out;
+    /* work: Qt (nq), g (ma), Mi (nb*16), XG, JG (ninc*8), env (nenv), srhs, z (ma),
+     * K ((nq+ma)^2), kr (nq+ma), Mb (nb*49), A (nb*9), F, n, w (nb*3) */
+    double *Qt, *g, *Mi, *XG, *JG, *env, *srhs, *z, *K, *kr, *Mb, *A, *F, *n, *w;
+} mb_model;
+
+/* -- body-fixed vectors ------------------------------------------------------------------- */
+
+/* One body-fixed vector a' on body b at (q, qd): B = B(p, a') = d(A(p) a')/dp (3, 4)
+ * (Haug eq. 9.3.14, homogeneous form of mbsim.rotations.B); val = A a' = B p / 2; when gam,
+ * vel = B pd (its rate) and bdot = B(pd, a') pd (the gamma term; B is linear in p). */
+typedef struct {
+    double B[3][4];
+    double val[3], vel[3], bdot[3];
+} vec_t;
+
+static void bmat(double e0, double e1, double e2, double e3, const double *a, double B[3][4])
+{
+    double ea = 2.0 * (e1 * a[0] + e2 * a[1] + e3 * a[2]);
+    B[0][0] = 2.0 * (e0 * a[0] + e2 * a[2] - e3 * a[1]);
+    B[1][0] = 2.0 * (e0 * a[1] + e3 * a[0] - e1 * a[2]);
+    B[2][0] = 2.0 * (e0 * a[2] + e1 * a[1] - e2 * a[0]);
+    B[0][1] = ea;
+    B[0][2] = 2.0 * (e1 * a[1] - a[0] * e2 + e0 * a[2]);
+    B[0][3] = 2.0 * (e1 * a[2] - a[0] * e3 - e0 * a[1]);
+    B[1][1] = 2.0 * (e2 * a[0] - a[1] * e1 - e0 * a[2]);
+    B[1][2] = ea;
+    B[1][3] = 2.0 * (e2 * a[2] - a[1] * e3 + e0 * a[0]);
+    B[2][1] = 2.0 * (e3 * a[0] - a[2] * e1 + e0 * a[1]);
+    B[2][2] = 2.0 * (e3 * a[1] - a[2] * e2 - e0 * a[0]);
+    B[2][3] = ea;
+}
+
+static void body_vector(const double *q, const double *qd, idx b, const double *a, int gam,
+                        vec_t *v)
+{
+    const double *p = q + 7 * b + 3;
+    bmat(p[0], p[1], p[2], p[3], a, v->B);
+    for (int i = 0; i < 3; i++)
+        v->val[i] = 0.5 * (v->B[i][0] * p[0] + v->B[i][1] * p[1] + v->B[i][2] * p[2] +
+                           v->B[i][3] * p[3]);
+    if (gam) {
+        const double *d = qd + 7 * b + 3;
+        double Bd[3][4];
+        bmat(d[0], d[1], d[2], d[3], a, Bd);
+        for (int i = 0; i < 3; i++) {
+            v->vel[i] = v->B[i][0] * d[0] + v->B[i][1] * d[1] + v->B[i][2] * d[2] +
+                        v->B[i][3] * d[3];
+            v->bdot[i] = Bd[i][0] * d[0] + Bd[i][1] * d[1] + Bd[i][2] * d[2] + Bd[i][3] * d[3];
+        }
+    }
+}
+
+static double dot3(const double *x, const double *y)
+{
+    return x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+}
+
+/* x^T B (4,): the derivative of x . (A a') with respect to p. */
+static void xB(const double *x, const double B[3][4], double *out)
+{
+    for (int m = 0; m < 4; m++)
+        out[m] = x[0] * B[0][m] + x[1] * B[1][m] + x[2] * B[2][m];
+}
+
+/* -- the basic kernels: Phi (without targets), Jc rows, gamma (without c'') ---------------
+ * Each writes phi[0..ne), J[14 * e + c] (the kernel's rows of Jc, zeroed by the caller) and
+ * gamma[0..ne).  v: the kernel's vector slots (see VECTORS in mbsim/fast/constraints.py). */
+
+/* dot-1: Phi = a_i . a_j (Haug eq. 9.2.3); slots a_i, a_j.
+ * Phi_p_i = a_j^T B(p_i, a_i'), Phi_p_j = a_i^T B(p_j, a_j');
+ * gamma = -(a_i . bdot_j + a_j . bdot_i + 2 adot_i . adot_j) (Haug eq. 9.2.5). */
+static void k_dot1(const vec_t *v, double *phi, double *J, double *gamma, int jac, int gam)
+{
+    phi[0] = dot3(v[0].val, v[1].val);
+    if (jac) {
+        xB(v[1].val, v[0].B, J + 3);
+        xB(v[0].val, v[1].B, J + 10);
+    }
+    if (gam)
+        gamma[0] = -(dot3(v[0].val, v[1].bdot) + dot3(v[1].val, v[0].bdot) +
+                     2.0 * dot3(v[0].vel, v[1].vel));
+}
+
+/* d = r_j + A_j s_j - r_i - A_i s_i and its rate (Haug eq. 9.2.7). */
+static void point_diff(const double *q, const double *qd, idx bi, idx bj, const vec_t *v,
+                       int gam, double *d, double *dd)
+{
+    for (int i = 0; i < 3; i++) {
+        d[i] = q[7 * bj + i] + v[2].val[i] - q[7 * bi + i] - v[1].val[i];
+        if (gam)
+            dd[i] = qd[7 * bj + i] + v[2].vel[i] - qd[7 * bi + i] - v[1].vel[i];
+    }
+}
+
+/* dot-2: Phi = a . d_ij, a on body i (flag 0) or j (flag 1) (Haug eq. 9.2.6); slots a, s_i,
+ * s_j.  Phi_r_i = -a^T, Phi_r_j = a^T, Phi_p_i = -a^T B(p_i, s_i'), Phi_p_j = a^T B(p_j, s_j'),
+ * plus d^T B(p, a') on a's body; gamma = -(a . (bdot_j - bdot_i) + d . bdot_a + 2 adot . ddot)
+ * (Haug eq. 9.2.8). */
+static void k_dot2(const double *q, const double *qd, idx bi, idx bj, idx flag, const vec_t *v,
+                   double *phi, double *J, double *gamma, int jac, int gam)
+{
+    double d[3], dd[3], t[4];
+    point_diff(q, qd, bi, bj, v, gam, d, dd);
+    const double *a = v[0].val;
+    phi[0] = dot3(a, d);
+    if (jac) {
+        for (int i = 0; i < 3; i++) {
+            J[i] = -a[i];
+            J[7 + i] = a[i];
+        }
+        xB(a, v[1].B, t);
+        for (int m = 0; m < 4; m++)
+            J[3 + m] = -t[m];
+        xB(a, v[2].B, t);
+        for (int m = 0; m < 4; m++)
+            J[10 + m] = t[m];
+        xB(d, v[0].B, t);
+        int ca = flag ? 10 : 3;
+        for (int m = 0; m < 4; m++)
+            J[ca + m] += t[m];
+    }
+    if (gam) {
+        double s = 0.0;
+        for (int i = 0; i < 3; i++)
+            s += a[i] * (v[2].bdot[i] - v[1].bdot[i]) + d[i] * v[0].bdot[i] +
+                 2.0 * v[0].vel[i] * dd[i];
+        gamma[0] = -s;
+    }
+}
+
+/* spherical: Phi = d_ij (3 equations, Haug eq. 9.4.1); slots -, s_i, s_j.
+ * Phi_q = [-I, -B(p_i, s_i'), I, B(p_j, s_j')]; gamma = bdot_i - bdot_j (Haug eq. 9.4.2). */
+static void k_spherical(const double *q, const double *qd, idx bi, idx bj, const vec_t *v,
+                        double *phi, double *J, double *gamma, int jac, int gam)
+{
+    double d[3], dd[3];
+    point_diff(q, qd, bi, bj, v, 0, d, dd);
+    for (int i = 0; i < 3; i++) {
+        phi[i] = d[i];
+        if (jac) {
+            double *Jr = J + 14 * i;
+            Jr[i] = -1.0;
+            Jr[7 + i] = 1.0;
+            for (int m = 0; m < 4; m++) {
+                Jr[3 + m] = -v[1].B[i][m];
+                Jr[10 + m] = v[2].B[i][m];
+            }
+        }
+        if (gam)
+            gamma[i] = v[1].bdot[i] - v[2].bdot[i];
+    }
+}
+
+/* distance: Phi = d . d, target C^2 (Haug eq. 9.2.9); slots -, s_i, s_j.
+ * Phi_q = 2 d^T [-I, -B_i, I, B_j]; gamma = -2 (d . (bdot_j - bdot_i) + ddot . ddot)
+ * (Haug eq. 9.2.10). */
+static void k_distance(const double *q, const double *qd, idx bi, idx bj, const vec_t *v,
+                       double *phi, double *J, double *gamma, int jac, int gam)
+{
+    double d[3], dd[3], t[4];
+    point_diff(q, qd, bi, bj, v, gam, d, dd);
+    phi[0] = dot3(d, d);
+    if (jac) {
+        for (int i = 0; i < 3; i++) {
+            J[i] = -2.0 * d[i];
+            J[7 + i] = 2.0 * d[i];
+        }
+        xB(d, v[1].B, t);
+        for (int m = 0; m < 4; m++)
+            J[3 + m] = -2.0 * t[m];
+        xB(d, v[2].B, t);
+        for (int m = 0; m < 4; m++)
+            J[10 + m] = 2.0 * t[m];
+    }
+    if (gam) {
+        double s = 0.0;
+        for (int i = 0; i < 3; i++)
+            s += d[i] * (v[2].bdot[i] - v[1].bdot[i]) + dd[i] * dd[i];
+        gamma[0] = -2.0 * s;
+    }
+}
+
+/* angle (rotational driver): theta from g_i to g_j about f_i minus f(t), wrapped to
+ * (-pi, pi] (Haug Sec. 9.5); slots g_i, h_i, g_j.  c = g_i . g_j and s = h_i . g_j are dot-1
+ * terms, theta = atan2(s, c): theta_q = (c s_q - s c_q) / rho, rho = c^2 + s^2, and
+ * gamma = (c gs - s gc) / rho + thetadot rhodot / rho with gc, gs the dot-1 gammas.
+ * f: the target angle (the driver's f(t), or the constant target). */
+static void k_angle(const vec_t *v, double f, double *phi, double *J, double *gamma, int jac,
+                    int gam)
+{
+    double c = dot3(v[0].val, v[2].val), s = dot3(v[1].val, v[2].val);
+    double cf = cos(f), sf = sin(f);
+    phi[0] = atan2(s * cf - c * sf, c * cf + s * sf);
+    double rho = c * c + s * s;
+    if (jac) {
+        double dci[4], dsi[4], dcj[4], dsj[4];
+        xB(v[2].val, v[0].B, dci);
+        xB(v[2].val, v[1].B, dsi);
+        xB(v[0].val, v[2].B, dcj);
+        xB(v[1].val, v[2].B, dsj);
+        for (int m = 0; m < 4; m++) {
+            J[3 + m] = (c * dsi[m] - s * dci[m]) / rho;
+            J[10 + m] = (c * dsj[m] - s * dcj[m]) / rho;
+        }
+    }
+    if (gam) {
+        double gc = -(dot3(v[0].val, v[2].bdot) + dot3(v[2].val, v[0].bdot) +
+                      2.0 * dot3(v[0].vel, v[2].vel));
+        double gs = -(dot3(v[1].val, v[2].bdot) + dot3(v[2].val, v[1].bdot) +
+                      2.0 * dot3(v[1].vel, v[2].vel));
+        double cd = dot3(v[0].vel, v[2].val) + dot3(v[0].val, v[2].vel);
+        double sd = dot3(v[1].vel, v[2].val) + dot3(v[1].val, v[2].vel);
+        double thd = (c * sd - s * cd) / rho;
+        double rhod = 2.0 * (c * cd + s * sd);
+        gamma[0] = (c * gs - s * gc) / rho + thd * rhod / rho;
+    }
+}
+
+/* absolute: Phi = (r + A s')[axis] (Haug Sec. 9.5, absolute constraints); slot s.
+ * Phi_r = e_axis^T, Phi_p = B(p, s')[axis]; gamma = -bdot[axis]. */
+static void k_absolute(const double *q, idx bi, idx axis, const vec_t *v, double *phi,
+                       double *J, double *gamma, int jac, int gam)
+{
+    phi[0] = q[7 * bi + axis] + v[0].val[axis];
+    if (jac) {
+        J[axis] = 1.0;
+        for (int m = 0; m < 4; m++)
+            J[3 + m] = v[0].B[axis][m];
+    }
+    if (gam)
+        gamma[0] = -v[0].bdot[axis];
+}
+
+/* ground: r = r0, (e1, e2, e3) = e0' (6 equations; the targets are the constants). */
+static void k_ground(const double *q, idx bi, double *phi, double *J, double *gamma, int jac,
+                     int gam)
+{
+    for (int i = 0; i < 3; i++) {
+        phi[i] = q[7 * bi + i];
+        phi[3 + i] = q[7 * bi + 4 + i];
+        if (jac) {
+            J[14 * i + i] = 1.0;
+            J[14 * (3 + i) + 4 + i] = 1.0;
+        }
+    }
+    if (gam)
+        for (int i = 0; i < 6; i++)
+            gamma[i] = 0.0;
+}
+
+/* normalization: Phi = p^T p (target 1; Haug eq. 6.3.2); Phi_p = 2 p^T;
+ * gamma = -2 pd^T pd (Haug eq. 6.3.4 differentiated). */
+static void k_normalization(const double *q, const double *qd, idx bi, double *phi, double *J,
+                            double *gamma, int jac, int gam)
+{
+    const double *p = q + 7 * bi + 3, *pd = qd + 7 * bi + 3;
+    double s = 0.0;
+    for (int m = 0; m < 4; m++) {
+        s += p[m] * p[m];
+        if (jac)
+            J[3 + m] = 2.0 * p[m];
+    }
+    phi[0] = s;
+    if (gam) {
+        s = 0.0;
+        for (int m = 0; m < 4; m++)
+            s += pd[m] * pd[m];
+        gamma[0] = -2.0 * s;
+    }
+}
+
+/* Phi (with targets), compact Phi_q, gamma (with c'') and nu = c' of all m rows at the
+ * model's q, qd, tv; jac, gam: what to compute besides phi and nu (gam reads qd). */
+void mb_constraints(const mb_model *M, int jac, int gam)
+{
+    const double *q = M->q, *qd = M->qd, *tv = M->tv;
+    vec_t v[3];
+    memset(M->nu, 0, (size_t)M->m * sizeof(double));
+    if (jac)
+        memset(M->Jc, 0, (size_t)M->m * 14 * sizeof(double));
+    for (idx k = 0; k < M->nc; k++) {
+        const idx *c = M->ci + NI * k;
+        const double *f = M->cf + NF * k;
+        idx kind = c[I_KERNEL], bi = c[I_BI], bj = c[I_BJ], r = c[I_ROW], flag = c[I_FLAG];
+        idx fn = c[I_FUNC];
+        for (int s = 0; s < 3; s++)
+            if (c[I_SLOT + s] >= 0)
+                body_vector(q, qd, c[I_SLOT + s], f + 3 * s, gam, &v[s]);
+        double *phi = M->phi + r, *J = M->Jc + 14 * r, *gamma = M->gamma + r;
+        switch (kind) {
+        case DOT1: k_dot1(v, phi, J, gamma, jac, gam); break;
+        case DOT2: k_dot2(q, qd, bi, bj, flag, v, phi, J, gamma, jac, gam); break;
+        case SPHERICAL: k_spherical(q, qd, bi, bj, v, phi, J, gamma, jac, gam); break;
+        case DISTANCE: k_distance(q, qd, bi, bj, v, phi, J, gamma, jac, gam); break;
+        case ANGLE:
+            k_angle(v, fn >= 0 ? tv[3 * fn] : f[F_CONST], phi, J, gamma, jac, gam);
+            break;
+        case ABSOLUTE: k_absolute(q, bi, flag, v, phi, J, gamma, jac, gam); break;
+        case GROUND: k_ground(q, bi, phi, J, gamma, jac, gam); break;
+        default: k_normalization(q, qd, bi, phi, J, gamma, jac, gam); break;
+        }
+        if (kind != ANGLE) { /* Phi = phi(q) - c: the constant targets, then the time target */
+            for (int e = 0; e < NE[kind]; e++)
+                phi[e] -= f[F_CONST + e];
+            if (fn >= 0)
+                phi[0] -= tv[3 * fn];
+        }
+        if (fn >= 0) { /* nu = c', gamma += c'' */
+            M->nu[r] = tv[3 * fn + 1];
+            if (gam)
+                gamma[0] += tv[3 * fn + 2];
+        }
+    }
+}
+
+/* The results on the rows `rows`: phi_a, nu_a (gamma_a when gam); the Jacobian dense into J
+ * (mode 1; (ma, nq), pattern-only writes: J stays zero elsewhere) or as CSR values into data
+ * (mode 2, positions dpos); mode 0: no Jacobian. */
+static void gather(const mb_model *M, int gam, int mode)
+{
+    const idx *rb = M->rb;
+    for (idx k = 0; k < M->ma; k++) {
+        idx r = M->rows[k];
+        M->phi_a[k] = M->phi[r];
+        M->nu_a[k] = M->nu[r];
+        if (gam)
+            M->gamma_a[k] = M->gamma[r];
+        const double *Jr = M->Jc + 14 * r;
+        if (mode == 1) {
+            double *Jk = M->J + M->nq * k;
+            idx c0 = 7 * rb[2 * r], c1 = 7 * rb[2 * r + 1];
+            for (int c = 0; c < 7; c++)
+                Jk[c0 + c] = Jr[c];
+            if (c1 >= 0) {
+                if (c1 == c0) /* both ends on one body: the derivative is the sum */
+                    for (int c = 0; c < 7; c++)
+                        Jk[c1 + c] += Jr[7 + c];
+                else
+                    for (int c = 0; c < 7; c++)
+                        Jk[c1 + c] = Jr[7 + c];
+            }
+        } else if (mode == 2) {
+            const idx *dp = M->dpos + 14 * k;
+            for (int c = 0; c < 14; c++)
+                if (dp[c] >= 0)
+                    M->data[dp[c]] = 0.0;
+            for (int c = 0; c < 14; c++)
+                if (dp[c] >= 0)
+                    M->data[dp[c]] += Jr[c];
+        }
+    }
+}
+
+/* mb_constraints, then the results on `rows` (gather). */
+void mb_terms(const mb_model *M, int jac, int gam, int mode)
+{
+    mb_constraints(M, jac, gam);
+    gather(M, gam, jac ? mode : 0);
+}
+
+/* Compact rows Jc (all rows of `rows`) from a dense (ma, nq) Jacobian J: the inverse of the
+ * dense gather (a row whose two bodies coincide keeps the sum in the body-i slot). */
+void mb_gather_dense(const mb_model *M, const double *J, double *Jc)
+{
+    for (idx k = 0; k < M->ma; k++) {
+        idx r = M->rows[k], c0 = 7 * M->rb[2 * r], c1 = 7 * M->rb[2 * r + 1];
+        const double *Jk = J + M->nq * k;
+        for (int c = 0; c < 7; c++)
+            Jc[14 * r + c] = Jk[c0 + c];
+        if (c1 >= 0)
+            for (int c = 0; c < 7; c++)
+                Jc[14 * r + 7 + c] = c1 == c0 ? 0.0 : Jk[c1 + c];
+    }
+}
+
+/* out (m,) = Phi_q x from the compact Jacobian Jc (all rows). */
+void mb_jac_times(const mb_model *M, const double *x, double *out)
+{
+    for (idx r = 0; r < M->m; r++) {
+        const double *Jr = M->Jc + 14 * r;
+        idx b0 = M->rb[2 * r], b1 = M->rb[2 * r + 1];
+        double s = 0.0;
+        for (int c = 0; c < 7; c++)
+            s += Jr[c] * x[7 * b0 + c];
+        if (b1 >= 0)
+            for (int c = 0; c < 7; c++)
+                s += Jr[7 + c] * x[7 * b1 + c];
+        out[r] = s;
+    }
+}
+
+/* -- equations of motion ------------------------------------------------------------------ */
+
+/* A = A(p) (Haug eq. 6.3.20, homogeneous form of mbsim.rotations.A), row-major 3 x 3. */
+static void rotation(const double *p, double *A)
+{
+    double e0 = p[0], e1 = p[1], e2 = p[2], e3 = p[3];
+    double d = e0 * e0 - e1 * e1 - e2 * e2 - e3 * e3;
+    A[0] = d + 2 * e1 * e1;
+    A[4] = d + 2 * e2 * e2;
+    A[8] = d + 2 * e3 * e3;
+    A[1] = 2 * (e1 * e2 - e0 * e3);
+    A[3] = 2 * (e1 * e2 + e0 * e3);
+    A[2] = 2 * (e1 * e3 + e0 * e2);
+    A[6] = 2 * (e1 * e3 - e0 * e2);
+    A[5] = 2 * (e2 * e3 - e0 * e1);
+    A[7] = 2 * (e2 * e3 + e0 * e1);
+}
+
+/* G = G(p) = [-e, -e~ + e0 I] (3, 4) (Haug eq. 6.3.18): omega' = 2 G pd. */
+static void gmat(const double *p, double G[3][4])
+{
+    double e0 = p[0], e1 = p[1], e2 = p[2], e3 = p[3];
+    G[0][0] = -e1; G[0][1] = e0;  G[0][2] = e3;  G[0][3] = -e2;
+    G[1][0] = -e2; G[1][1] = -e3; G[1][2] = e0;  G[1][3] = e1;
+    G[2][0] = -e3; G[2][1] = e2;  G[2][2] = -e1; G[2][3] = e0;
+}
+
+/* out = A x (trans: A^T x). */
+static void rot(const double *A, const double *x, double *out, int trans)
+{
+    for (int i = 0; i < 3; i++)
+        out[i] = trans ? A[i] * x[0] + A[3 + i] * x[1] + A[6 + i] * x[2]
+                       : A[3 * i] * x[0] + A[3 * i + 1] * x[1] + A[3 * i + 2] * x[2];
+}
+
+/* out += sign (x cross y). */
+static void cross_add(const double *x, const double *y, double *out, double sign)
+{
+    out[0] += sign * (x[1] * y[2] - x[2] * y[1]);
+    out[1] += sign * (x[2] * y[0] - x[0] * y[2]);
+    out[2] += sign * (x[0] * y[1] - x[1] * y[0]);
+}
+
+/* TSDA (Haug Sec. 11.3): f = k (l - L0) + c ldot, tension along u = d / l, d = r_j + A_j s_j'
+ * - r_i - A_i s_i'; f u acts on P_i towards P_j and the opposite on P_j.  ef: s_i', s_j', k,
+ * c, L0.  Coincident points: no direction, no force. */
+static void el_tsda(const double *q, const double *qd, const double *A, const double *w,
+                    idx b1, idx b2, const double *e, double *F, double *n)
+{
+    double si[3], sj[3], u[3], vi[3] = {0, 0, 0}, vj[3] = {0, 0, 0}, x[3], y[3], l = 0.0;
+    rot(A + 9 * b2, e + 3, sj, 0);
+    rot(A + 9 * b1, e, si, 0);
+    for (int i = 0; i < 3; i++) {
+        u[i] = q[7 * b2 + i] + sj[i] - q[7 * b1 + i] - si[i];
+        l += u[i] * u[i];
+    }
+    l = sqrt(l);
+    for (int i = 0; i < 3; i++)
+        u[i] = l > 0 ? u[i] / l : 0.0;
+    /* ldot = u . ((rd_j + A_j (w_j' x s_j')) - (rd_i + A_i (w_i' x s_i'))) */
+    cross_add(e + 3, w + 3 * b2, vj, -1.0);
+    cross_add(e, w + 3 * b1, vi, -1.0);
+    rot(A + 9 * b2, vj, x, 0);
+    rot(A + 9 * b1, vi, y, 0);
+    double ldot = 0.0;
+    for (int i = 0; i < 3; i++)
+        ldot += u[i] * (qd[7 * b2 + i] + x[i] - qd[7 * b1 + i] - y[i]);
+    double f = e[6] * (l - e[8]) + e[7] * ldot;
+    for (int i = 0; i < 3; i++) {
+        u[i] *= f;
+        F[3 * b1 + i] += u[i];
+        F[3 * b2 + i] -= u[i];
+    }
+    rot(A + 9 * b1, u, x, 1); /* n_i' += s_i' x A_i^T f u, n_j' -= s_j' x A_j^T f u */
+    cross_add(e, x, n + 3 * b1, 1.0);
+    rot(A + 9 * b2, u, x, 1);
+    cross_add(e + 3, x, n + 3 * b2, -1.0);
+}
+
+/* Q (nq,) = [F, 2 G^T (n' - w' x J' w')] per body (Haug eq. 11.1.x, Euler-parameter form):
+ * gravity, the compiled elements (EL_*), the Python elements' loads (2, nb, 3: F and n') and
+ * the gyroscopic term. */
+void mb_applied_forces(const mb_model *M)
+{
+    const double *q = M->q, *qd = M->qd, *bt = M->bt;
+    double *A = M->A, *F = M->F, *n = M->n, *w = M->w, *Q = M->Q;
+    double G[3][4], x[3];
+    idx nb = M->nb;
+    for (idx b = 0; b < nb; b++) {
+        const double *p = q + 7 * b + 3, *pd = qd + 7 * b + 3;
+        rotation(p, A + 9 * b);
+        gmat(p, G);
+        for (int i = 0; i < 3; i++) {
+            F[3 * b + i] = bt[NB * b + 20 + i] + M->loads[3 * b + i];
+            n[3 * b + i] = M->loads[3 * nb + 3 * b + i];
+            w[3 * b + i] = 2.0 * (G[i][0] * pd[0] + G[i][1] * pd[1] + G[i][2] * pd[2] +
+                                  G[i][3] * pd[3]);
+        }
+    }
+    for (idx k = 0; k < M->ne; k++) {
+        idx kind = M->ei[3 * k], b1 = M->ei[3 * k + 1], b2 = M->ei[3 * k + 2];
+        const double *e = M->ef + 9 * k;
+        if (kind == EL_TSDA) {
+            el_tsda(q, qd, A, w, b1, b2, e, F, n);
+        } else if (kind == EL_FORCE_LOCAL) { /* follower force: body-fixed direction, at s' */
+            rot(A + 9 * b1, e, x, 0);
+            for (int i = 0; i < 3; i++)
+                F[3 * b1 + i] += x[i];
+            cross_add(e + 3, e, n + 3 * b1, 1.0);
+        } else if (kind == EL_FORCE) { /* global vector at s': n' += s' x A^T f */
+            for (int i = 0; i < 3; i++)
+                F[3 * b1 + i] += e[i];
+            rot(A + 9 * b1, e, x, 1);
+            cross_add(e + 3, x, n + 3 * b1, 1.0);
+        } else { /* torque on b1, the opposite on b2 (-1: none); local: frame of b2 (else b1) */
+            double tg[3], tl[3];
+            if (kind == EL_TORQUE_LOCAL)
+                rot(A + 9 * (b2 >= 0 ? b2 : b1), e, tg, 0);
+            else
+                for (int i = 0; i < 3; i++)
+                    tg[i] = e[i];
+            rot(A + 9 * b1, tg, tl, 1);
+            for (int i = 0; i < 3; i++)
+                n[3 * b1 + i] += tl[i];
+            if (b2 >= 0) {
+                rot(A + 9 * b2, tg, tl, 1);
+                for (int i = 0; i < 3; i++)
+                    n[3 * b2 + i] -= tl[i];
+            }
+        }
+    }
+    for (idx b = 0; b < nb; b++) { /* gyroscopic term and Q_p = 2 G^T (n' - w' x J' w') */
+        const double *Jl = bt + NB * b + 1;
+        double *wb = w + 3 * b, *nbv = n + 3 * b, Jw[3];
+        gmat(q + 7 * b + 3, G);
+        for (int i = 0; i < 3; i++)
+            Jw[i] = Jl[3 * i] * wb[0] + Jl[3 * i + 1] * wb[1] + Jl[3 * i + 2] * wb[2];
+        cross_add(wb, Jw, nbv, -1.0);
+        for (int i = 0; i < 3; i++)
+            Q[7 * b + i] = F[3 * b + i];
+        for (int m = 0; m < 4; m++)
+            Q[7 * b + 3 + m] = 2.0 * (G[0][m] * nbv[0] + G[1][m] * nbv[1] + G[2][m] * nbv[2]);
+    }
+}
+
+/* Mb (nb, 7, 7) = diag(m I, 4 G^T J' G) (Haug eq. 11.1.x), into M->Mb. */
+void mb_mass_blocks(const mb_model *M)
+{
+    double G[3][4];
+    for (idx b = 0; b < M->nb; b++) {
+        const double *bt = M->bt + NB * b;
+        double *Mb = M->Mb + 49 * b;
+        gmat(M->q + 7 * b + 3, G);
+        memset(Mb, 0, 49 * sizeof(double));
+        for (int i = 0; i < 3; i++)
+            Mb[8 * i] = bt[0];
+        for (int a = 0; a < 4; a++)
+            for (int c = 0; c < 4; c++) {
+                double s = 0.0;
+                for (int i = 0; i < 3; i++)
+                    for (int j = 0; j < 3; j++)
+                        s += G[i][a] * bt[1 + 3 * i + j] * G[j][c];
+                Mb[7 * (3 + a) + 3 + c] = 4.0 * s;
+            }
+    }
+}
+
+/* Mi (nb, 4, 4): Euler-parameter block of Mt^-1 = (G^T J'^-1 G / 4 + p p^T / c) / s^2,
+ * s = p^T p (module doc of mbsim/fast/dynamics.py: the modified mass matrix); the
+ * translational block is I / m.  unit: the identity metric instead (min-norm projections
+ * of models with a singular J'). */
+static void minv_blocks(const mb_model *M, int unit)
+{
+    double G[3][4], H[3][4];
+    for (idx b = 0; b < M->nb; b++) {
+        const double *p = M->q + 7 * b + 3, *bt = M->bt + NB * b;
+        double *Mi = M->Mi + 16 * b;
+        if (unit) {
+            memset(Mi, 0, 16 * sizeof(double));
+            for (int a = 0; a < 4; a++)
+                Mi[5 * a] = 1.0;
+            continue;
+        }
+        gmat(p, G);
+        for (int i = 0; i < 3; i++) /* H = J'^-1 G */
+            for (int e = 0; e < 4; e++)
+                H[i][e] = bt[10 + 3 * i] * G[0][e] + bt[11 + 3 * i] * G[1][e] +
+                          bt[12 + 3 * i] * G[2][e];
+        double s = p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3];
+        double s2 = 1.0 / (s * s), c = 1.0 / bt[19];
+        for (int a = 0; a < 4; a++)
+            for (int e = 0; e < 4; e++) {
+                double t = G[0][a] * H[0][e] + G[1][a] * H[1][e] + G[2][a] * H[2][e];
+                Mi[4 * a + e] = (0.25 * t + p[a] * p[e] * c) * s2;
+            }
+    }
+}
+
+/* y[0..7) = (Mt^-1 block of body b) x[0..7). */
+static void apply_minv(const mb_model *M, int unit, idx b, const double *x, double *y)
+{
+    double im = unit ? 1.0 : M->bt[NB * b + 23];
+    const double *Mi = M->Mi + 16 * b;
+    for (int i = 0; i < 3; i++)
+        y[i] = x[i] * im;
+    for (int a = 0; a < 4; a++)
+        y[3 + a] = Mi[4 * a] * x[3] + Mi[4 * a + 1] * x[4] + Mi[4 * a + 2] * x[5] +
+                   Mi[4 * a + 3] * x[6];
+}
+
+/* Factor the Schur matrix S = Phi_q Mt^-1 Phi_q^T of the active rows (Jc: compact Phi_q).
+ * Per incidence g = (row u, column offset, body b): JG[g] = the row's 7 entries for b and
+ * XG[g] = Mt_b^-1 JG[g] (padded to 8); S[u, v] = sum over shared bodies XG[g_u] . JG[g_v]
+ * (pairs), assembled in the envelope of its RCM permutation and overwritten by its
+ * Cholesky factor L (George and Liu 1981, Ch. 4: the fill stays in the envelope), the
+ * diagonal stored as 1 / L_ii.  Returns 0 when S is not positive definite. */
+static int schur_factor(const mb_model *M, const double *Jc, int unit)
+{
+    const idx *sidx = M->sidx, *inc = M->inc, *pairs = M->pairs;
+    idx ma = M->ma;
+    const idx *rows = sidx, *fc = sidx + 2 * ma, *off = sidx + 3 * ma;
+    double *XG = M->XG, *JG = M->JG, *env = M->env;
+    for (idx g = 0; g < M->ninc; g++) {
+        const double *Jr = Jc + 14 * rows[inc[3 * g]] + inc[3 * g + 1];
+        for (int c = 0; c < 7; c++)
+            JG[8 * g + c] = Jr[c];
+        JG[8 * g + 7] = 0.0;
+        XG[8 * g + 7] = 0.0;
+        apply_minv(M, unit, inc[3 * g + 2], JG + 8 * g, XG + 8 * g);
+    }
+    memset(env, 0, (size_t)M->nenv * sizeof(double));
+    for (idx k = 0; k < M->npairs; k++) {
+        const double *x = XG + 8 * pairs[3 * k + 1], *y = JG + 8 * pairs[3 * k + 2];
+        double s = 0.0;
+        for (int c = 0; c < 8; c++)
+            s += x[c] * y[c];
+        env[pairs[3 * k]] += s;
+    }
+    for (idx i = 0; i < ma; i++) { /* envelope Cholesky, row by row (bordering) */
+        idx fi = fc[i], oi = off[i] - fi;
+        for (idx j = fi; j < i; j++) {
+            idx fj = fc[j], oj = off[j] - fj;
+            double s = env[oi + j];
+            for (idx k = fi > fj ? fi : fj; k < j; k++)
+                s -= env[oi + k] * env[oj + k];
+            env[oi + j] = s * env[oj + j];
+        }
+        double s = env[oi + i];
+        for (idx k = fi; k < i; k++)
+            s -= env[oi + k] * env[oi + k];
+        if (!(s > 0.0))
+            return 0;
+        env[oi + i] = 1.0 / sqrt(s);
+    }
+    return 1;
+}
+
+/* x = S^-1 rhs (both in the active rows' order) with the factor of schur_factor. */
+static void schur_solve(const mb_model *M, const double *rhs, double *x)
+{
+    idx n = M->ma;
+    const idx *order = M->sidx + n, *fc = M->sidx + 2 * n, *off = M->sidx + 3 * n;
+    const double *env = M->env;
+    double *z = M->z;
+    for (idx i = 0; i < n; i++) { /* L z = P rhs */
+        idx oi = off[i] - fc[i];
+        double s = rhs[order[i]];
+        for (idx k = fc[i]; k < i; k++)
+            s -= env[oi + k] * z[k];
+        z[i] = s * env[oi + i];
+    }
+    for (idx i = n - 1; i >= 0; i--) { /* L^T x = z, column by column */
+        idx oi = off[i] - fc[i];
+        z[i] *= env[oi + i];
+        for (idx k = fc[i]; k < i; k++)
+            z[k] -= env[oi + k] * z[i];
+    }
+    for (idx i = 0; i < n; i++)
+        x[order[i]] = z[i];
+}
+
+/* g = gamma on the active rows (Baumgarte-stabilised when par[2] != 0: gamma - 2 alpha
+ * (Phi_q qd - nu) - beta^2 Phi, Baumgarte 1972), Q, and Qt = Q + c p gamma_norm / 2 on each
+ * body with an active normalisation row (the modified mass matrix). */
+static void rhs_terms(const mb_model *M, const double *Jc)
+{
+    const double *par = M->par, *qd = M->qd;
+    int stab = par[2] != 0.0;
+    for (idx u = 0; u < M->ma; u++) {
+        idx r = M->sidx[u];
+        M->g[u] = M->gamma[r];
+        if (stab) {
+            const double *Jr = Jc + 14 * r;
+            idx b0 = M->rb[2 * r], b1 = M->rb[2 * r + 1];
+            double jv = 0.0;
+            for (int c = 0; c < 7; c++)
+                jv += Jr[c] * qd[7 * b0 + c];
+            if (b1 >= 0)
+                for (int c = 0; c < 7; c++)
+                    jv += Jr[7 + c] * qd[7 * b1 + c];
+            M->g[u] -= 2.0 * par[0] * (jv - M->nu[r]) + par[1] * par[1] * M->phi[r];
+        }
+    }
+    mb_applied_forces(M);
+    memcpy(M->Qt, M->Q, (size_t)M->nq * sizeof(double));
+    for (idx b = 0; b < M->nb; b++)
+        if (M->nrm[b] >= 0) {
+            double h = 0.5 * M->bt[NB * b + 19] * M->g[M->nrm[b]];
+            for (int m = 0; m < 4; m++)
+                M->Qt[7 * b + 3 + m] += h * M->q[7 * b + 3 + m];
+        }
+}
+
+/* lam = S^-1 (Phi_q Mt^-1 Qt - g), qdd = Mt^-1 (Qt - Phi_q^T lam). */
+static int solve_schur(const mb_model *M, const double *Jc)
+{
+    const idx *inc = M->inc;
+    minv_blocks(M, 0);
+    if (!schur_factor(M, Jc, 0))
+        return STATUS_NOT_PD;
+    double *rhs = M->srhs;
+    for (idx u = 0; u < M->ma; u++)
+        rhs[u] = -M->g[u];
+    for (idx k = 0; k < M->ninc; k++) { /* + Phi_q Mt^-1 Qt */
+        const double *x = M->XG + 8 * k, *Qt = M->Qt + 7 * inc[3 * k + 2];
+        double s = 0.0;
+        for (int c = 0; c < 7; c++)
+            s += x[c] * Qt[c];
+        rhs[inc[3 * k]] += s;
+    }
+    schur_solve(M, rhs, M->lam);
+    for (idx b = 0; b < M->nb; b++)
+        apply_minv(M, 0, b, M->Qt + 7 * b, M->qdd + 7 * b);
+    for (idx k = 0; k < M->ninc; k++) { /* - (Phi_q Mt^-1)^T lam */
+        const double *x = M->XG + 8 * k;
+        double *y = M->qdd + 7 * inc[3 * k + 2], h = M->lam[inc[3 * k]];
+        for (int c = 0; c < 7; c++)
+            y[c] -= x[c] * h;
+    }
+    return STATUS_OK;
+}
+
+/* [M, Phi_q^T; Phi_q, 0] [qdd; lam] = [Q; g] by dense LU with partial pivoting (Haug eq.
+ * 11.1.x): for models where some J' is singular (no exact Mt^-1).  Returns STATUS_SINGULAR
+ * on an exactly zero pivot (as LAPACK's dgesv). */
+static int solve_kkt(const mb_model *M, const double *Jc)
+{
+    idx nq = M->nq, ma = M->ma, n = nq + ma;
+    double *K = M->K, *x = M->kr;
+    mb_mass_blocks(M);
+    memset(K, 0, (size_t)(n * n) * sizeof(double));
+    for (idx b = 0; b < M->nb; b++)
+        for (int i = 0; i < 7; i++)
+            for (int j = 0; j < 7; j++)
+                K[(7 * b + i) * n + 7 * b + j] = M->Mb[49 * b + 7 * i + j];
+    for (idx u = 0; u < ma; u++) {
+        idx r = M->sidx[u];
+        for (int s = 0; s < 2; s++) {
+            idx b = M->rb[2 * r + s];
+            if (b < 0)
+                continue;
+            for (int c = 0; c < 7; c++) {
+                K[(nq + u) * n + 7 * b + c] += Jc[14 * r + 7 * s + c];
+                K[(7 * b + c) * n + nq + u] += Jc[14 * r + 7 * s + c];
+            }
+        }
+    }
+    memcpy(x, M->Q, (size_t)nq * sizeof(double));
+    memcpy(x + nq, M->g, (size_t)ma * sizeof(double));
+    for (idx k = 0; k < n; k++) {
+        idx piv = k;
+        double big = fabs(K[k * n + k]);
+        for (idx i = k + 1; i < n; i++)
+            if (fabs(K[i * n + k]) > big) {
+                big = fabs(K[i * n + k]);
+                piv = i;
+            }
+        if (big == 0.0)
+            return STATUS_SINGULAR;
+        if (piv != k) {
+            for (idx j = 0; j < n; j++) {
+                double t = K[k * n + j];
+                K[k * n + j] = K[piv * n + j];
+                K[piv * n + j] = t;
+            }
+            double t = x[k];
+            x[k] = x[piv];
+            x[piv] = t;
+        }
+        double inv = 1.0 / K[k * n + k];
+        for (idx i = k + 1; i < n; i++) {
+            double l = K[i * n + k] * inv;
+            if (l == 0.0)
+                continue;
+            for (idx j = k + 1; j < n; j++)
+                K[i * n + j] -= l * K[k * n + j];
+            x[i] -= l * x[k];
+        }
+    }
+    for (idx k = n - 1; k >= 0; k--) {
+        double s = x[k];
+        for (idx j = k + 1; j < n; j++)
+            s -= K[k * n + j] * x[j];
+        x[k] = s / K[k * n + k];
+    }
+    memcpy(M->qdd, x, (size_t)nq * sizeof(double));
+    memcpy(M->lam, x + nq, (size_t)ma * sizeof(double));
+    return STATUS_OK;
+}
+
+/* (qdd, lam) of the equations of motion at (q, qd): the constraint terms, the applied forces,
+ * then the Schur complement of Mt, or the dense KKT matrix when kkt.  have_jac: the compact
+ * Phi_q is the caller's Jg (m, 14) instead of the one evaluated here.  out[0] = power
+ * Q.qd - lam.nu.  Returns a STATUS_*. */
+int mb_accelerations(const mb_model *M, int kkt, int have_jac)
+{
+    mb_constraints(M, !have_jac, 1);
+    const double *Jc = have_jac ? M->Jg : M->Jc;
+    rhs_terms(M, Jc);
+    int status = kkt ? solve_kkt(M, Jc) : solve_schur(M, Jc);
+    if (status != STATUS_OK)
+        return status;
+    double power = 0.0;
+    for (idx i = 0; i < M->nq; i++)
+        power += M->Q[i] * M->qd[i];
+    for (idx u = 0; u < M->ma; u++)
+        power -= M->lam[u] * M->nu[M->sidx[u]];
+    M->out[0] = power;
+    return STATUS_OK;
+}
+
+/* dq (nq,) = Mt^-1 Phi_q^T S^-1 rhs: the weighted least-norm correction with Phi_q dq = rhs
+ * on the active rows (Phi_q: Jc of the last mb_constraints; unit: identity metric).
+ * Returns a STATUS_*. */
+int mb_project(const mb_model *M, int unit)
+{
+    minv_blocks(M, unit);
+    if (!schur_factor(M, M->Jc, unit))
+        return STATUS_NOT_PD;
+    schur_solve(M, M->rhs, M->lam);
+    memset(M->dq, 0, (size_t)M->nq * sizeof(double));
+    for (idx k = 0; k < M->ninc; k++) {
+        const double *x = M->XG + 8 * k;
+        double *y = M->dq + 7 * M->inc[3 * k + 2], h = M->lam[M->inc[3 * k]];
+        for (int c = 0; c < 7; c++)
+            y[c] += x[c] * h;
+    }
+    return STATUS_OK;
+}
