@@ -7,11 +7,13 @@ the imports are counted), with the process CPU time (``time.process_time``) meas
 
 - the analyses (``mbsim.api.run_model``, with the imports it makes on first use),
 - figure drawing (``mbsim.study.study_figure`` and ``mbsim.output.save_figure``),
-- writing the HDF5 files (``mbsim.output.write_result``) and compiling the models
-  (``mbsim.model.compile_model``),
+- writing the HDF5 files (``mbsim.output.write_result``), compiling the models
+  (``mbsim.model.compile_model``) and reading and validating the deck
+  (``mbsim.deck.loader.parse_deck`` and ``ParsedDeck.spec``: once for the study, once per
+  case),
 
 and the total CPU of the process; "other" is everything outside the analyses and figures
-(writing, compiling, loading the deck, the imports of the command itself, the tables).
+(writing, compiling, the deck, the imports of the command itself, the tables).
 Issue 12's target: other <= 15 % of the total for ``vehicle.yaml lane_change``.
 Figures are medians over the repeats (the CPU time is the steadier figure on a shared
 machine; wall time printed too).  Default studies: the vehicle's lane changes (four
@@ -33,7 +35,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDIES = ("vehicle.yaml:lane_change", "slider_crank.yaml:inverse_rod_length")
-PARTS = ("analyses", "figures", "write", "compile")
+PARTS = ("analyses", "figures", "write", "compile", "deck")
 
 # Runs in the child: wrap the functions, run the CLI, print the CPU split as JSON.
 CHILD = r"""
@@ -55,7 +57,7 @@ def timed(part, fn):
             depth[0] -= 1
     return wrapper
 
-import mbsim.api, mbsim.model, mbsim.output, mbsim.study
+import mbsim.api, mbsim.deck.loader, mbsim.model, mbsim.output, mbsim.study
 mbsim.api.run_model = timed("analyses", mbsim.api.run_model)
 mbsim.study.study_figure = timed("figures", mbsim.study.study_figure)
 
@@ -66,6 +68,9 @@ def save_figure(*args, **kwargs):  # mbsim.output.plots is imported on first use
 mbsim.output.save_figure = timed("figures", save_figure)
 mbsim.output.write_result = timed("write", mbsim.output.write_result)
 mbsim.model.compile_model = timed("compile", mbsim.model.compile_model)
+loader = mbsim.deck.loader
+loader.parse_deck = timed("deck", loader.parse_deck)
+loader.ParsedDeck.spec = timed("deck", loader.ParsedDeck.spec)
 from mbsim.cli import main
 code = 0
 try:
@@ -102,7 +107,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     print("CPU s of `mbsim study DECK NAME -q` (medians of", args.repeats, "runs)")
     print(f"{'study':<40} {'total':>6} {'analyses':>9} {'figures':>8} {'other':>6} "
-          f"{'other %':>7}  (write, compile; wall)")  # fmt: skip
+          f"{'other %':>7}  (write, compile, deck; wall)")  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         for item in args.study or STUDIES:
             deck, _, study = item.partition(":")
@@ -112,7 +117,8 @@ def main(argv=None) -> None:
             share = [100 * o / r["total"] for o, r in zip(other, runs)]
             print(f"{deck + ' ' + study:<40} {med['total']:6.2f} {med['analyses']:9.2f} "
                   f"{med['figures']:8.2f} {np.median(other):6.2f} {np.median(share):6.1f}%  "
-                  f"({med['write']:.2f}, {med['compile']:.2f}; {med['wall']:.2f} s)")  # fmt: skip
+                  f"({med['write']:.2f}, {med['compile']:.2f}, {med['deck']:.2f}; "
+                  f"{med['wall']:.2f} s)")  # fmt: skip
 
 
 if __name__ == "__main__":

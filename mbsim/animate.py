@@ -4,15 +4,23 @@ The drawing comes from the deck stored in the result file (``/deck``), recompile
 scene and ``--set`` overrides stored in its ``settings``: every joint, driver and force
 point, in body coordinates, is attached to its body.  Each frame draws
 
-- each moving body as lines from its centroid to its points (a "star": a rod is the line
-  through its two ends, a crank the line from its pivot to its pin), its centroid a dot;
+- each moving body through all its points (joint, driver and force attachment points, the
+  deck's output points and measure points): the outline (convex hull) of its points and
+  centroid, with lines from the centroid to each point (a rod is the line through its two
+  ends, a crank the line from its pivot to its pin), its centroid a dot.  A body with a
+  single point besides its centroid (a pendulum link hanging from one joint) is drawn to
+  the point mirrored through the centroid as well: its free end;
 - each massless link (``distance``, ``spherical-spherical``, ``revolute-spherical`` joints,
   ``distance`` drivers) as a dashed line between its two points;
 - each TSDA as a dotted line between its points;
 - the points on ground bodies as fixed triangles, and the guide of each translational or
   cylindrical joint with ground as a thin line over the travel of the moving body;
 - a body whose points all lie at its centroid (a slider) as a square;
-- the time, ``t = 0.350 s``.
+- the time, ``t = 0.350 s``; axes with a scale in metres (``x [m]``, or ``screen right
+  [m]`` in the isometric view), optional body labels; the view fits the whole motion.
+
+A linear analysis result (``linear/...``) can be drawn as one of its modes oscillating
+(:func:`mode_shape_result`, ``mbsim animate FILE --mode-shape K``).
 
 Positions are projected orthographically: ``xy``, ``xz``, ``yz`` onto a coordinate plane,
 or ``iso``: an isometric view with "up" opposite to gravity (z when there is none).
@@ -87,8 +95,20 @@ def sketch_of(spec) -> Sketch:
         if force.type == "tsda":
             bi, bj = force.bodies
             springs.append((bi, force.points[bi].P, bj, force.points[bj].P))
-            for body in (bi, bj):
-                attach(body, force.points[body].P)
+        for body, ps in (force.points or {}).items():
+            if body is not None and ps is not None and ps.P is not None:
+                attach(body, ps.P)
+    for out in spec.outputs.values():  # output points
+        attach(out.body, out.point)
+    for om in (getattr(spec, "output_measures", None) or {}).values():  # measure points
+        d = om.data
+        if d.get("body") is not None:
+            attach(d["body"], d["point"])
+        for body, P in zip(d.get("bodies", ()), d.get("points", ())):
+            attach(body, P)
+    for body, plist in list(pts.items()):  # one point off the centroid and no other: a
+        if len(plist) == 1 and np.linalg.norm(plist[0]) > 1e-12:  # link hanging from it
+            _add_point(pts, body, -plist[0])  # its free end, mirrored through the centroid
     g = np.asarray(spec.gravity, float)
     up = -g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, 1.0])
     moving = [n for n in spec.bodies if n not in ground]
@@ -172,6 +192,31 @@ def frames(result: Result, sketch: Sketch, view: str, every: int = 1):
     return out
 
 
+def _turn(o, a, b) -> float:
+    """z of (a - o) x (b - o): > 0 for a left turn."""
+    return float((a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]))
+
+
+def hull(points: np.ndarray) -> np.ndarray:
+    """Closed outline (m, 2) of 2-D points: the convex hull by Andrew's monotone chain
+    (collinear points give the segment between the extremes, there and back)."""
+    pts = np.unique(np.round(np.asarray(points, float), 12), axis=0)
+    if len(pts) < 3:
+        return np.vstack([pts, pts[:1]]) if len(pts) else pts
+
+    def half(seq):
+        out = []
+        for p in seq:
+            while len(out) >= 2 and _turn(out[-2], out[-1], p) <= 0:
+                out.pop()
+            out.append(p)
+        return out
+
+    lower, upper = half(pts), half(pts[::-1])
+    ring = np.array(lower[:-1] + upper[:-1])
+    return np.vstack([ring, ring[:1]])
+
+
 def _limits(frame_list) -> tuple[np.ndarray, np.ndarray]:
     pts = []
     for f in frame_list:
@@ -211,6 +256,7 @@ def animate_result(
     size: float = 5.0,
     sketch: Sketch | None = None,
     title: str | None = None,
+    labels: bool = False,
 ) -> tuple[Path, int]:
     """Write a GIF of `result` to `path`; returns (path, number of frames).
 
@@ -224,6 +270,7 @@ def animate_result(
     dpi, size : resolution and size (inches, square) of a frame.
     sketch : what to draw (default: from the deck stored in the result).
     title : default: the deck's title and the mode.
+    labels : write each body's name at its centroid.
     """
     from matplotlib.animation import FuncAnimation, PillowWriter
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -243,8 +290,12 @@ def animate_result(
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
-    ax.set_xticks([])
-    ax.set_yticks([])
+    ax.tick_params(labelsize="x-small")
+    ax.grid(True, alpha=0.25)
+    xl, yl = {"iso": ("screen right", "screen up"), "xy": ("x", "y"), "xz": ("x", "z"),
+              "yz": ("y", "z")}[view]  # fmt: skip
+    ax.set_xlabel(f"{xl} [m]", fontsize="small")
+    ax.set_ylabel(f"{yl} [m]", fontsize="small")
     label = {"iso": "isometric view", "xy": "x right, y up", "xz": "x right, z up",
              "yz": "y right, z up"}[view]  # fmt: skip
     first = frame_list[0]
@@ -257,8 +308,12 @@ def animate_result(
         title = f"{deck_title}\n{result.mode}, {label}"
     ax.set_title(title, fontsize="small")
     colors = {b: f"C{i % 10}" for i, b in enumerate(sketch.bodies)}
-    star = {b: ax.plot([], [], "-", color=colors[b], lw=2.5, solid_capstyle="round")[0]
+    star = {b: ax.plot([], [], "-", color=colors[b], lw=1.2, solid_capstyle="round")[0]
             for b in sketch.bodies}  # fmt: skip
+    outline = {b: ax.plot([], [], "-", color=colors[b], lw=2.5, solid_capstyle="round",
+                          solid_joinstyle="round")[0] for b in sketch.bodies}  # fmt: skip
+    names = {b: ax.text(0, 0, f" {b}", fontsize="x-small", color=colors[b], va="bottom")
+             for b in (sketch.bodies if labels else [])}  # fmt: skip
 
     def blob(b):  # a body with all its points at the centroid is a block, the others a dot
         pts = sketch.points.get(b, np.zeros((0, 3)))
@@ -273,7 +328,9 @@ def animate_result(
     links = [ax.plot([], [], "--", color="0.3", lw=1.5)[0] for _ in first["links"]]
     springs = [ax.plot([], [], ":", color="0.45", lw=2)[0] for _ in first["springs"]]
     ground = ax.plot([], [], "^", color="k", ms=7, ls="none")[0]
-    stamp = ax.text(0.02, 0.97, "", transform=ax.transAxes, va="top", family="monospace")
+    stamp = ax.text(0.02, 0.97, "", transform=ax.transAxes, va="top", family="monospace",
+                    fontsize="small")
+    time_label = "t" if result.mode != "linear-mode" else "phase t"
 
     def draw(i):
         f = frame_list[i]
@@ -286,14 +343,18 @@ def animate_result(
                 jx.append(p[0])
                 jy.append(p[1])
             star[b].set_data(xs, ys)
+            ring = hull(np.vstack([c[None, :], pts])) if len(pts) else np.zeros((0, 2))
+            outline[b].set_data(ring[:, 0], ring[:, 1])
             dots[b].set_data([c[0]], [c[1]])
+            if b in names:
+                names[b].set_position((c[0], c[1]))
         joints.set_data(jx, jy)
         for line, (a, b) in zip(links, f["links"]):
             line.set_data([a[0], b[0]], [a[1], b[1]])
         for line, (a, b) in zip(springs, f["springs"]):
             line.set_data([a[0], b[0]], [a[1], b[1]])
         ground.set_data(f["ground"][:, 0], f["ground"][:, 1])
-        stamp.set_text(f"t = {f['t']:.3f} s")
+        stamp.set_text(f"{time_label} = {f['t']:.3f} s")
         return []
 
     anim = FuncAnimation(fig, draw, frames=len(frame_list), blit=False, repeat=False)
@@ -301,8 +362,82 @@ def animate_result(
     return path, len(frame_list)
 
 
-def animate_file(file: str | Path, path: str | Path, **kwargs) -> tuple[Path, int]:
-    """Read a results file and write its animation (see :func:`animate_result`)."""
+def mode_shape_result(result: Result, k: int, cycles: float = 1.0, frames_per_cycle: int = 40,
+                      amplitude: float = 0.1) -> tuple[Result, str]:
+    """A Result holding mode ``k`` (1-based, as printed by ``--mode linear``) of a linear
+    analysis oscillating about its reference: q(t) = q0 + a Re(dq exp(i w t)), w = Im lambda
+    (a real or neutral mode: q0 + a dq sin(2 pi t / T), T = 1 s or 1/|lambda|), p normalised.
+    ``amplitude``: the largest displacement as a fraction of the mechanism's size (its bodies'
+    spread, at least 0.1 m x amplitude).  Returns (result, a title naming the mode)."""
+    if "linear/eigenvalues" not in result.arrays:
+        raise ValueError("--mode-shape needs a file of `mbsim run --mode linear`")
+    lam = np.asarray(result.arrays["linear/eigenvalues"][0])
+    if not 1 <= k <= lam.size:
+        raise ValueError(f"mode {k} does not exist: the file has modes 1 to {lam.size}")
+    q0 = np.asarray(result.arrays["linear/q0"][0], float)
+    dq = np.asarray(result.arrays["linear/modes/q"][0])[k - 1]
+    nb = q0.size // 7
+    r0 = q0.reshape(nb, 7)[:, :3]
+    size = max(float(np.ptp(r0, axis=0).max()), 0.1)
+    D = dq.reshape(nb, 7)
+    big = max(float(np.abs(D[:, :3]).max()), 0.5 * float(np.abs(D[:, 3:]).max()) * size, 1e-300)
+    a = amplitude * size / big
+    lk = lam[k - 1]
+    oscillating = abs(lk.imag) > 1e-9 * max(1.0, abs(lk))
+    period = 2 * np.pi / abs(lk.imag) if oscillating else (1.0 / abs(lk) if abs(lk) > 1e-6
+                                                             else 1.0)
+    t = np.linspace(0.0, cycles * period, int(cycles * frames_per_cycle) + 1)
+    phase = np.exp(1j * 2 * np.pi * t / period)
+    q = q0[None, :] + a * (np.real(dq[None, :] * phase[:, None]) if oscillating else
+                           np.real(dq)[None, :] * np.imag(phase)[:, None])
+    Q = q.reshape(len(t), nb, 7)
+    Q[:, :, 3:] /= np.linalg.norm(Q[:, :, 3:], axis=2, keepdims=True)
+    Q = _onto_constraints(result, Q)
+    out = Result(mode="linear-mode", t=t)
+    out.deck_text, out.deck_file, out.settings = result.deck_text, result.deck_file, \
+        result.settings
+    for b, name in enumerate(result.names.get("bodies", [])):
+        out.add(f"bodies/{name}/r", Q[:, b, :3], "m")
+        out.add(f"bodies/{name}/p", Q[:, b, 3:])
+    fhz = abs(lk) / (2 * np.pi)
+    zeta = -lk.real / abs(lk) if abs(lk) > 0 else 0.0
+    zeta = 0.0 if abs(zeta) < 1e-9 else zeta
+    lk = complex(0.0 if abs(lk.real) < 1e-9 * max(1.0, abs(lk)) else lk.real, lk.imag)
+    what = (f"f = {fhz:.4g} Hz, zeta = {zeta:.3g}" if abs(lk) > 1e-6 else "neutral")
+    return out, f"mode {k}: lambda = {lk.real:.4g} {'+-'[int(lk.imag < 0)]} {abs(lk.imag):.4g}i " \
+                f"1/s ({what})"
+
+
+def _onto_constraints(result: Result, Q: np.ndarray) -> np.ndarray:
+    """Each frame's q (nt, nb, 7) projected back onto Phi = 0 (Newton, minimum-norm steps),
+    so that a finite amplitude keeps the joints together; as given where that fails."""
+    from mbsim.analyses.assembly import newton
+    from mbsim.deck import load_deck_text
+    from mbsim.errors import MbsimError
+    from mbsim.model import compile_model
+
+    try:
+        spec = load_deck_text(result.deck_text, result.deck_file or "<deck>",
+                              overrides=result.settings.get("overrides") or {},
+                              scene=result.settings.get("scene"))
+        model = compile_model(spec)
+        out = np.array([newton(model, qk.reshape(-1), float(result.settings.get("t") or 0.0),
+                               1e-10, 30)[0] for qk in Q])
+        return out.reshape(Q.shape)
+    except (MbsimError, ValueError, np.linalg.LinAlgError):
+        return Q
+
+
+def animate_file(file: str | Path, path: str | Path, mode_shape: int | None = None,
+                 **kwargs) -> tuple[Path, int]:
+    """Read a results file and write its animation (see :func:`animate_result`); with
+    ``mode_shape`` (a linear analysis' file) that mode oscillating."""
     from mbsim.output import read_result
 
-    return animate_result(read_result(file), path, **kwargs)
+    result = read_result(file)
+    if mode_shape is not None:
+        result, title = mode_shape_result(result, mode_shape)
+        sketch = kwargs.get("sketch") or sketch_from_result(result)
+        kwargs.setdefault("title", f"{Path(result.deck_file).stem}\n{title}")
+        kwargs["sketch"] = sketch
+    return animate_result(result, path, **kwargs)

@@ -7,11 +7,14 @@ signature ``analysis(model, options: dict) -> Result``.
 from __future__ import annotations
 
 import importlib
+import logging
 import time
 from pathlib import Path
 
 from mbsim.errors import MbsimError, UsageError
 from mbsim.result import STATUS_INCOMPLETE, Result
+
+log = logging.getLogger(__name__)  # "mbsim.api": shown with -v
 
 ANALYSES: dict[str, tuple[str, str, str]] = {
     "kinematic": ("mbsim.analyses.kinematic", "kinematic",
@@ -43,15 +46,64 @@ def analysis_function(mode: str):
     return getattr(importlib.import_module(mod), fn)
 
 
+def analysis_defaults(mode: str) -> dict:
+    """The ``DEFAULTS`` of a mode's analysis module (t_start, t_end, step, tolerances)."""
+    if mode not in ANALYSES:
+        return {}
+    return dict(getattr(importlib.import_module(ANALYSES[mode][0]), "DEFAULTS", {}))
+
+
 def run_model(model, mode: str, options: dict | None = None) -> Result:
     """Run one analysis. An MbsimError during the run becomes an incomplete Result only if the
-    analysis itself did not already return one (analyses keep partial data themselves)."""
+    analysis itself did not already return one (analyses keep partial data themselves).
+
+    Settings are checked first (tolerances in (0, 1), steps > 0, the number of output times:
+    mbsim.deck.limits), so a sweep or study case with ``step: 0`` is a UsageError too."""
+    from mbsim.deck.limits import setting_problems
+
     fn = analysis_function(mode)
+    for key, message in setting_problems(dict(options or {}), analysis_defaults(mode)):
+        raise UsageError(f"analysis setting {key}: {message}")
     t0 = time.perf_counter()
-    result = fn(model, dict(options or {}))
+    log.info("%s analysis of %s: %d bodies, %d constraint equations", mode,
+             getattr(model, "title", "") or "the model", model.nb, model.m)
+    try:
+        result = fn(model, dict(options or {}))
+    except (ValueError, FloatingPointError, ArithmeticError) as exc:
+        _overflow(mode, exc)
+    _apply_only(model, result)
     if not result.wall_time:
         result.wall_time = time.perf_counter() - t0
+    log.info("%s: %s in %.3g s; %s", mode, result.status, result.wall_time,
+             ", ".join(f"{k} {v}" for k, v in result.counters.items()) or "no counters")
     return result
+
+
+def _overflow(mode: str, exc: Exception) -> None:
+    """Safety net for overflow an analysis does not guard itself (equations.py guards the KKT
+    solve): LAPACK's "array must not contain infs or NaNs", "SVD did not converge" become an
+    AnalysisError (exit 1).  Anything else is a bug and keeps its traceback."""
+    import numpy as np
+
+    from mbsim.errors import AnalysisError
+
+    text = " ".join(str(exc).split())
+    if not (isinstance(exc, (np.linalg.LinAlgError, FloatingPointError, OverflowError))
+            or "inf" in text or "NaN" in text):  # fmt: skip
+        raise exc
+    raise AnalysisError(f"{mode} analysis: the numbers overflowed ({text}); check the deck's "
+                        "magnitudes (values such as 1e308)") from None
+
+
+def _apply_only(model, result) -> None:
+    """Drop the channels the deck's ``outputs: only:`` does not select (the recorder already
+    skipped computing most of them; monitors and multipliers are added by the analyses)."""
+    from mbsim.measures import only_patterns, selected
+
+    patterns = only_patterns(getattr(model, "spec", None))
+    if patterns is not None:
+        for path in [p for p in result.channels if not selected(p, patterns)]:
+            del result.channels[path]
 
 
 def output_path(template: str | None, deck: str | Path, mode: str, parameters: dict,

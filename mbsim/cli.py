@@ -16,19 +16,43 @@ import click
 import numpy as np
 
 from mbsim import __version__
-from mbsim.errors import DeckError, MbsimError, UsageError
+from mbsim.errors import DeckError, MbsimError, UsageError, Where
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+MAX_MESSAGE = 600  # characters of an error line (user text inside is quoted at most ~80)
+
+
+def _one_line(msg: str) -> str:
+    msg = " ".join(str(msg).split())
+    return msg if len(msg) <= MAX_MESSAGE else f"{msg[:MAX_MESSAGE]} ... (message cut)"
 
 
 def _fail(exc: Exception, deck: str | None = None) -> None:
     """One line on stderr, then the exit code of the error's class (2 input, 1 analysis)."""
     code = getattr(exc, "exit_code", EXIT_FAILED)
     msg = str(exc).replace("\n", " ")
+    if deck:
+        msg = msg.replace("<deck>", str(deck))  # errors raised past the loader (--integrator)
     if deck and not isinstance(exc, DeckError) and not msg.startswith(str(deck)):
         msg = f"{deck}: {msg}"  # model/analysis errors name the deck too
-    click.echo(f"error: {msg}", err=True)
+    click.echo(f"error: {_one_line(msg)}", err=True)
     sys.exit(code)
+
+
+def _check_settings(deck, mode: str, spec, opts: dict, names: dict[str, str]) -> None:
+    """Tolerances, steps and the number of output times, before the analysis allocates:
+    a problem names the option when it came from the command line (``names``: setting ->
+    option), else the deck key (exit 2)."""
+    from mbsim.api import analysis_defaults
+    from mbsim.deck.limits import setting_problems
+
+    given = {**spec.analysis.get(mode, {}), **opts}
+    for key, message in setting_problems(given, analysis_defaults(mode)):
+        where = names[key] if key in opts and key in names else f"analysis.{mode}.{key}"
+        _fail(UsageError(f"{where}: {message}") if key in opts else
+              DeckError(message, Where(str(deck), f"analysis.{mode}.{key}")), deck)
 
 
 def _warn(lines) -> None:
@@ -54,9 +78,109 @@ def _load(deck, sets=(), scene=None):
     return spec, model
 
 
+class _ErrorsOnly:
+    """stderr under -q: only the ``error:`` lines get through (warnings and logs do not)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text):
+        if text.startswith("error:"):
+            return self._stream.write(text)
+        return len(text)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+class _EchoHandler(logging.Handler):
+    """Log records to the current sys.stderr (click's test runner swaps it per call)."""
+
+    def emit(self, record):
+        try:
+            click.echo(self.format(record), err=True)
+        except Exception:  # noqa: BLE001 - logging must never break a run
+            self.handleError(record)
+
+
+_HANDLER = _EchoHandler()
+_HANDLER.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+VERBOSE = ("-v", "-vv", "-vvv", "--verbose")
+_NO_ARGS = getattr(click.exceptions, "NoArgsIsHelpError", ())  # click >= 8.2
+
+
+def setup_logging(verbose: int, quiet: bool = False) -> None:
+    """mbsim's own loggers ("mbsim", "mbsim.*") at INFO with -v, DEBUG with -vv, ERROR with
+    -q; everything else (h5py, matplotlib) stays at WARNING."""
+    level = logging.ERROR if quiet else logging.WARNING - 10 * min(verbose, 2)
+    root = logging.getLogger()
+    if _HANDLER not in root.handlers:
+        root.addHandler(_HANDLER)
+    root.setLevel(logging.WARNING if not quiet else logging.ERROR)
+    _HANDLER.setLevel(level)
+    logging.getLogger("mbsim").setLevel(level)
+    logging.getLogger("py.warnings").setLevel(logging.DEBUG if verbose >= 2 else logging.ERROR)
+
+
 class LazyGroup(click.Group):
     """Commands contributed by other modules, imported only when listed or invoked (keeps
-    `mbsim --help` fast and avoids import cycles: those modules import helpers from here)."""
+    `mbsim --help` fast and avoids import cycles: those modules import helpers from here).
+
+    Also the one place that turns click's own usage errors into one ``error:`` line with exit
+    2, and that reads ``-v``/``-vv``/``-q`` wherever they stand on the command line (before
+    or after the subcommand; a subcommand with its own ``-q`` keeps it)."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True,
+             **extra):  # fmt: skip
+        args = list(sys.argv[1:] if args is None else args)
+        verbose, quiet, rest = 0, False, []
+        cut = args.index("--") if "--" in args else len(args)
+        cmd = next((a for a in args[:cut] if not a.startswith("-")), None)
+        own_q = cmd in ("run", "sweep", "study")
+        for i, a in enumerate(args):
+            if i < cut and a in VERBOSE:
+                verbose += 2 if a == "-vv" else 3 if a == "-vvv" else 1
+            elif i < cut and a in ("-q", "--quiet"):
+                quiet = True
+            else:
+                rest.append(a)
+        if quiet and own_q:  # the subcommand's own -q decides what it prints
+            rest.insert(rest.index(cmd) + 1, "-q")
+        setup_logging(verbose, quiet)
+        if not standalone_mode:
+            return super().main(rest, prog_name, complete_var, False, **extra)
+        old_out, old_err = sys.stdout, sys.stderr
+        if quiet:
+            sys.stderr = _ErrorsOnly(sys.stderr)
+            if not own_q:
+                sys.stdout = _ErrorsOnly(sys.stdout)
+        # numpy's floating-point warnings are off and other warnings are log records (shown
+        # with -vv): overflow and NaN are reported as errors where they matter, never as
+        # stray lines; both are restored afterwards (the CLI also runs in-process in tests).
+        errstate = np.errstate(all="ignore")
+        errstate.__enter__()
+        logging.captureWarnings(True)
+        try:
+            rv = super().main(rest, prog_name, complete_var, False, **extra)
+        except _NO_ARGS as exc:  # `mbsim` alone: the help, as click prints it
+            click.echo(exc.ctx.get_help())
+            sys.exit(EXIT_USAGE)
+        except click.exceptions.UsageError as exc:  # also BadParameter, NoSuchOption
+            path = exc.ctx.command_path if exc.ctx is not None else "mbsim"
+            click.echo(f"error: {path}: {_one_line(exc.format_message())} "
+                       f"(see '{path} --help')", err=True)  # fmt: skip
+            sys.exit(EXIT_USAGE)
+        except click.exceptions.Abort:  # Ctrl-C outside an analysis, or EOF at a prompt
+            click.echo("error: interrupted", err=True)
+            sys.exit(EXIT_FAILED)
+        except click.exceptions.ClickException as exc:  # file errors and the like
+            click.echo(f"error: {_one_line(exc.format_message())}", err=True)
+            sys.exit(exc.exit_code)
+        finally:
+            sys.stdout, sys.stderr = old_out, old_err
+            logging.captureWarnings(False)
+            errstate.__exit__(None, None, None)
+        sys.exit(rv if isinstance(rv, int) else EXIT_OK)
 
     LAZY = {
         "bench": ("mbsim.cli_dynamic", "bench_command"),
@@ -86,15 +210,19 @@ class LazyGroup(click.Group):
         return cmd
 
 
-@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group("mbsim", cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="mbsim")
-@click.option("-v", "--verbose", count=True, help="Log progress (-vv for debug).")
-def main(verbose: int) -> None:
+@click.option("-v", "--verbose", count=True,
+              help="Log mbsim's progress (-vv for debug); also after the command.")
+@click.option("-q", "--quiet", is_flag=True, help="Print nothing but the error line.")
+def main(verbose: int, quiet: bool) -> None:
     """mbsim: spatial multibody kinematics and dynamics (Haug 1989) from YAML decks."""
     if hasattr(signal, "SIGPIPE"):  # `mbsim info deck | head` ends quietly, as cat does
         signal.signal(signal.SIGPIPE, signal.SIG_DFL)
-    level = logging.WARNING - 10 * min(verbose, 2)
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    # -v/-q were read by LazyGroup.main (they may also follow the subcommand)
+    import mbsim.fast  # light: the C kernels load on first use
+
+    mbsim.fast.on_compile = lambda line: click.echo(line, err=True)  # one line, first run only
 
 
 MODES = ["kinematic", "equilibrium", "inverse", "dynamic", "linear"]
@@ -113,33 +241,44 @@ MODES = ["kinematic", "equilibrium", "inverse", "dynamic", "linear"]
 @click.option("--integrator", help="Integrator name (dynamic mode); see `mbsim list integrators`.")
 @click.option("--rtol", type=float, help="Relative tolerance (dynamic mode).")
 @click.option("--atol", type=float, help="Absolute tolerance (dynamic mode).")
+@click.option("--accuracy", type=float, metavar="TOL",
+              help="Dynamic mode: the position error wanted (m; orientation, rad): mbsim "
+                   "chooses the tolerance, checks its error estimate, refines once.")
+@click.option("--error-estimate/--no-error-estimate", "error_estimate", default=None,
+              help="Dynamic mode: estimate the global error by a companion run (default on).")
 @click.option("--method", help="Equilibrium method: minimum | settle | steady.")
 @click.option("--plot", "make_plot", is_flag=True, help="Also write a PNG of the main outputs.")
 @click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
 @click.option("--progress/--no-progress", default=None,
               help="Progress line on stderr (default: when stderr is a terminal and not -q).")
-def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, method, make_plot,
-        quiet, progress):
+def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, accuracy,
+        error_estimate, method, make_plot, quiet, progress):
     """Run an analysis of DECK and write the results to HDF5.
 
     Example: mbsim run models/governor.yaml --mode dynamic --t-end 2 -o gov.h5
     """
     from mbsim.api import output_path, run_model
     from mbsim.output import write_result
+    from mbsim.output.hdf5 import prepare_output
     from mbsim.progress import terminal_progress
 
     try:
         spec, model = _load(deck, sets, scene)
         out = output_path(output, deck, mode, spec.parameters, scene)
         opts = {"t_end": t_end, "step": step, "integrator": integrator, "rtol": rtol,
-                "atol": atol, "method": method}
+                "atol": atol, "accuracy": accuracy, "error_estimate": error_estimate,
+                "method": method}
         opts = {k: v for k, v in opts.items() if v is not None}
+        _check_settings(deck, mode, spec, opts, {"t_end": "--t-end", "step": "--step",
+                        "rtol": "--rtol", "atol": "--atol", "accuracy": "--accuracy"})
+        prepare_output(out)  # before the analysis: a bad -o costs nothing
         prog = terminal_progress(sys.stderr, False if quiet and progress is None else progress,
                                  label=mode)
         if prog is not None:
             opts["progress"] = prog  # progress(t, t_end) per output step (mbsim.progress)
         try:
-            result = run_model(model, mode, opts)
+            with _sigterm_as_interrupt():
+                result = run_model(model, mode, opts)
         finally:
             if prog is not None:
                 prog.close()
@@ -151,14 +290,37 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, me
     except MbsimError as exc:
         _fail(exc, deck)
     if make_plot:
-        _default_plot(result, out.with_suffix(".png"))
+        _default_plot(result, out.with_suffix(".png"), quiet)
     if not quiet:
         _summary(result, out)
     if not result.complete:
-        click.echo(f"error: {deck}: {result.message} (results up to t = "
+        click.echo(_one_line(f"error: {deck}: {result.message} (results up to t = "
                    f"{result.t[-1] if len(result.t) else float('nan'):.6g} s kept in {out}, "
-                   "marked incomplete)", err=True)
+                   "marked incomplete)"), err=True)  # fmt: skip
         sys.exit(EXIT_FAILED)
+
+
+class _sigterm_as_interrupt:  # noqa: N801 - used as a statement: `with _sigterm_as_interrupt():`
+    """SIGTERM (kill, a CI timeout) during an analysis ends it as Ctrl-C does: the analyses
+    catch KeyboardInterrupt and return the outputs reached, marked incomplete, which are
+    then written.  Only in the main thread (signal handlers cannot be set elsewhere)."""
+
+    def __enter__(self):
+        import threading
+
+        self.old = None
+        if threading.current_thread() is threading.main_thread():
+            self.old = signal.signal(signal.SIGTERM, self._raise)
+        return self
+
+    @staticmethod
+    def _raise(signum, frame):
+        raise KeyboardInterrupt
+
+    def __exit__(self, *exc):
+        if self.old is not None:
+            signal.signal(signal.SIGTERM, self.old)
+        return False
 
 
 def _describe_estimate(key, v) -> str:
@@ -180,6 +342,9 @@ def _summary(result, out) -> None:
     nt = len(result.t)
     span = f"t = {result.t[0]:.6g} .. {result.t[-1]:.6g} s, {nt} outputs" if nt else "no outputs"
     click.echo(f"{result.mode}: {result.status}; {span}; wall {result.wall_time:.3g} s -> {out}")
+    if result.mode == "linear":
+        _linear_table(result)
+        return
     for k, v in result.summary.items():
         if k in ("error_estimate", "accuracy") and isinstance(v, dict):
             click.echo(f"  {k}: {_describe_estimate(k, v)}")
@@ -193,8 +358,42 @@ def _summary(result, out) -> None:
         click.echo("  " + ", ".join(f"{k} {v}" for k, v in result.counters.items()))
 
 
-def _default_plot(result, path: Path) -> None:
+def _linear_table(result) -> None:
+    """The linear analysis: verdict, neutral modes and one line per eigenvalue (units in
+    the header; conjugate pairs shown once)."""
+    s = result.summary
+    click.echo(f"  about: {s['about']}; {s['dof']} independent coordinates")
+    click.echo(f"  stability: {s['stability']} (stable: {s['stable']})")
+    for name in s.get("neutral_modes", []):
+        click.echo(f"  neutral: {name}")
+    lam = result.arrays["linear/eigenvalues"][0]
+    neutral = result.arrays["linear/neutral"][0]
+    zeta = result.arrays["linear/damping_ratio"][0]
+    click.echo("  mode  Re(lambda) 1/s  Im(lambda) rad/s  f_n Hz      omega_n rad/s  zeta")
+    for k, lk in enumerate(lam):
+        if lk.imag < 0 and not neutral[k]:
+            continue  # the conjugate of the line above
+        note = "  neutral" if neutral[k] else ("  growing" if lk.real > 0 and
+                                              s["stability"] == "unstable" else "")
+        wn = 0.0 if neutral[k] else abs(lk)
+        click.echo(f"  {k + 1:4d}  {lk.real:14.6g}  {abs(lk.imag):16.6g}  {wn / 2 / np.pi:10.6g}"
+                   f"  {wn:13.6g}  {(zeta[k] if abs(zeta[k]) > 1e-9 else 0.0):6.4g}{note}")
+    extra = {k: s[k] for k in ("residual", "fd_check", "jacobian") if k in s}
+    click.echo("  " + "; ".join(f"{k}: {v:.3g}" if isinstance(v, float) else f"{k}: {v}"
+                                for k, v in extra.items()))
+
+
+def _default_plot(result, path: Path, quiet: bool = False) -> None:
     from mbsim.output import plot_channels, save_figure
+
+    if result.mode == "linear":  # the eigenvalues in the complex plane
+        from mbsim.output.locus import eigenvalue_plot
+
+        save_figure(eigenvalue_plot(result, f"linear: {Path(result.deck_file).name}, "
+                                            f"{result.summary.get('stability')}"), path)
+        if not quiet:
+            click.echo(f"  plot -> {path}")
+        return
 
     names = [n for n in result.channels if n.startswith(("drivers/", "points/"))
              and n.endswith(("torque", "force", "position"))]
@@ -205,7 +404,8 @@ def _default_plot(result, path: Path) -> None:
         return
     fig = plot_channels(result, names[:6], title=f"{result.mode}: {Path(result.deck_file).name}")
     save_figure(fig, path)
-    click.echo(f"  plot -> {path}")
+    if not quiet:
+        click.echo(f"  plot -> {path}")
 
 
 @main.command()
@@ -274,15 +474,25 @@ def check(deck, sets, scene, worst):
     try:
         spec, model = _load(deck, sets, scene)
         ph0 = eq.phi(model, model.q0)
-        asm = assemble(model)
     except MbsimError as exc:
+        _fail(exc, deck)
+
+    def estimates():
+        click.echo(f"deck estimates: max |Phi| = {np.abs(ph0).max(initial=0):.3e}")
+        for r in np.argsort(-np.abs(ph0))[:worst]:
+            if abs(ph0[r]) > 0:
+                click.echo(f"    {model.row_label[r]:<40} {ph0[r]: .3e}")
+
+    try:
+        asm = assemble(model)
+    except MbsimError as exc:  # the residuals at the estimates say where to look
+        click.echo(f"{deck}: {model.nb} bodies, {model.m} constraint equations; "
+                   "assembly failed")
+        estimates()
         _fail(exc, deck)
     ph = eq.phi(model, asm.q)
     click.echo(f"{deck}: {model.nb} bodies, {model.m} constraint equations, DOF {asm.dof}")
-    click.echo(f"deck estimates: max |Phi| = {np.abs(ph0).max(initial=0):.3e}")
-    for r in np.argsort(-np.abs(ph0))[:worst]:
-        if abs(ph0[r]) > 0:
-            click.echo(f"    {model.row_label[r]:<40} {ph0[r]: .3e}")
+    estimates()
     click.echo(f"assembled in {asm.iterations} Newton iterations: max |Phi| = "
                f"{np.abs(ph).max(initial=0):.3e}")
     for r in np.argsort(-np.abs(ph))[:worst]:
@@ -304,7 +514,11 @@ def check(deck, sets, scene, worst):
 @click.option("--label", "labels", multiple=True, help="Curve label per file (with several files).")
 @click.option("--title", help="Figure title.")
 @click.option("--list", "list_only", is_flag=True, help="List the channels of the file(s).")
-def plot(args, ys, x, output, labels, title, list_only):
+@click.option("--units", "units", multiple=True, metavar="UNIT[,UNIT...]",
+              help="Display units, e.g. deg,mm,rpm: a curve of that dimension is shown in it "
+              "(the file keeps SI).")
+@click.option("--data", "data_file", help="Also write the plotted data (display units) as CSV.")
+def plot(args, ys, x, output, labels, title, list_only, units, data_file):
     """Plot stored channels of results file(s) against time or another channel.
 
     Arguments that are existing files are results files; the others are channel names.
@@ -313,6 +527,8 @@ def plot(args, ys, x, output, labels, title, list_only):
     """
     from mbsim.output import list_channels, plot_channels, plot_results, read_result, save_figure
 
+    from mbsim.output.hdf5 import result_file_problem
+
     files = [a for a in args if Path(a).is_file()]
     missing = [a for a in args if not Path(a).is_file() and Path(a).suffix in (".h5", ".hdf5")]
     if missing:
@@ -320,6 +536,19 @@ def plot(args, ys, x, output, labels, title, list_only):
     if not files:
         _fail(UsageError(f"no results file among {', '.join(args)}"))
     ys = tuple(ys) + tuple(a for a in args if a not in files)
+    # `mbsim plot DIR/*.h5` after a sweep also names DIR/index.h5: skip it (and any other
+    # file that is not a results file) by name; refuse when nothing is left.
+    problems = {f: result_file_problem(f) for f in files}
+    if len(files) > 1:
+        for f, why in problems.items():
+            if why:
+                _warn([f"skipping {f}: {why}"])
+        if labels and len(labels) == len(files):
+            labels = tuple(lab for lab, f in zip(labels, files) if not problems[f])
+        files = [f for f in files if not problems[f]] or files
+    bad = [f for f in files if problems[f]]
+    if bad:
+        _fail(UsageError(f"{bad[0]}: {problems[bad[0]]}"))
     try:
         if list_only:
             for f in files:
@@ -329,18 +558,38 @@ def plot(args, ys, x, output, labels, title, list_only):
             return
         if not ys:
             raise click.UsageError("name at least one channel with -y (see --list)")
+        from mbsim.output.plots import case_label, export_plot_data
+
+        shown = [u.strip() for item in units for u in item.split(",") if u.strip()] or None
         results = [read_result(f) for f in files]
         if len(results) == 1:
-            fig = plot_channels(results[0], list(ys), x=x, title=title)
+            fig = plot_channels(results[0], list(ys), x=x, title=title, units=shown)
         else:
-            labs = list(labels) or [Path(f).stem for f in files]
-            fig = plot_results(list(zip(labs, results)), ys[0], x=x, title=title)
+            labs = list(labels) or [case_label(r, Path(f).stem) for f, r in zip(files, results)]
+            fig = plot_results(list(zip(labs, results)), ys[0], x=x, title=title, units=shown)
         save_figure(fig, output)
-    except KeyError as exc:
-        _fail(UsageError(str(exc).strip("'\"")))
+        if data_file:
+            export_plot_data(fig, data_file)
+            click.echo(f"data -> {data_file}")
+    except (KeyError, IndexError) as exc:
+        _fail(UsageError(_key_message(exc)))
     except (MbsimError, ValueError, OSError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else UsageError(str(exc)))
     click.echo(f"plot -> {output}")
+
+
+def _key_message(exc: Exception) -> str:
+    """A KeyError's own text (str() of a KeyError is its repr, quotes and all)."""
+    return str(exc.args[0]) if exc.args else str(exc)
+
+
+def _results_file(path: str) -> None:
+    """Refuse a file that is not a results file, by name (exit 2)."""
+    from mbsim.output.hdf5 import result_file_problem
+
+    why = result_file_problem(path)
+    if why:
+        _fail(UsageError(f"{path}: {why}"))
 
 
 @main.command("list")
@@ -403,12 +652,14 @@ def compare(a, b, rtol, atol, channels, worst):
     """
     from mbsim.output import compare_results, read_result
 
+    _results_file(a)
+    _results_file(b)
     try:
         ra, rb = read_result(a), read_result(b)
         chans = [c.strip().replace(".", "/") for c in channels.split(",")] if channels else None
         ok, diffs, problems = compare_results(ra, rb, rtol=rtol, atol=atol, channels=chans)
     except (MbsimError, KeyError, ValueError, OSError) as exc:
-        _fail(exc if isinstance(exc, MbsimError) else UsageError(str(exc).strip("'\"")))
+        _fail(exc if isinstance(exc, MbsimError) else UsageError(_key_message(exc)))
     for p in problems:
         click.echo(f"problem: {p}")
     bad = [d for d in diffs if d.failed]
@@ -435,12 +686,13 @@ def export(file, csv_path, channels):
     """
     from mbsim.output import export_csv, read_result
 
+    _results_file(file)
     try:
         res = read_result(file)
         chans = [c.strip() for c in channels.split(",")] if channels else None
         paths = export_csv(res, csv_path or str(Path(file).with_suffix(".csv")), channels=chans)
-    except (MbsimError, KeyError, ValueError, OSError) as exc:
-        _fail(exc if isinstance(exc, MbsimError) else UsageError(str(exc).strip("'\"")))
+    except (MbsimError, KeyError, IndexError, ValueError, OSError) as exc:
+        _fail(exc if isinstance(exc, MbsimError) else UsageError(_key_message(exc)))
     for p in paths:
         click.echo(f"csv -> {p}")
 

@@ -128,7 +128,10 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
 @click.option(
     "--size", type=float, default=5.0, show_default=True, help="Frame size, inches (square)."
 )
-def animate_command(file, output, fps, view, every, dpi, size):
+@click.option("--mode-shape", "mode_shape", type=int, default=None,
+              help="File of --mode linear: draw mode K (as numbered in its table) oscillating.")
+@click.option("--labels", "labels", is_flag=True, help="Write body names at their centroids.")
+def animate_command(file, output, fps, view, every, dpi, size, mode_shape, labels):
     """Draw the mechanism of a results FILE moving: bodies as lines between their joint
     points, massless links dashed, springs dotted, ground points fixed, a time stamp.
 
@@ -140,7 +143,8 @@ def animate_command(file, output, fps, view, every, dpi, size):
     if every < 1 or fps <= 0:
         _fail(UsageError("--every must be >= 1 and --fps > 0"))
     try:
-        path, nframes = animate_file(file, out, fps=fps, view=view, every=every, dpi=dpi, size=size)
+        path, nframes = animate_file(file, out, fps=fps, view=view, every=every, dpi=dpi,
+                                     size=size, mode_shape=mode_shape, labels=labels)
     except (MbsimError, KeyError, ValueError, OSError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else UsageError(str(exc).strip("'\"")))
     click.echo(f"animation: {nframes} frames at {fps:g} fps -> {path}")

@@ -54,12 +54,17 @@ def _echo(line: str, err: bool = False) -> None:
 @click.option("--integrator", help="Integrator name (dynamic mode).")
 @click.option("--rtol", type=float, help="Relative tolerance (dynamic mode).")
 @click.option("--atol", type=float, help="Absolute tolerance (dynamic mode).")
+@click.option("--accuracy", type=float, metavar="TOL",
+              help="Dynamic mode: the position error wanted (m; orientation, rad): mbsim "
+                   "chooses the tolerance, checks its error estimate, refines once.")
+@click.option("--error-estimate/--no-error-estimate", "error_estimate", default=None,
+              help="Dynamic mode: estimate the global error by a companion run (default on).")
 @click.option("--method", help="Equilibrium method: minimum | settle | steady.")
 @click.option("--scheduler", metavar="ADDRESS",
               help="Run on a Dask cluster, e.g. tcp://host:8786 (pip install 'mbsim[cluster]').")
 @click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
 def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scene, t_end, step,
-                  integrator, rtol, atol, method, scheduler, quiet):
+                  integrator, rtol, atol, accuracy, error_estimate, method, scheduler, quiet):
     """Run DECK once per combination of --param values, in parallel; one HDF5 file per case
     and an index (index.csv, index.h5) in the output folder. Re-running the same command
     runs only the cases that are missing, failed or incomplete.
@@ -87,7 +92,8 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
     )
 
     options = {"t_end": t_end, "step": step, "integrator": integrator, "rtol": rtol,
-               "atol": atol, "method": method}
+               "atol": atol, "accuracy": accuracy, "error_estimate": error_estimate,
+               "method": method}
     try:
         plan = plan_sweep(
             deck, mode, [parse_param(p) for p in params],
@@ -98,6 +104,9 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
         _fail(exc, deck)
     ncases = len(plan.cases)
     done = 0
+    from mbsim.output.hdf5 import remove_stale_temporaries
+
+    remove_stale_temporaries(plan.out_dir)  # .X.h5.tmp-PID of a sweep killed (kill -9) mid-write
 
     def on_case(rec) -> None:
         nonlocal done
@@ -130,6 +139,17 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
         listed = ", ".join(f"{n} {s}" for s, n in counts.items() if n)
         _echo(f"sweep: {listed} ({skipped} kept from an earlier run) -> "
               f"{outcome.index_csv}, {outcome.index_h5.name}")
+    if mode == "linear":  # a root locus over the last --param, threshold by interpolation
+        from mbsim.output.locus import sweep_root_locus
+
+        path, found = sweep_root_locus(plan.out_dir, outcome.records,
+                                       [parse_param(p).label for p in params])
+        if path is not None and not quiet:
+            _echo(f"root locus -> {path}")
+            for c in found:
+                grp = f" ({c.group})" if c.group else ""
+                _echo(f"  stability threshold{grp}: {c.value:.6g} ({c.direction}; between "
+                      f"{c.low:g} and {c.high:g}, linear interpolation of max Re(lambda))")
     _warn([e + " (value left empty)" for e in outcome.summary_errors])
     if outcome.summary_errors:
         sys.exit(EXIT_USAGE)

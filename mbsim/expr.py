@@ -275,8 +275,8 @@ FUNCTIONS: dict[str, Function] = {f.name: f for f in (Function(*row) for row in 
       "step(x, x0, 0, x1, 1)"),
      "ADAMS cubic step: h0 for x <= x0, h1 for x >= x1, smooth s**2 (3 - 2 s) between"),
     ("heaviside(u)", lambda x: np.heaviside(x, 1.0), ("0",), "0 for u < 0, 1 for u >= 0"),
-    ("rad2deg(u)", _vec(math.degrees, np.degrees), ("180/pi",), "an angle u in radians, in degrees"),
-    ("deg2rad(u)", _vec(math.radians, np.radians), ("pi/180",), "an angle u in degrees, in radians"),
+    ("rad2deg(u)", _vec(math.degrees, np.degrees), ("180/pi",), "angle u (rad) in degrees"),
+    ("deg2rad(u)", _vec(math.radians, np.radians), ("pi/180",), "angle u (degrees) in rad"),
 ])}  # fmt: skip
 
 # ---- compilation to closures, printing ---------------------------------------------------------

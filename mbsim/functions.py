@@ -6,7 +6,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy.interpolate import CubicSpline, PchipInterpolator
 
 from mbsim.deck.spec import FunctionSpec
 
@@ -85,6 +84,9 @@ def table(t, value, interpolation: str = "cubic") -> TimeFunction:
         def d2(x):
             return 0.0 * np.asarray(x, dtype=float)
     else:
+        # imported here: scipy.interpolate costs ~0.2 s CPU to import, and only tables need it
+        from scipy.interpolate import CubicSpline, PchipInterpolator
+
         spl = CubicSpline(t, v) if interpolation == "cubic" else PchipInterpolator(t, v)
         s1, s2 = spl.derivative(1), spl.derivative(2)
 

@@ -183,9 +183,11 @@ class StudyOutcome:
 def open_deck(deck: str | Path | ParsedDeck) -> ParsedDeck:
     """``deck`` (a file name) read and composed once, as a
     :class:`~mbsim.deck.loader.ParsedDeck`; a ParsedDeck is returned as it is."""
-    from mbsim.deck.loader import ParsedDeck, parse_deck
+    from mbsim.deck.loader import ParsedDeck, parse_deck, remember_deck
 
-    return deck if isinstance(deck, ParsedDeck) else parse_deck(deck)
+    if isinstance(deck, ParsedDeck):
+        return deck
+    return remember_deck(parse_deck(deck))  # study_columns finds it again by the text
 
 
 def load_studies(deck: str | Path | ParsedDeck):
@@ -231,7 +233,8 @@ def overrides_of(case: dict) -> dict[str, str]:
     return {path: json.dumps(value) for path, value in case["set"].items()}
 
 
-def case_model(deck: str | Path | ParsedDeck, case: dict, overrides: dict[str, str] | None = None):
+def case_model(deck: str | Path | ParsedDeck, case: dict,
+               overrides: dict[str, str] | None = None):  # fmt: skip
     """(spec, model) of a study case: the case's scene, then its ``set`` (or `overrides`),
     applied to the parsed deck (:meth:`~mbsim.deck.loader.ParsedDeck.spec`, without
     validating the ``studies:`` section again), compiled."""
@@ -242,7 +245,8 @@ def case_model(deck: str | Path | ParsedDeck, case: dict, overrides: dict[str, s
     return spec, compile_model(spec)
 
 
-def run_case(deck: str | Path | ParsedDeck, study: str, case: dict, path: str | Path) -> CaseOutcome:
+def run_case(deck: str | Path | ParsedDeck, study: str, case: dict,
+             path: str | Path) -> CaseOutcome:  # fmt: skip
     """Apply the case's scene and overrides to the deck (a file name or a ParsedDeck), run
     its analysis, write `path`.
 
@@ -402,12 +406,12 @@ def study_columns(result: Result, selector: str):
             return [Column(selector, data, a.unit, selector, "")]
     parts = selector.split(".")
     if len(parts) == 3 and parts[0] == "drivers" and parts[2] == "function":
-        from mbsim.deck import load_deck_text
+        from mbsim.deck.loader import parse_deck_cached
         from mbsim.functions import from_spec
 
-        spec = load_deck_text(result.deck_text, result.deck_file or "<deck>",
-                              overrides=result.settings.get("overrides") or {},
-                              scene=result.settings.get("scene"))  # fmt: skip
+        deck = parse_deck_cached(result.deck_text, result.deck_file or "<deck>")  # once
+        spec = deck.spec(result.settings.get("scene"), result.settings.get("overrides") or {},
+                         studies=False)  # fmt: skip
         if parts[1] not in spec.drivers:
             raise KeyError(f"no driver {parts[1]!r} (drivers: {', '.join(spec.drivers)})")
         from mbsim.constraints import DRIVERS

@@ -21,7 +21,10 @@ Running
     Every case runs :func:`run_case` on an executor, a :class:`concurrent.futures.Executor`:
     a local process pool or a Dask cluster's executor, one code path. A worker gets the deck
     *text* and returns the :class:`~mbsim.result.Result`, so workers need mbsim but neither
-    the deck file nor the output folder; this process writes every file (atomically,
+    the deck file nor the output folder. A worker parses the text once
+    (:func:`mbsim.deck.loader.parse_deck_cached`; forked workers inherit the deck parsed
+    here) and each case applies its values to that tree copy-on-write, then validates and
+    compiles it. This process writes every file (atomically,
     :func:`~mbsim.output.write_result`) and the index. An exception in a case (a bad value,
     an analysis that raises) makes that case ``failed`` with the message; the others go on.
     An analysis that stops part-way gives an ``incomplete`` file, as ``mbsim run`` does.
@@ -335,16 +338,13 @@ class Sweep:
         return {**self.overrides, **case.overrides}
 
 
-def _check_paths(text: str, file: str, scene: str | None, params: Sequence[Param]) -> None:
-    """Every --param key path must exist in the deck (or be a key the format allows there)."""
+def _check_paths(deck, scene: str | None, params: Sequence[Param]) -> None:
+    """Every --param key path must exist in the deck (a ParsedDeck) with the scene applied
+    (or be a key the format allows there)."""
     from mbsim.deck.schema import can_add
-    from mbsim.deck.tree import Node, PathError, apply_scene, compose, set_path
+    from mbsim.deck.tree import Node, PathError, set_path
 
-    root = compose(text, file)
-    if root is None or root.kind != "map":
-        return  # load_deck has already said what is wrong
-    if scene is not None:
-        apply_scene(root, scene, file)
+    root, file = deck.variant(scene), deck.file  # a copy-on-write view: deck stays as parsed
     for p in params:
         try:
             set_path(root, p.path, Node("scalar", 0, None, "0"), can_add)
@@ -359,8 +359,9 @@ def plan_sweep(deck: str | Path, mode: str, params: Sequence[Param], out_dir: st
                summaries: Sequence[Summary] = ()) -> Sweep:  # fmt: skip
     """Check the sweep before anything runs and list its cases.
 
-    The deck is loaded once with the ``--set`` overrides and the scene (a DeckError here is
-    a usage error of the whole sweep), the mode must be available, every ``--param`` path
+    The deck is read once (and remembered for the workers, which fork from here or parse
+    it once each) and validated with the ``--set`` overrides and the scene (a DeckError here
+    is a usage error of the whole sweep), the mode must be available, every ``--param`` path
     must exist in the deck and a path may not be both ``--set`` and ``--param``. Values are
     not checked here: a bad value fails its own case only.
 
@@ -370,7 +371,7 @@ def plan_sweep(deck: str | Path, mode: str, params: Sequence[Param], out_dir: st
         Exit code 2: nothing has run.
     """
     from mbsim.api import analysis_function
-    from mbsim.deck import load_deck
+    from mbsim.deck.loader import parse_deck, remember_deck
     from mbsim.model import compile_model  # noqa: F401 - forked workers inherit the import
 
     analysis_function(mode)  # DeckError for a mode that does not exist or is not available
@@ -385,8 +386,10 @@ def plan_sweep(deck: str | Path, mode: str, params: Sequence[Param], out_dir: st
         raise SweepError(f"--param {clash[0]}: the index has a column of that name; "
                          f"write the key path, parameters.{clash[0]}")
     summaries = tuple(dict.fromkeys(summaries))  # one column per distinct --summary
-    spec = load_deck(deck, overrides=overrides, scene=scene)
-    _check_paths(spec.text, str(deck), scene, params)
+    parsed = parse_deck(deck, scene)
+    spec = parsed.spec(scene, overrides)
+    _check_paths(parsed, scene, params)
+    remember_deck(parsed)  # run_case finds it (here, and in workers forked from here)
     opts = {k: v for k, v in (options or {}).items() if v is not None}
     return Sweep(str(deck), spec.text, mode, tuple(params), tuple(cases), Path(out_dir),
                  overrides, scene, opts, tuple(summaries))
@@ -417,12 +420,13 @@ def run_case(deck_text: str, deck_file: str, overrides: dict[str, str], scene: s
     A module-level function of plain arguments, so a process pool and Dask can send it.
     """
     from mbsim.api import run_model
-    from mbsim.deck import load_deck_text
+    from mbsim.deck.loader import parse_deck_cached
     from mbsim.model import compile_model
 
     t0 = time.perf_counter()
-    try:
-        spec = load_deck_text(deck_text, deck_file, overrides=overrides, scene=scene)
+    try:  # the deck is parsed once per process; the case's edits are copy-on-write
+        deck = parse_deck_cached(deck_text, deck_file)
+        spec = deck.spec(scene, overrides, studies=False)  # studies: checked by plan_sweep
         result = run_model(compile_model(spec), mode, options)
     except MbsimError as exc:
         return CaseRun(None, str(exc).replace("\n", " "), time.perf_counter() - t0)

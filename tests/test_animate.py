@@ -119,3 +119,76 @@ def test_cli_animate(slider_result, tmp_path):
     assert res.exit_code == 2 and "holds no deck text" in res.output
     res = runner.invoke(main, ["animate", str(tmp_path / "r.h5"), "--every", "0"])
     assert res.exit_code == 2
+
+
+# -- issue 14: bodies through all their points, axes, mode shapes ----------------------------
+
+PENDULUM2 = """
+title: double pendulum
+gravity: [0, -9.81, 0]
+bodies:
+  ground: {ground: true}
+  link1: {mass: 1.0, inertia: [0.0833, 0.001, 0.0833], r: [0, -0.5, 0]}
+  link2: {mass: 1.0, inertia: [0.0833, 0.001, 0.0833], r: [0, -1.5, 0]}
+joints:
+  top: {type: revolute, bodies: [ground, link1],
+        points: {ground: [0, 0, 0, 0, 0, 1, 1, 0, 0], link1: [0, 0.5, 0, 0, 0.5, 1]}}
+  mid: {type: revolute, bodies: [link1, link2],
+        points: {link1: [0, -0.5, 0, 0, -0.5, 1, 1, -0.5, 0], link2: [0, 0.5, 0, 0, 0.5, 1]}}
+"""
+
+
+def test_a_link_hanging_from_one_joint_is_drawn_to_its_free_end(tmp_path):
+    """Issue 14: the second link of a pendulum looked half as long (drawn from its centroid
+    to its one joint).  Its free end, mirrored through the centroid, is drawn too; output
+    points are points of their body."""
+    path = tmp_path / "p.yaml"
+    path.write_text(PENDULUM2 + "outputs:\n  points:\n"
+                    "    tip1: {body: link1, point: [0, -0.4, 0]}\n")
+    sk = sketch_of(load_deck(path))
+    assert {tuple(p) for p in sk.points["link2"]} == {(0.0, 0.5, 0.0), (0.0, -0.5, 0.0)}
+    assert (0.0, -0.4, 0.0) in {tuple(p) for p in sk.points["link1"]}
+
+
+def test_hull_outline():
+    from mbsim.animate import hull
+
+    sq = hull(np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5]]))
+    assert len(sq) == 5 and np.allclose(sq[0], sq[-1])  # closed, the inner point dropped
+    seg = hull(np.array([[0, 0], [0.5, 0.5], [1, 1]]))
+    assert {tuple(p) for p in seg} == {(0.0, 0.0), (1.0, 1.0)}
+
+
+def test_mode_shape_animation(tmp_path):
+    """`mbsim animate LINEAR.h5 --mode-shape K`: mode K of the double pendulum oscillating
+    with its period 2 pi / Im(lambda); the joints stay together (each frame projected on the
+    constraints); the second (out-of-phase) mode moves the links in opposite senses."""
+    from mbsim.animate import mode_shape_result
+    from mbsim.output import read_result
+
+    path = tmp_path / "p.yaml"
+    path.write_text(PENDULUM2)
+    _, model = load_model(path)
+    res = run_model(model, "linear", {})
+    write_result(res, tmp_path / "lin.h5")
+    back = read_result(tmp_path / "lin.h5")
+    lam = back.arrays["linear/eigenvalues"][0]
+    shaped, title = mode_shape_result(back, 3)
+    assert shaped.t[-1] == pytest.approx(2 * np.pi / lam[2].imag)
+    assert "mode 3" in title and "Hz" in title
+    r1 = shaped.channel("bodies/link1/r").data[0]
+    r2 = shaped.channel("bodies/link2/r").data[0]
+    assert np.sign(r1[0]) != np.sign(r2[0]) and abs(r1[0]) > 0.01  # out of phase
+    # the joint 'mid': link1's bottom and link2's top coincide
+    from mbsim.rotations import A
+
+    p1 = shaped.channel("bodies/link1/p").data[0]
+    p2 = shaped.channel("bodies/link2/p").data[0]
+    gap = (r1 + A(p1) @ [0, -0.5, 0]) - (r2 + A(p2) @ [0, 0.5, 0])
+    assert np.linalg.norm(gap) < 1e-8
+    runner = CliRunner()
+    out = runner.invoke(main, ["animate", str(tmp_path / "lin.h5"), "--mode-shape", "1",
+                               "--dpi", "30", "--every", "10", "--labels", "--view", "xy"])
+    assert out.exit_code == 0, out.output
+    out = runner.invoke(main, ["animate", str(tmp_path / "lin.h5"), "--mode-shape", "9"])
+    assert out.exit_code == 2 and "modes 1 to 4" in out.output

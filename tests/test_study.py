@@ -357,7 +357,8 @@ def test_parallel_cases_give_the_same_files(deck, tmp_path):
 
 def test_threshold_finds_a_known_rod_length():
     # x_C(0) = sqrt(ell^2 - 0.05) > 0.2  <=>  ell > 0.3 (geometry.md §1.1)
-    case = {"scene": None, "set": {}, "mode": "kinematic", "options": {"t_end": 0.0, "step": 0.1}}
+    # one step of 0.01 s: the criterion reads t = 0 (an analysis needs t_end > t_start)
+    case = {"scene": None, "set": {}, "mode": "kinematic", "options": {"t_end": 0.01, "step": 0.01}}
     th = threshold(
         SLIDER,
         case,
@@ -420,3 +421,161 @@ studies:
     res = CliRunner().invoke(main, ["study", str(path), "s", "-o", str(tmp_path)])
     assert res.exit_code == 1
     assert "study s, case bad: failed:" in res.output
+
+
+# ------------------------------------------------------------- one parse per study (issue 12)
+MODELS = ROOT / "models"
+
+
+def fingerprint(spec) -> tuple:
+    """What a case's spec decides: the tree after scene and overrides, the parameters, the
+    items kept, the initial coordinates of the compiled model."""
+    from mbsim.model import compile_model
+
+    model = compile_model(spec)
+    return (spec.raw, spec.parameters, list(spec.bodies), list(spec.joints),
+            list(spec.drivers), list(spec.forces), spec.analysis, model.q0.tolist())  # fmt: skip
+
+
+@pytest.mark.parametrize("deck_name", ["vehicle", "governor", "compressor"])
+def test_cases_of_a_parsed_deck_equal_fresh_loads_and_leave_it_as_written(deck_name):
+    """Every scene and every study case built from one ParsedDeck (copy-on-write edits)
+    gives the spec that reading the file afresh with that scene and overrides gives, and
+    the parsed tree is the same afterwards (no case's edit leaks into another)."""
+    from mbsim.deck.loader import parse_deck
+    from mbsim.deck.tree import to_plain
+    from mbsim.study import overrides_of
+
+    path = MODELS / f"{deck_name}.yaml"
+    parsed = parse_deck(path)
+    as_written = to_plain(parsed.root)
+    variants = [(None, {})] + [(s, {}) for s in parsed.spec().raw.get("scenes", {})]
+    for st in load_deck(path).studies.values():
+        variants += [(c["scene"], overrides_of(c)) for c in st["cases"]]
+    for scene, overrides in variants:
+        case = parsed.spec(scene, overrides, studies=False)
+        assert fingerprint(case) == fingerprint(load_deck(path, overrides, scene)), scene
+        assert case.studies == {}
+    assert to_plain(parsed.root) == as_written
+    assert fingerprint(parsed.spec()) == fingerprint(load_deck(path))
+
+
+def test_switching_items_on_in_one_case_leaves_them_off_in_the_next():
+    """The governor's engine and load are `active: false` as written and switched on by
+    the scene `governed`: dropping `active` (copy-on-write) must not reach the parsed tree."""
+    from mbsim.deck.loader import parse_deck
+
+    parsed = parse_deck(MODELS / "governor.yaml")
+    on = parsed.spec("governed", studies=False)
+    off = parsed.spec(overrides={"parameters.k": "2000"}, studies=False)
+    assert {"engine", "load"} <= set(on.forces)
+    assert not {"engine", "load"} & set(off.forces)
+    assert parsed.root.value["forces"].value["engine"].value["active"].value is False
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ({"bodies.spindle.mass": "-1"}, "bodies.spindle.mass: mass must be > 0, got -1"),
+    ({"parameters.kk": "1"}, "cannot --set"),
+    ({"joints.REV1.active": "maybe"}, "joints.REV1.active: expected true or false"),
+])  # fmt: skip
+def test_bad_overrides_of_a_parsed_deck_fail_as_a_fresh_load_does(overrides, message):
+    """Same error text (file, key path, line) from a case of a parsed deck as from
+    load_deck with the same overrides."""
+    from mbsim.deck.loader import parse_deck
+
+    path = MODELS / "governor.yaml"
+    with pytest.raises(DeckError) as fresh:
+        load_deck(path, overrides)
+    with pytest.raises(DeckError) as case:
+        parse_deck(path).spec(None, overrides, studies=False)
+    assert str(case.value) == str(fresh.value)
+    assert message in str(case.value) and str(path) in str(case.value)
+
+
+def test_a_study_reads_and_parses_its_deck_once(deck, tmp_path, monkeypatch):
+    """`mbsim study` of three cases: one read of the file, one YAML parse, no deep copy."""
+    import copy
+
+    import mbsim.deck.loader as loader
+    from mbsim.deck.tree import Node
+
+    counts = {"compose": 0, "read": 0}
+    compose, read_bytes, deepcopy = loader.compose, Path.read_bytes, copy.deepcopy
+
+    def counted_compose(*args, **kwargs):
+        counts["compose"] += 1
+        return compose(*args, **kwargs)
+
+    def counted_read(self):
+        counts["read"] += self.suffix == ".yaml"
+        return read_bytes(self)
+
+    def no_deepcopy(x, *args, **kwargs):
+        assert not isinstance(x, Node), "deepcopy of a deck tree"
+        return deepcopy(x, *args, **kwargs)
+
+    monkeypatch.setattr(loader, "compose", counted_compose)
+    monkeypatch.setattr(Path, "read_bytes", counted_read)
+    monkeypatch.setattr(copy, "deepcopy", no_deepcopy)
+    res = CliRunner().invoke(main, ["study", str(deck), "quick", "-o", str(tmp_path), "-q"])
+    assert res.exit_code == 0, res.output
+    assert counts == {"compose": 1, "read": 1}
+
+
+# --------------------------------------------------------------------------- issue 15 additions
+
+
+def test_settle_is_nan_for_an_oscillation_that_does_not_die_out():
+    """A growing (or undamped) oscillation has no steady state: its 2 % band around the last
+    value is left again in the last tenth of the window, so ``settle`` is NaN, not the time
+    of the last sample (which the governor's k = 1000 case used to print as 19.9 s)."""
+    t = np.linspace(0.0, 20.0, 2001)
+    y = 1.0 - np.exp(-t) + 0.01 * np.exp(0.1 * t) * np.sin(2 * np.pi * t)
+    assert np.isnan(settle(t, y, {}))
+    y_damped = 1.0 - np.exp(-t) + 0.01 * np.exp(-0.5 * t) * np.sin(2 * np.pi * t)
+    assert 3.0 < settle(t, y_damped, {}) < 5.0  # enters 2 % of the unit step near ln 50
+
+
+def test_study_columns_difference_and_driver_function(deck, tmp_path):
+    """``A - B`` of two one-column selectors and ``drivers.D.function`` (the driver's f(t)
+    from the deck, at the output times: the slider-crank's crank angle pi/2 - 2 pi t, as the
+    deck defines it), in figures and numbers; 'does not settle' printed for a NaN settle."""
+    from mbsim.study import study_columns
+
+    extra = STUDY.replace("      - {name: dof, y: summary.dof}", """\
+      - {name: dof, y: summary.dof}
+      - {name: x minus z, y: bodies.slider.r.x - bodies.slider.r.z, stat: max, cases: [long]}
+      - {name: angle, y: drivers.crank.function, stat: final, cases: [long]}""")
+    path = tmp_path / "d.yaml"
+    path.write_text(deck_text(extra))
+    out = run_study(path, "quick", tmp_path / "out")
+    res = out.cases[0].result
+    r, f = res.channel("bodies/slider/r").data, study_columns(res, "drivers.crank.function")
+    (diff,) = study_columns(res, "bodies.slider.r.x - bodies.slider.r.z")
+    assert np.array_equal(diff.data, r[:, 0] - r[:, 2]) and diff.unit == "m"
+    (plus,) = study_columns(res, "bodies.slider.r.x + bodies.slider.r.z")
+    assert np.array_equal(plus.data, r[:, 0] + r[:, 2])
+    spec = load_deck(path)
+    expr = spec.drivers["crank"].function
+    assert f[0].unit == "rad"
+    assert f[0].data == pytest.approx(np.pi / 2 - 2 * np.pi * res.t, abs=1e-12), expr
+    assert out.values["long"]["x minus z"] == pytest.approx(np.max(r[:, 0] - r[:, 2]))
+    assert out.values["long"]["angle"] == pytest.approx(np.pi / 2 - 2 * np.pi * 0.1)
+    with pytest.raises(ValueError, match="one column"):
+        study_columns(res, "bodies.slider.r - bodies.slider.r.z")
+    with pytest.raises(KeyError, match="no driver 'nope'"):
+        study_columns(res, "drivers.nope.function")
+
+
+def test_table_says_does_not_settle():
+    from mbsim.study import CaseOutcome, number_table
+
+    t = np.linspace(0.0, 20.0, 2001)
+    res = __import__("mbsim.result", fromlist=["Result"]).Result("dynamic", t)
+    res.add("y", 1.0 + 0.01 * np.exp(0.1 * t) * np.sin(2 * np.pi * t), "m")
+    st = {"numbers": [{"name": "transition", "y": "y", "stat": "settle", "scale": 1.0,
+                       "unit": "", "cases": [], "from": None, "band": 0.02, "where": "w"}]}
+    case = CaseOutcome("c", "c", "dynamic", "complete", result=res)
+    header, rows, values = number_table(st, [case])
+    assert header[-1] == "transition [s]" and rows[0][-1] == "does not settle"
+    assert np.isnan(values["c"]["transition [s]"])

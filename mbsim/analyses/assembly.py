@@ -9,6 +9,7 @@ analyses that need a full-rank Phi_q), a conflict is an error.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,6 +17,8 @@ import numpy as np
 from mbsim import equations as eq
 from mbsim.analyses.common import rank_and_redundant, singular_rows
 from mbsim.errors import ConvergenceError, DeckError, ModelError, SingularJacobianError
+
+log = logging.getLogger(__name__)  # "mbsim.analyses.assembly": -v shows the iterations
 
 
 @dataclass
@@ -48,6 +51,60 @@ def culprits(model, rows) -> list[str]:
     return user or names
 
 
+def closed_loop(model, names) -> tuple[list[str], list[str]] | None:
+    """The shortest closed loop of bodies (joined by joints and drivers) through the first of
+    ``names`` that lies on one: (bodies, items), or None.  When assembly fails, the worst
+    constraints name a joint; the loop through it is what cannot close (a link too short)."""
+    edges = [(it.bi, it.bj, it.name) for it in model.items  # joints: a driver on a joint
+             if it.kind == "joint" and it.bi >= 0 and it.bj >= 0  # closes no loop of bodies
+             and it.bi != it.bj]  # fmt: skip
+    adj: dict[int, list[tuple[int, int]]] = {}
+    for k, (a, b, _) in enumerate(edges):
+        adj.setdefault(a, []).append((b, k))
+        adj.setdefault(b, []).append((a, k))
+    for name in dict.fromkeys(names):
+        for k0, (a, b, n) in enumerate(edges):
+            if n != name:
+                continue
+            prev = {a: (None, None)}  # breadth-first from a to b without edge k0
+            queue = [a]
+            while queue and b not in prev:
+                node = queue.pop(0)
+                for nxt, k in adj[node]:
+                    if {node, nxt} != {a, b} and nxt not in prev:  # no parallel joint
+                        prev[nxt] = (node, k)
+                        queue.append(nxt)
+            if b not in prev:
+                continue
+            bodies, items, node = [b], [], b
+            while node != a:
+                node, k = prev[node]
+                bodies.append(node)
+                items.append(edges[k][2])
+            items = items + [name]  # items[k] joins bodies[k] and bodies[k + 1] (cyclic)
+            grounds = [i for i in bodies if model.is_ground[i]]
+            if grounds:  # read from the ground, as the book draws loops
+                g = bodies.index(grounds[0])
+                bodies, items = bodies[g:] + bodies[:g], items[g:] + items[:g]
+            bodies = [model.body_names[i] for i in bodies]
+            return bodies + [bodies[0]], items
+    return None
+
+
+def _with_loop(model, exc):
+    """The assembly error again, saying which loop cannot close (if the items form one)."""
+    found = closed_loop(model, exc.items) if exc.items else None
+    if found is None:
+        return exc
+    bodies, items = found
+    text = str(exc)
+    prefix = f"t = {exc.time:.6g} s: " if exc.time is not None else ""
+    text = text[len(prefix):] if prefix and text.startswith(prefix) else text
+    return type(exc)(f"{text}; the loop {' - '.join(bodies)} (through {', '.join(items)}) "
+                     "cannot close at the deck's estimates: check its lengths and points",
+                     time=exc.time, items=exc.items)
+
+
 def normalize_q(model, q):
     qq = q.reshape(model.nb, 7).copy()
     qq[:, 3:] /= np.linalg.norm(qq[:, 3:], axis=1, keepdims=True)
@@ -76,6 +133,8 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
     def system(qq):
         T = eq.constraints(model, qq, t)
         ph, J = T.phi, T.jac
+        if not (np.isfinite(ph).all() and np.isfinite(J).all()):  # before LAPACK sees inf
+            eq.require_finite(model, t, q=qq, phi=ph, J=J)
         if rows is not None:
             ph, J = ph[rows], J[rows]
         if hold.size:
@@ -171,7 +230,9 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembl
             names = culprits(model, red)
             raise ModelError(f"{exc}; Phi_q is rank deficient (rank {rank} of {model.m} rows), "
                              f"conflicting or redundant: {', '.join(names)}", tuple(names)) from exc
-        raise
+        raise _with_loop(model, exc) from None
+    log.info("assembly at t = %g s: %d Newton iteration(s) from the estimates, max |Phi| = "
+             "%.3g", t, its, res)
     J = eq.phi_q(model, q, t)
     rank, red = rank_and_redundant(model, J)
     warnings = []

@@ -8,6 +8,7 @@ import scipy.linalg as la
 from mbsim import equations as eq
 from mbsim.errors import DeckError, Where
 from mbsim.result import Result
+from mbsim.rotations import A as rot_A
 from mbsim.rotations import G as rot_G
 
 XYZ = ("x", "y", "z")
@@ -47,46 +48,87 @@ def singular_rows(model, J, k=1):
 
 
 def body_kinematics(model, q, qd, qdd):
-    """Per body: r, p, rd, omega, omega_local, rdd, omegad, omegad_local, each (nb, 3/4)."""
+    """Per body: r, p, rd, omega, omega_local, rdd, omegad, omegad_local, A.
+
+    q, qd, qdd: (nq,) for one instant, giving (nb, 3/4) arrays, or (nt, nq) for a time
+    series, giving (nt, nb, 3/4) arrays (time first): one vectorised evaluation."""
     nb = model.nb
-    Q = q.reshape(nb, 7)
-    V = qd.reshape(nb, 7)
-    Acc = qdd.reshape(nb, 7)
-    st = eq.State(model, q, qd)
-    Gm = rot_G(Q[:, 3:])
-    wl = 2 * np.einsum("bij,bj->bi", Gm, V[:, 3:])
-    w = np.einsum("bij,bj->bi", st.A, wl)
-    wdl = 2 * np.einsum("bij,bj->bi", Gm, Acc[:, 3:])  # G(pd) pd = 0, so w'dot = 2 G pdd
-    wd = np.einsum("bij,bj->bi", st.A, wdl)
-    return dict(r=Q[:, :3], p=Q[:, 3:], rd=V[:, :3], omega=w, omega_local=wl, rdd=Acc[:, :3],
-                omegad=wd, omegad_local=wdl, A=st.A)
+    lead = np.shape(q)[:-1]
+    Q = np.asarray(q, float).reshape(lead + (nb, 7))
+    V = np.asarray(qd, float).reshape(lead + (nb, 7))
+    Acc = np.asarray(qdd, float).reshape(lead + (nb, 7))
+    A = rot_A(Q[..., 3:])
+    Gm = rot_G(Q[..., 3:])
+    wl = 2 * np.einsum("...ij,...j->...i", Gm, V[..., 3:])
+    w = np.einsum("...ij,...j->...i", A, wl)
+    wdl = 2 * np.einsum("...ij,...j->...i", Gm, Acc[..., 3:])  # G(pd) pd = 0: w'dot = 2 G pdd
+    wd = np.einsum("...ij,...j->...i", A, wdl)
+    return dict(r=Q[..., :3], p=Q[..., 3:], rd=V[..., :3], omega=w, omega_local=wl,
+                rdd=Acc[..., :3], omegad=wd, omegad_local=wdl, A=A)
+
+
+BODY_CHANNELS = (
+    ("r", "m", "centroid position, global"),
+    ("p", "", "Euler parameters e0 e1 e2 e3"),
+    ("rd", "m/s", "centroid velocity, global"),
+    ("omega", "rad/s", "angular velocity, global frame"),
+    ("omega_local", "rad/s", "angular velocity, body frame"),
+    ("rdd", "m/s^2", "centroid acceleration, global"),
+    ("omegad", "rad/s^2", "angular acceleration, global frame"),
+    ("omegad_local", "rad/s^2", "angular acceleration, body frame"),
+)
 
 
 class Recorder:
-    """Collects per-time body states and writes the standard channels into a Result."""
+    """Collects the raw per-output state (t, q, qd, qdd) in growing arrays and, at the end,
+    computes every channel vectorised over time (bodies, points, force elements, the deck's
+    output measures), restricted to the deck's ``outputs: only:`` patterns."""
 
-    def __init__(self, model):
+    def __init__(self, model, capacity: int = 256):
         self.model = model
-        self.t: list[float] = []
-        self.q: list[np.ndarray] = []
-        self.qd: list[np.ndarray] = []
-        self.qdd: list[np.ndarray] = []
+        self._n = 0
+        self._t = np.empty(capacity)
+        self._s = np.empty((3, capacity, model.nq))  # q, qd, qdd rows
         self.extra: dict[str, list] = {}
 
     def add(self, t, q, qd, qdd, **extra):
-        self.t.append(float(t))
-        self.q.append(np.array(q, float))
-        self.qd.append(np.array(qd, float))
-        self.qdd.append(np.array(qdd, float))
+        n = self._n
+        if n == self._t.size:  # grow by doubling: amortised O(1) per output
+            self._t = np.concatenate([self._t, np.empty(n)])
+            self._s = np.concatenate([self._s, np.empty_like(self._s)], axis=1)
+        self._t[n] = t
+        self._s[0, n], self._s[1, n], self._s[2, n] = q, qd, qdd
+        self._n = n + 1
         for k, v in extra.items():
             self.extra.setdefault(k, []).append(v)
 
     def __len__(self):
-        return len(self.t)
+        return self._n
 
-    def result(self, mode: str) -> Result:
+    @property
+    def t(self) -> np.ndarray:
+        return self._t[: self._n]
+
+    @property
+    def q(self) -> np.ndarray:
+        return self._s[0, : self._n]
+
+    @property
+    def qd(self) -> np.ndarray:
+        return self._s[1, : self._n]
+
+    @property
+    def qdd(self) -> np.ndarray:
+        return self._s[2, : self._n]
+
+    def result(self, mode: str, only=None) -> Result:
+        """The Result with the standard channels (``only``: slash patterns, default the
+        deck's ``outputs: only:``; see :func:`mbsim.measures.selected`)."""
+        from mbsim import measures as ms
+
         model = self.model
-        res = Result(mode=mode, t=np.array(self.t))
+        patterns = ms.only_patterns(model.spec) if only is None else only
+        res = Result(mode=mode, t=self.t.copy())
         res.deck_file = model.file
         res.deck_text = model.spec.text if model.spec is not None else ""
         res.names = {
@@ -96,52 +138,70 @@ class Recorder:
             "forces": [f.name for f in model.forces],
             "points": [o[0] for o in model.outputs],
         }
-        nt = len(self.t)
-        if nt == 0:
+        measures = getattr(model.spec, "output_measures", None) or {}
+        if measures:
+            res.names["measures"] = list(measures)
+        if self._n == 0:
             return res
-        kin = [body_kinematics(model, q, v, a) for q, v, a in zip(self.q, self.qd, self.qdd)]
-        spec = [
-            ("r", "m", "centroid position, global"),
-            ("p", "", "Euler parameters e0 e1 e2 e3"),
-            ("rd", "m/s", "centroid velocity, global"),
-            ("omega", "rad/s", "angular velocity, global frame"),
-            ("omega_local", "rad/s", "angular velocity, body frame"),
-            ("rdd", "m/s^2", "centroid acceleration, global"),
-            ("omegad", "rad/s^2", "angular acceleration, global frame"),
-            ("omegad_local", "rad/s^2", "angular acceleration, body frame"),
-        ]
+        refs = [sel.replace(".", "/").strip("/") for m in measures.values()
+                if m.type == "expression" for sel in m.data["channels"].values()]
+
+        def needed(path):
+            return ms.selected(path, patterns) or any(
+                r == path or r.startswith(path + "/") or r.startswith(path + "[")
+                for r in refs)
+
+        kin = body_kinematics(model, self.q, self.qd, self.qdd)
         for b, name in enumerate(model.body_names):
-            for key, unit, desc in spec:
-                data = np.array([k[key][b] for k in kin])
-                comps = ("e0", "e1", "e2", "e3") if key == "p" else XYZ
-                res.add(f"bodies/{name}/{key}", data, unit, desc, comps)
+            for key, unit, desc in BODY_CHANNELS:
+                path = f"bodies/{name}/{key}"
+                if needed(path):
+                    res.add(path, kin[key][:, b], unit, desc,
+                            ("e0", "e1", "e2", "e3") if key == "p" else XYZ)
         for name, b, s in model.outputs:
-            pos, vel, acc = [], [], []
-            for k in kin:
-                sg = k["A"][b] @ s
-                w, wd = k["omega"][b], k["omegad"][b]
-                pos.append(k["r"][b] + sg)
-                vel.append(k["rd"][b] + np.cross(w, sg))
-                acc.append(k["rdd"][b] + np.cross(wd, sg) + np.cross(w, np.cross(w, sg)))
-            res.add(f"points/{name}/position", pos, "m", f"point {name}, global", XYZ)
-            res.add(f"points/{name}/velocity", vel, "m/s", f"velocity of point {name}", XYZ)
-            res.add(f"points/{name}/acceleration", acc, "m/s^2", f"acceleration of {name}", XYZ)
-        self._force_channels(res)
+            paths = [f"points/{name}/{k}" for k in ("position", "velocity", "acceleration")]
+            if not any(needed(p) for p in paths):
+                continue
+            pos, vel, acc = ms._point_state(kin, b, s)
+            for path, data, unit, desc in zip(paths, (pos, vel, acc), ("m", "m/s", "m/s^2"), (
+                    f"point {name}, global", f"velocity of point {name}",
+                    f"acceleration of {name}")):
+                if needed(path):
+                    res.add(path, data, unit, desc, XYZ)
+        self._force_channels(res, needed)
+        if measures:
+            self._measure_channels(res, kin, measures)
+        if patterns is not None:
+            for path in [p for p in res.channels if not ms.selected(p, patterns)]:
+                del res.channels[path]
         return res
 
-    def _force_channels(self, res) -> None:
-        """forces/<name>/<quantity> from each element's ``channels(st, t)`` (length, force...)."""
+    def _force_channels(self, res, needed) -> None:
+        """forces/<name>/<quantity> from each element's ``channels(st, t)`` (length, force...):
+        the elements' laws are scalar code, so this one loops over the output times, and only
+        for the elements with a channel that is needed."""
         model = self.model
         if not model.forces:
             return
         from mbsim.equations import State
 
+        q, qd, ts = self.q, self.qd, self.t
+        st0 = State(model, q[0], qd[0])
+        wanted = []
+        for el in model.forces:
+            keys = [k for k in el.channels(st0, ts[0]) if needed(f"forces/{el.name}/{k}")]
+            if keys:
+                wanted.append((el, keys))
+        if not wanted:
+            return
         data: dict[str, list] = {}
         units: dict[str, str] = {}
-        for t, q, v in zip(self.t, self.q, self.qd):
-            st = State(model, q, v)
-            for el in model.forces:
-                for key, (val, unit) in el.channels(st, t).items():
+        for k in range(self._n):
+            st = State(model, q[k], qd[k])
+            for el, keys in wanted:
+                chans = el.channels(st, ts[k])
+                for key in keys:
+                    val, unit = chans[key]
                     name = f"forces/{el.name}/{key}"
                     data.setdefault(name, []).append(np.asarray(val, dtype=float))
                     units[name] = unit
@@ -149,3 +209,48 @@ class Recorder:
             arr = np.array(vals)
             res.add(name, arr, units[name], f"force element {name.split('/')[1]}: "
                     f"{name.split('/')[2]}", XYZ if arr.ndim == 2 and arr.shape[1] == 3 else ())
+
+    def _measure_channels(self, res, kin, measures) -> None:
+        """measures/<name>, vectorised over time (mbsim.measures); expressions see t, the
+        measures before them, kinetic_energy, potential_energy and the channels they name."""
+        from mbsim import measures as ms
+        from mbsim.output.export import select_columns
+
+        model, t = self.model, self.t
+        env: dict[str, np.ndarray] = {"t": t}
+        for name, om in measures.items():
+            if om.type == "expression":
+                names = om.data["value"].names
+                if "kinetic_energy" in names and "kinetic_energy" not in env:
+                    env["kinetic_energy"] = kinetic_energies(model, kin)
+                if "potential_energy" in names and "potential_energy" not in env:
+                    env["potential_energy"] = potential_energies(model, self.q, kin)
+                for local, sel in om.data["channels"].items():
+                    cols = select_columns(res, sel)
+                    if len(cols) != 1:
+                        raise DeckError(f"measure {name}: channel {sel!r} has {len(cols)} "
+                                        "components; name one (e.g. .z or [2])", om.where)
+                    env[local] = cols[0].data
+            data = ms.evaluate(model, om, kin, t, env)
+            comps = ms.components_of(om)
+            res.add(f"measures/{name}", data, ms.unit_of(om), ms.describe(om), comps)
+            if comps:
+                env.update({f"{name}_{c}": data[:, k] for k, c in enumerate(comps)})
+            else:
+                env[name] = data
+
+
+def kinetic_energies(model, kin) -> np.ndarray:
+    """(nt,) T = sum 1/2 m |rd|^2 + 1/2 w'^T J' w' (Haug eq. 11.x), from batched kinematics."""
+    wl = kin["omega_local"]
+    rot = np.einsum("tbi,bij,tbj->t", wl, model.J_local, wl)
+    return 0.5 * np.einsum("b,tbi,tbi->t", model.mass, kin["rd"], kin["rd"]) + 0.5 * rot
+
+
+def potential_energies(model, q, kin) -> np.ndarray:
+    """(nt,) V: gravity (vectorised) plus the force elements' potentials (per output)."""
+    V = -np.einsum("b,tbi,i->t", model.mass, kin["r"], model.gravity)
+    if any(True for _ in model.forces):
+        V = V + np.array([sum(el.potential(eq.State(model, qk)) for el in model.forces)
+                          for qk in q])
+    return V

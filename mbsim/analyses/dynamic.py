@@ -60,7 +60,7 @@ from mbsim.result import STATUS_INCOMPLETE
 log = logging.getLogger(__name__)
 
 DEFAULTS = {"t_start": 0.0, "t_end": 1.0, "step": 0.01, "integrator": DEFAULT, "rtol": 1e-6,
-            "atol": 1e-8, "h": None, "max_steps": 1_000_000, "tol": 1e-10, "sparse": None,
+            "atol": None, "h": None, "max_steps": 1_000_000, "tol": 1e-10, "sparse": None,
             "error_estimate": True, "estimate_ratio": 5.0, "accuracy": None}
 
 ACCURACY_START = 0.2
@@ -68,6 +68,8 @@ ACCURACY_START = 0.2
 benchmarks/accuracy.py (projection-dop853 reaches 0.3-3 x rtol in position on the seed
 decks and the reference problems)."""
 ACCURACY_MARGIN = 0.5  # a refinement aims at this fraction of the request
+ATOL_PER_RTOL = 1e-2  # atol when not given: rtol / 100 (as mbsim bench's ladder)
+ESTIMATE_STEPS = 10  # the companion run may take at most this x the run's steps (+100)
 
 def make_system(model, rows, sparse=None):
     """The equations of motion the integrators call: :class:`mbsim.integrators.System`
@@ -144,6 +146,8 @@ def dynamic(model, options=None):
     opt.update(given)
     progress = opt.pop("progress", None)  # progress(t, t_end) per output (mbsim.progress)
     check_tolerances(opt, model.file)
+    if opt.get("atol") is None:  # follows rtol: 1e-8 at the default rtol 1e-6 (m, rad, m/s)
+        opt["atol"] = ATOL_PER_RTOL * float(opt["rtol"])
     if opt.get("accuracy") is not None:
         explicit = {k for k in ("integrator", "h") if k in given or k in deck_opt}
         res = _accuracy_run(model, opt, progress, explicit)
@@ -166,8 +170,12 @@ def _single_run(model, opt, progress=None):
     q_start, qd_start = q.copy(), qd.copy()
     rank, red = rank_and_redundant(model, _jac(model, q, t0))
     rows = np.setdiff1d(np.arange(model.m), red)
-    system = make_system(model, rows, opt.get("sparse"))
-    solver = cls(system, t0, q, qd, t1, opt)
+    try:
+        run = Stepper(model, cls, opt, t0, q, qd, t1, rows)
+    except NUMERICAL_ERRORS as exc:
+        raise DeckError(f"the equations of motion cannot be solved at t_start = {t0:g} s "
+                        f"({cls.name}): {exc}", Where(model.file, "bodies")) from exc
+    system = run.system
     rec = Recorder(model)
     mon = {k: [] for k in ("pos", "vel", "energy", "work", "h", "lam")}
     states = {"q": [], "qd": []}  # the outputs' states, for the error estimate
@@ -176,6 +184,7 @@ def _single_run(model, opt, progress=None):
 
     def record(t, q, qd, w, h):
         nonlocal n_out_eval
+        system = run.system
         try:
             qdd, lam, _ = system.accelerations(q, qd, t)
         except NUMERICAL_ERRORS:  # exactly at a singular position: least squares
@@ -197,15 +206,20 @@ def _single_run(model, opt, progress=None):
 
     status, message = "complete", ""
     try:
-        record(t0, q, qd, 0.0, np.nan)
-        status, message = _integrate(solver, times, record, int(opt["max_steps"]))
+        try:
+            record(t0, q, qd, 0.0, np.nan)
+        except NUMERICAL_ERRORS as exc:
+            raise DeckError(f"the equations of motion cannot be solved at t_start = {t0:g} s: "
+                            f"{exc}", Where(model.file, "bodies")) from exc
+        status, message = _integrate(run, times, record, int(opt["max_steps"]))
         if mon["h"] and not np.isfinite(mon["h"][0]):  # the step across t_start: the first one
-            mon["h"][0] = solver.h_last if solver.counters["steps"] else 0.0
+            mon["h"][0] = run.first_step or 0.0
         if status != "complete":
-            message = _explain(model, system, solver, message)
+            message = _explain(model, run.system, run.solver, message)
     except KeyboardInterrupt:  # Ctrl-C: keep what was computed, marked incomplete
         status = STATUS_INCOMPLETE
-        message = f"t = {solver.t:.6g} s: interrupted (Ctrl-C) before t_end = {t1:g} s"
+        message = f"t = {run.solver.t:.6g} s: interrupted (Ctrl-C) before t_end = {t1:g} s"
+    solver, system = run.solver, run.system
     n = len(rec)
     for v in list(mon.values()) + list(states.values()):
         del v[n:]
@@ -227,7 +241,7 @@ def _single_run(model, opt, progress=None):
                         else v) for k, v in opt.items()
                     if k not in ("q0", "qd0") and (v is None or np.isscalar(v))}
     res.settings["integrator"] = cls.name
-    counters = solver.all_counters()
+    counters = run.all_counters()
     counters["function_evaluations"] -= n_out_eval
     counters["output_evaluations"] = n_out_eval
     res.counters = counters
@@ -236,14 +250,16 @@ def _single_run(model, opt, progress=None):
                     "h": None if opt.get("h") is None else float(opt["h"]),
                     "dof": model.nq - rank, "rank": rank,
                     "redundant": model.items_of_rows(red) if red.size else [],
-                    "sparse": system.sparse, "equations": type(system).__name__,
+                    "row_changes": run.changes,
+                    "sparse": system.sparse, "equations": "C kernels (mbsim.fast)",
                     "t_reached": float(solver.t)})
     cpu_run = _time.process_time() - cpu0
     summary["cpu"] = cpu_run
     if opt.get("error_estimate", True) and n >= 2:
         try:
             est = _estimate(model, cls, opt, rows, q_start, qd_start, res.t,
-                            np.array(states["q"]), np.array(states["qd"]))
+                            np.array(states["q"]), np.array(states["qd"]),
+                            ESTIMATE_STEPS * int(counters.get("steps", 0)) + 100)
         except KeyboardInterrupt:
             est = {"method": "interrupted (Ctrl-C) before it finished"}
         est["relative_cost"] = est.get("cpu", 0.0) / max(cpu_run, 1e-9)
@@ -252,21 +268,98 @@ def _single_run(model, opt, progress=None):
             res.add(name, data, unit, desc)
         if est.get("position") is not None:
             res.attrs["error_estimate"] = float(est["position"])
+            Qa = np.array(states["q"]).reshape(n, model.nb, 7)[:, :, :3]
+            span = float(np.max(np.ptp(Qa, axis=0), initial=0.0))
+            if est["position"] > 0.01 * max(span, 1e-3) or est["orientation"] > 0.05:
+                summary.setdefault("warnings", []).append(
+                    f"the estimated error is large (position {est['position']:.3g} m against "
+                    f"a motion of {span:.3g} m, orientation {est['orientation']:.3g} rad): "
+                    f"tighten --rtol, or ask for it with --accuracy")
     res.summary = summary
     return res
 
 
-def _integrate(solver, times, record, max_steps):
-    """Step ``solver`` to times[-1], calling ``record(t, q, qd, w, h)`` at times[1:].
+MAX_ROW_CHANGES = 20  # re-selections of the independent rows in one run
+
+
+class Stepper:
+    """The integrator of a run with its equations of motion on the independent constraint
+    rows, and what to do when a step fails.
+
+    The redundant rows are found by QR with column pivoting of Phi_q at t_start and
+    removed.  When the integrator fails (or stalls) at a configuration where that choice no
+    longer holds (the rank of Phi_q changed, or another set of rows is now the independent
+    one), the rows are chosen again at the last accepted state and the integrator restarts
+    there with its last step size: ``changes`` lists when and which rows became redundant.
+    A failure with the same rows still independent is final."""
+
+    def __init__(self, model, cls, opt, t0, q, qd, t1, rows):
+        self.model, self.cls, self.opt, self.t1 = model, cls, opt, t1
+        self.rows = rows
+        self.system = make_system(model, rows, opt.get("sparse"))
+        self.solver = cls(self.system, t0, q, qd, t1, opt)
+        self.changes: list[dict] = []
+        self._retired: list[dict] = []  # counters of the integrators before a restart
+        self.first_step = None
+
+    def step(self):
+        ok, msg = self.solver.step()
+        if ok and self.first_step is None:
+            self.first_step = self.solver.h_last
+        return ok, msg
+
+    def restart(self, message) -> bool:
+        """Re-select the rows at the last accepted state; True when the run goes on."""
+        s, model = self.solver, self.model
+        if len(self.changes) >= MAX_ROW_CHANGES:
+            return False
+        try:
+            rank, red = rank_and_redundant(model, _jac(model, s.q, s.t))
+        except NUMERICAL_ERRORS:
+            return False
+        rows = np.setdiff1d(np.arange(model.m), red)
+        if np.array_equal(rows, self.rows):
+            return False
+        opt = dict(self.opt, h0=s.h_last or None)
+        try:
+            system = make_system(model, rows, opt.get("sparse"))
+            solver = self.cls(system, s.t, s.q, s.qd, self.t1, opt)
+        except NUMERICAL_ERRORS:  # the new rows do not solve here either: the failure stands
+            return False
+        solver.w = s.w
+        self._retired.append(s.all_counters())
+        names = model.items_of_rows(red) if red.size else []
+        self.changes.append({"t": float(s.t), "rank": int(rank), "redundant": names,
+                             "after": message})
+        log.info("t = %.6g s: independent rows chosen again (rank %d; redundant: %s) after: %s",
+                 s.t, rank, ", ".join(names) or "none", message)
+        self.rows, self.system, self.solver = rows, system, solver
+        return True
+
+    def all_counters(self) -> dict:
+        out = self.solver.all_counters()
+        for old in self._retired:
+            for k, v in old.items():
+                out[k] = out.get(k, 0) + v
+        out["row_changes"] = len(self.changes)
+        return out
+
+
+def _integrate(run, times, record, max_steps):
+    """Step ``run`` (a :class:`Stepper`) to times[-1], calling ``record(t, q, qd, w, h)`` at
+    times[1:].
 
     Returns (status, message); every numerical failure (a step, the dense output, a stall)
     ends as ('incomplete', message with the time), never as an exception."""
     k, steps = 1, 0
     while k < len(times):
-        ok, msg = solver.step()
+        ok, msg = run.step()
         steps += 1
         if not ok:
+            if run.restart(msg):
+                continue
             return STATUS_INCOMPLETE, msg
+        solver = run.solver
         eps = 1e-12 * max(1.0, abs(solver.t))
         if times[k] <= solver.t + eps:
             try:
@@ -278,6 +371,9 @@ def _integrate(solver, times, record, max_steps):
                     k += 1
             except IntegratorFailure as exc:
                 return STATUS_INCOMPLETE, str(exc)
+            except NUMERICAL_ERRORS as exc:  # the output's own accelerations, energies
+                return STATUS_INCOMPLETE, (f"t = {times[k]:.6g} s: evaluating the outputs "
+                                           f"failed: {exc}")
         if steps >= max_steps and k < len(times):
             return STATUS_INCOMPLETE, (f"t = {solver.t:.6g} s: max_steps = {max_steps} reached "
                                        f"before t_end = {times[-1]:g} s (step size "
@@ -285,7 +381,7 @@ def _integrate(solver, times, record, max_steps):
     return "complete", ""
 
 
-def _estimate(model, cls, opt, rows, q0, qd0, t, Q, QD):
+def _estimate(model, cls, opt, rows, q0, qd0, t, Q, QD, max_steps=None):
     """The global error estimate of a run with outputs (t, Q, QD) (module doc): a companion
     integration and the differences at the output times.  Returns a dict for the summary
     with the channels to add."""
@@ -305,19 +401,23 @@ def _estimate(model, cls, opt, rows, q0, qd0, t, Q, QD):
         method = (f"companion run at rtol/{rho:g} = {copt['rtol']:.3g}, "
                   f"atol/{rho:g} = {copt['atol']:.3g}")
     times = np.asarray(t, float)
-    system = make_system(model, rows, opt.get("sparse"))
-    solver = cls(system, float(times[0]), q0, qd0, float(times[-1]), copt)
+    try:
+        run = Stepper(model, cls, copt, float(times[0]), q0, qd0, float(times[-1]), rows)
+    except NUMERICAL_ERRORS as exc:
+        return {"method": f"{method}: could not start ({exc})", "cpu": _time.process_time() - cpu0}
     got = {"q": [np.array(q0, float)], "qd": [np.array(qd0, float)]}
 
     def record(tk, q, qd, w, h):
         got["q"].append(np.array(q, float))
         got["qd"].append(np.array(qd, float))
 
-    status, msg = _integrate(solver, times, record, int(opt["max_steps"]))
+    limit = int(opt["max_steps"]) if max_steps is None else min(int(opt["max_steps"]), max_steps)
+    status, msg = _integrate(run, times, record, limit)
+    solver = run.solver
     n = len(got["q"])
     err = state_differences(model, Q[:n], QD[:n], np.array(got["q"]), np.array(got["qd"]))
     out = {"method": method, "cpu": _time.process_time() - cpu0,
-           "steps": int(solver.counters["steps"])}
+           "steps": int(run.all_counters()["steps"])}
     if status != "complete":
         out["note"] = f"companion run stopped early ({msg}); estimate up to t = {times[n-1]:.6g} s"
     units = {"position": ("m", "estimated global error of positions (bodies, output points)"),

@@ -163,15 +163,14 @@ def verdict(model, q, eigenvalues, vectors=None, basis=None, w2=None, rtol=1e-7,
             converged=True) -> dict:
     """stability, stable, neutral_modes (named) and the frequencies of a stationary point
     (module doc).  eigenvalues (n,) of H with their vectors (n, n) and N (nq, n) at q."""
-    from mbsim.analyses.linear import body_modes, describe_mode
+    from mbsim.analyses.linear import name_neutral
 
     e = np.asarray(eigenvalues, float)
     tol = rtol * max(1.0, float(np.abs(e).max(initial=0.0)))
     neutral = np.abs(e) <= tol
     out = {"stability": classify(e, rtol), "neutral_modes": []}
     if vectors is not None and basis is not None and neutral.any():
-        shapes = body_modes(model, q, basis @ vectors[:, neutral])
-        out["neutral_modes"] = [describe_mode(model, q, sh) for sh in shapes]
+        out["neutral_modes"] = name_neutral(model, q, basis @ vectors[:, neutral])
     out["stable"] = bool(converged and out["stability"] != "unstable")
     if w2 is not None:
         w2 = np.sort(np.asarray(w2, float))

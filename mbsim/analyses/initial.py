@@ -79,6 +79,7 @@ def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
     H, h = T.jac[active], T.nu[active]
     M = eq.mass_matrix(model, q)
     C, c, w, labels = given_conditions(model, q)
+    eq.require_finite(model, t0, M=M, J=H, nu=h)  # input guard: 1e308 inertia, points
     # constraints: qd = qd_p + N z
     U, s, Vt = la.svd(H, full_matrices=True)
     rank = int(np.sum(s > rtol * max(1.0, s[0] if s.size else 1.0)))

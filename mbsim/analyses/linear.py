@@ -207,7 +207,7 @@ def describe_mode(model, q0, shape_body, tol=0.1) -> str:
 
     def fmt(a):
         a = a * np.sign(a[np.argmax(np.abs(a))])
-        return "(" + ", ".join(f"{x:.3g}" for x in np.where(np.abs(a) < 1e-9, 0.0, a)) + ")"
+        return "(" + ", ".join(f"{x:.3g}" for x in np.where(np.abs(a) < 1e-6, 0.0, a)) + ")"
 
     for b in np.argsort(-mags):
         if mags[b] < tol * top or model.is_ground[b]:
@@ -233,6 +233,82 @@ def describe_mode(model, q0, shape_body, tol=0.1) -> str:
     return "; ".join(parts) or "no motion"
 
 
+def name_neutral(model, q0, dq, rtol=1e-3) -> list[str]:
+    """Names of the neutral subspace spanned by the columns of dq (nq, k), complex or real.
+
+    The span (rank by SVD) is described in the simplest terms that fit it: first motions of
+    one body alone (its rotation about one of its body axes, its translation along a global
+    axis: a free spin), then rigid motions of all moving bodies together (translation along
+    a global axis, rotation about a global axis through their mass centre: a cyclic spin, a
+    vehicle's plan position and heading), each tested for membership of the span (relative
+    residual < rtol) in body coordinates; what is left is described by :func:`describe_mode`.
+    """
+    if dq.size == 0:
+        return []
+    V = np.hstack([np.real(dq), np.imag(dq)])
+    U, s, _ = la.svd(body_modes(model, q0, V).reshape(V.shape[1], -1).T, full_matrices=False)
+    rank = int(np.sum(s > 1e-6 * max(s[0], 1e-300)))
+    span = U[:, :rank]  # (6 nb, r) orthonormal, body coordinates
+    nb = model.nb
+    moving = [b for b in range(nb) if not model.is_ground[b]]
+    st = eq.State(model, q0)
+    A = st.A
+    candidates = []  # (name, (6 nb,) body-coordinate vector)
+    for b in moving:
+        for k, ax in enumerate(("x'", "y'", "z'")):
+            T = np.zeros((nb, 6))
+            T[b, 3 + k] = 1.0
+            g = A[b][:, k]
+            candidates.append((f"{model.body_names[b]}: rotation about body axis {ax} "
+                               f"(global {_fmt(g)})", T.reshape(-1)))
+        for k, ax in enumerate("xyz"):
+            T = np.zeros((nb, 6))
+            T[b, k] = 1.0
+            candidates.append((f"{model.body_names[b]}: translation along global {ax}",
+                               T.reshape(-1)))
+    if len(moving) > 1:
+        m = model.mass[moving]
+        c = (m[:, None] * st.r[moving]).sum(0) / m.sum()
+        who = "all moving bodies" if len(moving) == nb - int(model.is_ground.sum()) else ""
+        for k, ax in enumerate("xyz"):
+            T = np.zeros((nb, 6))
+            T[moving, k] = 1.0
+            candidates.append((f"translation of {who} along global {ax}", T.reshape(-1)))
+        for k, ax in enumerate("xyz"):
+            w = np.eye(3)[k]
+            T = np.zeros((nb, 6))
+            for b in moving:
+                T[b, :3] = np.cross(w, st.r[b] - c)
+                T[b, 3:] = A[b].T @ w
+            candidates.append((f"rotation of {who} together about global {ax} through "
+                               f"{_fmt(c, keep_sign=True)}", T.reshape(-1)))
+    names, taken = [], np.zeros((span.shape[0], 0))
+    for name, T in candidates:
+        if taken.shape[1] >= rank:
+            break
+        T = T / np.linalg.norm(T)
+        if np.linalg.norm(T - span @ (span.T @ T)) > rtol:
+            continue  # not a neutral motion
+        rest = T - taken @ (taken.T @ T)
+        if np.linalg.norm(rest) < 0.1:
+            continue  # already named
+        taken = np.column_stack([taken, rest / np.linalg.norm(rest)])
+        names.append(name)
+    if taken.shape[1] < rank:  # the others, one orthogonal direction each
+        left = span - taken @ (taken.T @ span)
+        Ul, sl, _ = la.svd(left, full_matrices=False)
+        for k in range(rank - taken.shape[1]):
+            names.append(describe_mode(model, q0, Ul[:, k].reshape(nb, 6)))
+    return names
+
+
+def _fmt(a, keep_sign=False) -> str:
+    a = np.asarray(a, float)
+    if not keep_sign:
+        a = a * np.sign(a[np.argmax(np.abs(a))])
+    return "(" + ", ".join(f"{x:.3g}" for x in np.where(np.abs(a) < 1e-6, 0.0, a) + 0.0) + ")"
+
+
 def classify(lam, zero_tol=1e-5, re_tol=1e-6):
     """(verdict, neutral mask): see the module doc."""
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)))
@@ -254,6 +330,8 @@ def modal_quantities(lam):
 def _options(model, options):
     opt = dict(DEFAULTS, **(model.spec.analysis.get("linear", {}) if model.spec else {}))
     opt.update({k: v for k, v in (options or {}).items() if v is not None})
+    if opt.get("method"):  # `mbsim run --mode linear --method steady`
+        opt["about"] = opt.pop("method")
     return opt
 
 
@@ -319,6 +397,11 @@ def linear(model, options=None) -> Result:
     q0, qd0, t, rows, spin, desc, _ = reference_state(model, opt)
     chart = Chart(model, q0, rows, t, spin, tol=float(opt["phi_tol"]))
     n = chart.n
+    if n == 0:
+        names = ", ".join(it.name for it in model.items if it.kind == "driver") or "none"
+        raise DeckError(f"linear analysis needs free coordinates, but the constraints and "
+                        f"drivers ({names}) leave DOF = 0: remove the drivers (active: false "
+                        "or a scene) to study the free motion")
     h = float(opt["fd_step"])
     qd_rel0 = qd0
     vd0 = chart.N.T @ qd_rel0
@@ -326,9 +409,13 @@ def linear(model, options=None) -> Result:
     A4, _ = chart.state_matrix(vd0, 4 * h)
     lam, X = la.eig(A) if n else (np.zeros(0, complex), np.zeros((0, 0), complex))
     lam, X = sort_eigen(lam, X)
-    lam4 = np.sort_complex(la.eigvals(A4)) if n else np.zeros(0)
+    lam4 = la.eigvals(A4)
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)))
-    fd_check = float(np.abs(np.sort_complex(lam) - lam4).max(initial=0.0)) / scale
+    from scipy.optimize import linear_sum_assignment  # pair each eigenvalue with its twin
+
+    dist = np.abs(lam[:, None] - lam4[None, :])
+    rows_, cols_ = linear_sum_assignment(dist)
+    fd_check = float(dist[rows_, cols_].max(initial=0.0)) / scale
     verdict, neutral = classify(lam, float(opt["zero_tol"]), float(opt["re_tol"]))
     wn, fhz, wd, zeta = modal_quantities(lam)
     wn[neutral], fhz[neutral], wd[neutral], zeta[neutral] = 0.0, 0.0, 0.0, 0.0
@@ -342,11 +429,7 @@ def linear(model, options=None) -> Result:
         if abs(big) > 0:
             bm[k] /= big
             dq[:, k] /= big
-    neutral_names = []
-    for k in np.flatnonzero(neutral):
-        name = describe_mode(model, q0, bm[k])
-        if name not in neutral_names:
-            neutral_names.append(name)
+    neutral_names = name_neutral(model, q0, dq[:, neutral])
     residual = float(np.abs(F0[n:]).max(initial=0.0)) if spin is not None or not \
         np.any(qd0) else None
 

@@ -4,7 +4,7 @@ The loader is imported on first use, so that ``mbsim.deck.spec`` (plain dataclas
 the model and the tests) does not pull in YAML parsing, units and expressions.
 """
 
-__all__ = ["load_deck", "load_deck_text"]
+__all__ = ["ParsedDeck", "load_deck", "load_deck_text", "parse_deck"]
 
 
 def __getattr__(name):

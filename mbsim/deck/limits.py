@@ -38,7 +38,8 @@ class Limit:
         if got is None:
             over = f"over the limit of {self.value}"
         else:
-            over = f"over the limit: {f'{got:.3g}' if isinstance(got, float) else got} > {self.value}"
+            got_s = f"{got:.3g}" if isinstance(got, float) else str(got)
+            over = f"over the limit: {got_s} > {self.value}"
         return f"{self.what} is {over} (set the environment variable {self.env} to raise it)"
 
 
@@ -47,11 +48,12 @@ DEPTH = Limit("DEPTH", 64, "nesting depth of lists and mappings")
 ITEMS = Limit("ITEMS", 100_000, "number of entries of one list or mapping")
 NAME_CHARS = Limit("NAME_CHARS", 200, "length of a key (characters)")
 TABLE_POINTS = Limit("TABLE_POINTS", 100_000, "number of points of a table or polynomial")
+POLYNOMIAL_TERMS = Limit("POLYNOMIAL_TERMS", 1000, "number of polynomial coefficients")
 PARAMETERS = Limit("PARAMETERS", 10_000, "number of parameters")
 OUTPUTS = Limit("OUTPUTS", 1_000_000, "number of output times (t_end - t_start)/step")
 FORMULA_CHARS = 10_000  # mbsim.expr.MAX_LENGTH: fixed, a formula is one line
 
-ALL = (DECK_BYTES, DEPTH, ITEMS, NAME_CHARS, TABLE_POINTS, PARAMETERS, OUTPUTS)
+ALL = (DECK_BYTES, DEPTH, ITEMS, NAME_CHARS, TABLE_POINTS, POLYNOMIAL_TERMS, PARAMETERS, OUTPUTS)
 
 
 # -- analysis settings ---------------------------------------------------------------------------

@@ -13,7 +13,6 @@ the file nor the whole tree is read or copied again per case.
 
 from __future__ import annotations
 
-import functools
 import math
 import re
 from collections.abc import Mapping
@@ -112,11 +111,25 @@ def parse_deck_text(text: str, file: str = "<deck>", scene: str | None = None) -
     return parsed
 
 
-@functools.lru_cache(maxsize=4)
+_PARSED: dict[tuple[str, str], ParsedDeck] = {}  # (file, text) -> parsed deck, newest last
+PARSED_KEPT = 4  # decks remembered per process
+
+
 def parse_deck_cached(text: str, file: str = "<deck>") -> ParsedDeck:
-    """:func:`parse_deck_text`, remembered per (text, file) in this process: a sweep or
-    study worker parses its deck once, not once per case."""
-    return parse_deck_text(text, file)
+    """:func:`parse_deck_text`, remembered per (file, text) in this process: a sweep or
+    study worker parses its deck once, not once per case (a forked worker inherits the
+    decks its parent remembered, :func:`remember_deck`)."""
+    parsed = _PARSED.get((file, text))
+    return parsed if parsed is not None else remember_deck(parse_deck_text(text, file))
+
+
+def remember_deck(parsed: ParsedDeck) -> ParsedDeck:
+    """Keep `parsed` for :func:`parse_deck_cached` (the last PARSED_KEPT decks)."""
+    _PARSED.pop((parsed.file, parsed.text), None)
+    _PARSED[(parsed.file, parsed.text)] = parsed
+    while len(_PARSED) > PARSED_KEPT:
+        del _PARSED[next(iter(_PARSED))]
+    return parsed
 
 
 class ParsedDeck:
@@ -152,6 +165,7 @@ class ParsedDeck:
         root = cow(self.root)
         if scene is not None:
             apply_scene(root, scene, self.file)
+            self._checked.add(scene)
         for key, value in (overrides or {}).items():
             apply_override(root, key, value, self.file)
         _drop_inactive(root, self.file)
@@ -220,6 +234,8 @@ def _build(root: Node, rd: Reader, text: str, scene: str | None,
     drivers = _section(rd, top, "drivers", _driver, bodies, joints)
     forces = _section(rd, top, "forces", _force, bodies, joints)
     outputs = _outputs(rd, *top["outputs"], bodies) if "outputs" in top else {}
+    out_measures, out_only = (_output_extras(rd, *top["outputs"], bodies, joints)
+                              if "outputs" in top else ({}, None))
     analysis = _analysis(rd, *top["analysis"]) if "analysis" in top else {}
     if "scenes" in top:
         for _name, node, w in rd.items(*top["scenes"]):
@@ -232,7 +248,7 @@ def _build(root: Node, rd: Reader, text: str, scene: str | None,
         title=title, file=rd.file, text=text, gravity=gravity, parameters=dict(rd.params),
         bodies=bodies, joints=joints, drivers=drivers, forces=forces, outputs=outputs,
         analysis=analysis, raw=to_plain(root), warnings=rd.warnings, scene=scene,
-        studies=cases,
+        studies=cases, output_measures=out_measures, output_only=out_only,
     )  # fmt: skip
 
 
@@ -525,6 +541,33 @@ def _outputs(rd: Reader, node: Node, where: Where, bodies: dict) -> dict[str, Ou
     return out
 
 
+def _output_extras(rd: Reader, node: Node, where: Where, bodies: dict, joints: dict):
+    """(measures, only) of ``outputs:`` (mbsim.measures owns the measure types)."""
+    got = rd.fields(node, where, schema.OUTPUT_KEYS, what="outputs")
+    measures = {}
+    if "measures" in got:
+        from mbsim.measures import read_output_measures
+
+        measures = read_output_measures(rd, *got["measures"], bodies, joints)
+    only = None
+    if "only" in got:
+        onode, ow = got["only"]
+        if onode.kind != "seq":
+            raise rd.error(ow, f"expected a list of channel names or patterns, got "
+                           f"{describe(onode)}", onode)
+        only = []
+        for k, item in enumerate(onode.value):
+            text = item.name()
+            group = (text or "").replace("/", ".").split(".")[0]
+            if text is None or group not in schema.OUTPUT_GROUPS and group != "*":
+                raise rd.error(ow.child(k, item.line or ow.line),
+                               f"expected a channel name or pattern starting with one of "
+                               f"{', '.join(schema.OUTPUT_GROUPS)}, got {describe(item)}", item)
+            only.append(text)
+        only = tuple(only)
+    return measures, only
+
+
 def _analysis(rd: Reader, node: Node, where: Where) -> dict[str, dict]:
     got = rd.fields(node, where, schema.ANALYSIS_MODES, what="analysis")
     out = {}
@@ -634,6 +677,9 @@ def _study_case(rd: Reader, node: Node, where: Where, base: Node) -> dict:
             key: rd.setting(child, w, schema.ANALYSIS_DIMENSIONS.get(key))
             for key, child, w in rd.items(*got["options"])
         }
+        wheres = {key: w for key, _, w in rd.items(*got["options"])}
+        for key, message in limits.setting_problems(case["options"]):
+            raise rd.error(wheres.get(key, got["options"][1]), message)
     return case
 
 
@@ -676,7 +722,7 @@ def _curve_count(selector: str) -> int | None:
     if re.search(r"\[-?\d+\]$", key):
         return 1
     parts = key.split("/")
-    depth = 2 if parts[0] in ("monitors", "constraints") else 3  # monitors/energy, bodies/b/r
+    depth = 2 if parts[0] in ("monitors", "constraints", "error") else 3  # monitors/energy, bodies/b/r
     if len(parts) == depth and parts[-1] in schema.STUDY_FIGURE_WIDTHS.get(parts[0], {}):
         return schema.STUDY_FIGURE_WIDTHS[parts[0]][parts[-1]]
     if len(parts) == depth + 1 and parts[0] in ("bodies", "points", "joints", "forces"):

@@ -20,7 +20,9 @@ BODY_KEYS = (
 ORIENTATION_KEYS = ("p", "euler_deg", "axis_angle")  # at most one per body
 AXIS_ANGLE_KEYS = ("axis", "angle")
 POINT_KEYS = ("P", "Q", "R")
-OUTPUT_KEYS = ("points",)
+OUTPUT_KEYS = ("points", "measures", "only")
+OUTPUT_GROUPS = ("bodies", "points", "forces", "joints", "drivers", "monitors", "constraints",
+                 "measures")  # first segment of an `outputs: only:` pattern
 OUTPUT_POINT_KEYS = ("body", "point")
 SCENE_KEYS = ("description", "set", "remove", "analysis")
 ANALYSIS_MODES = ("assembly", "kinematic", "dynamic", "inverse", "equilibrium", "linear")
@@ -46,9 +48,10 @@ STUDY_FIGURE_WIDTHS = {
     "monitors": {"position_violation": 1, "velocity_violation": 1, "energy": 1,
                  "work_nonconservative": 1, "step_size": 1},
     "constraints": {"residual": 1, "condition": 1},
+    "error": {"position": 1, "orientation": 1, "velocity": 1, "angular_velocity": 1},
 }
 STUDY_NUMBER_KEYS = ("name", "y", "stat", "scale", "unit", "cases", "from", "band")
-STUDY_MODES = ("kinematic", "equilibrium", "inverse", "dynamic")
+STUDY_MODES = ("kinematic", "equilibrium", "inverse", "dynamic", "linear")
 STUDY_STATS = ("final", "initial", "max", "min", "absmax", "mean", "range", "t_max", "t_min",
                "t_absmax", "period", "settle", "growth")
 AXES = ("x", "y", "z")
@@ -276,4 +279,6 @@ def can_add(segs: list[str | int]) -> bool:
         return any(segs[2] in force_keys(kind) for kind in FORCE_TYPES)
     if group == "analysis":
         return n == 3 or (n == 2 and segs[1] in ANALYSIS_MODES)
+    if group == "outputs":  # `--set outputs.only=[...]`, a new measures section
+        return n == 2 and segs[1] in OUTPUT_KEYS
     return False

@@ -137,3 +137,7 @@ class DeckSpec:
     # studies: name -> {'description': str, 'cases': [case], 'figures': [figure],
     # 'numbers': [number]}, plain validated data read by mbsim.study (docs/studies.md)
     studies: dict[str, dict[str, Any]] = field(default_factory=dict)
+    # outputs: measures (name -> mbsim.measures.OutputMeasure) and `only` (channel patterns
+    # restricting what a run computes and writes; None: everything), docs/deck.md#outputs
+    output_measures: dict[str, Any] = field(default_factory=dict)
+    output_only: tuple[str, ...] | None = None

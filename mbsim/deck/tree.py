@@ -135,6 +135,9 @@ class _Converter:
         self.constructor = yaml.constructor.SafeConstructor()
         self.done: dict[int, Node] = {}  # aliases share one Node (no exponential blow-up)
         self.active: set[int] = set()
+        # read once per deck (an environment lookup per node costs seconds on 10^5 nodes)
+        self.max_depth, self.max_items = limits.DEPTH.value, limits.ITEMS.value
+        self.max_name = limits.NAME_CHARS.value
 
     def line(self, ynode: yaml.Node) -> int | None:
         return None if self.origin else ynode.start_mark.line + 1
@@ -148,12 +151,12 @@ class _Converter:
             return self.done[key]
         if key in self.active:
             raise self.fail(ynode, "recursive YAML alias")
-        if depth > limits.DEPTH.value:
+        if depth > self.max_depth:
             raise self.fail(ynode, limits.DEPTH.exceeded(depth))
         if not isinstance(ynode, yaml.ScalarNode):
             if ynode.tag not in CONTAINER_TAGS:
                 raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}")
-            if len(ynode.value) > limits.ITEMS.value:
+            if len(ynode.value) > self.max_items:
                 raise self.fail(ynode, limits.ITEMS.exceeded(len(ynode.value)))
         self.active.add(key)
         if isinstance(ynode, yaml.MappingNode):
@@ -183,7 +186,7 @@ class _Converter:
             if not isinstance(knode, yaml.ScalarNode):
                 raise self.fail(knode, "a mapping key must be a plain name, not a list or mapping")
             name = knode.value
-            if len(name) > limits.NAME_CHARS.value:
+            if len(name) > self.max_name:
                 raise self.fail(knode, f"key {quote(name, 40)}: "
                                 f"{limits.NAME_CHARS.exceeded(len(name))}")
             here = f"{path}.{name}" if path else name

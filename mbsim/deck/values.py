@@ -11,11 +11,13 @@ from __future__ import annotations
 import difflib
 import math
 import re
+import warnings
 from typing import Any
 
 import numpy as np
 
 from mbsim import units
+from mbsim.deck import limits
 from mbsim.deck.schema import DIMENSIONS, FUNCTION_FORMS, HARMONIC_KEYS, INTERPOLATIONS
 from mbsim.deck.spec import FunctionSpec, PointSet
 from mbsim.deck.tree import Node
@@ -110,7 +112,8 @@ class Reader:
         for key, child, w in self.items(node, where):
             if key not in allowed:
                 hint = suggest(key, allowed) or f"; expected one of: {', '.join(allowed)}"
-                raise self.error(w, f"unknown key {quote(key)}{' in ' + what if what else ''}{hint}")
+                where_ = f" in {what}" if what else ""
+                raise self.error(w, f"unknown key {quote(key)}{where_}{hint}")
             got[key] = (child, w)
         for key in required:
             if key not in got:
@@ -163,7 +166,7 @@ class Reader:
         if units.looks_like_quantity(text):
             return self._quantity(text, node, where, dim), True
         expr = self.formula(text, node, where, set(self.params))
-        return self._finite(float(expr({})), node, where, text), False
+        return self._finite(_constant(expr), node, where, text), False
 
     def _finite(self, x: float, node: Node, where: Where, text: str | None = None) -> float:
         if not math.isfinite(x):
@@ -288,6 +291,8 @@ class Reader:
         if form == "polynomial":
             if child.kind != "seq" or not child.value:
                 raise self.error(w, f"expected a list of coefficients, got {describe(child)}")
+            if len(child.value) > limits.POLYNOMIAL_TERMS.value:
+                raise self.error(w, limits.POLYNOMIAL_TERMS.exceeded(len(child.value)))
             coeffs = [self.number(v, _item(w, i, v)) for i, v in enumerate(child.value)]
             return FunctionSpec("polynomial", {"coefficients": coeffs}, w)
         if form == "harmonic":
@@ -309,6 +314,8 @@ class Reader:
             col, cw = tab[key]
             if col.kind != "seq":
                 raise self.error(cw, f"expected a list of numbers, got {describe(col)}", col)
+            if len(col.value) > limits.TABLE_POINTS.value:
+                raise self.error(cw, limits.TABLE_POINTS.exceeded(len(col.value)))
             cols[key] = np.array(
                 [self.number(v, _item(cw, i, v), kdim) for i, v in enumerate(col.value)]
             )
@@ -341,7 +348,7 @@ class Reader:
             return FunctionSpec("constant", {"value": self.number(node, where, dim)}, where)
         expr = self.formula(text, node, where, set(self.params) | variables)
         if not set(expr.names) & variables:
-            value = self._finite(float(expr({})), node, where, text)
+            value = self._finite(_constant(expr), node, where, text)
             return FunctionSpec("constant", {"value": value}, where)
         return FunctionSpec("expression", {"expr": expr}, where)
 
@@ -356,7 +363,7 @@ class Reader:
         allowed = None if names is None else set(self.params) | {"t"} | set(names)
         expr = self.formula(text, node, where, allowed)
         if not expr.names:  # folded to a constant once parameters are bound (e.g. 0 psi)
-            return FunctionSpec("constant", {"value": self._finite(float(expr({})), node, where,
+            return FunctionSpec("constant", {"value": self._finite(_constant(expr), node, where,
                                                                   text)}, where)
         if set(expr.names) <= {"t"}:
             return FunctionSpec("expression", {"expr": expr}, where)
@@ -459,6 +466,14 @@ class Reader:
                 wheres["R"],
                 f"P→R is {math.degrees(angle):.2f}° from P→Q; orthogonalised against it",
             )
+
+
+def _constant(expr: Expression) -> float:
+    """A constant formula's value; overflow and invalid operations give inf/nan for
+    :meth:`Reader._finite` to report, without numpy's RuntimeWarning lines on the terminal."""
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return float(expr({}))
 
 
 def _cut(text: str, limit: int = 2 * QUOTE_LIMIT) -> str:

@@ -124,9 +124,15 @@ def build(dest: Path | None = None) -> Path:
     log.info(MESSAGE)
     if fast.on_compile is not None:
         fast.on_compile(MESSAGE)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=dest.stem + ".", suffix=".tmp" + _suffix(),
-                               dir=dest.parent)
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=dest.stem + ".", suffix=".tmp" + _suffix(),
+                                   dir=dest.parent)
+    except OSError as exc:
+        raise KernelBuildError(
+            f"cannot write mbsim's compile cache {dest.parent} ({exc.strerror}); set "
+            "MBSIM_CACHE_DIR to a writable folder"
+        ) from exc
     os.close(fd)
     try:
         cmd = compile_command(cc, SOURCE, tmp, digest)
@@ -158,6 +164,11 @@ def library():
                                        "are installed; reinstall mbsim")
             lib = ctypes.CDLL(str(build()))
         _declare(lib)
+        if lib.mb_struct_size() != ctypes.sizeof(Struct):  # an edit on one side only
+            raise KernelBuildError(
+                f"mb_model in kernels.c ({lib.mb_struct_size()} bytes) and "
+                f"mbsim.fast._lib.Struct ({ctypes.sizeof(Struct)} bytes) differ"
+            )
         _LIB = lib
     return _LIB
 
@@ -173,6 +184,7 @@ def _declare(lib):
         "mb_mass_blocks": ([P], None),
         "mb_accelerations": ([P, I, I], I),
         "mb_project": ([P, I], I),
+        "mb_struct_size": ([], ctypes.c_int64),
     }
     for name, (args, res) in sig.items():
         f = getattr(lib, name)

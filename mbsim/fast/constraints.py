@@ -47,7 +47,7 @@ SPARSE_NQ = 250  # CSR Jacobians from about 35 bodies on (measured crossover, sp
 
 
 class FastConstraints:
-    """Compiled constraint evaluation of one model on a fixed set of rows.
+    """Constraint evaluation in C (kernels.c) of one model on a fixed set of rows.
 
     model: compiled :class:`mbsim.model.Model`; rows: (m_a,) the rows to return (e.g. an
     assembly's active rows), default all m, in the model's order; sparse: the Jacobian as

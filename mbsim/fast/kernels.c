@@ -49,7 +49,7 @@ const char *mb_source_hash(void) { return MB_SOURCE_HASH; }
 static const int NE[8] = {1, 1, 3, 1, 1, 1, 6, 1}; /* equations per constraint, by code */
 
 /* The caller's view of one model: sizes, static tables, per-call inputs, outputs, work.
- * The field order is mirrored by mbsim.fast._lib.Model (ctypes.Structure). */
+ * The field order is mirrored by mbsim.fast._lib.Struct (SIZES, then POINTERS). */
 typedef struct {
     idx nb, nq, m, ma, nc, ninc, npairs, nenv, ne;
     const idx *ci;
@@ -74,6 +74,9 @@ typedef struct {
      * K ((nq+ma)^2), kr (nq+ma), Mb (nb*49), A (nb*9), F, n, w (nb*3) */
     double *Qt, *g, *Mi, *XG, *JG, *env, *srhs, *z, *K, *kr, *Mb, *A, *F, *n, *w;
 } mb_model;
+
+/* sizeof(mb_model): mbsim.fast._lib checks it against its ctypes mirror at load time. */
+int64_t mb_struct_size(void) { return (int64_t)sizeof(mb_model); }
 
 /* -- body-fixed vectors ------------------------------------------------------------------- */
 
@@ -140,7 +143,7 @@ static void xB(const double *x, const double B[3][4], double *out)
 
 /* dot-1: Phi = a_i . a_j (Haug eq. 9.2.3); slots a_i, a_j.
  * Phi_p_i = a_j^T B(p_i, a_i'), Phi_p_j = a_i^T B(p_j, a_j');
- * gamma = -(a_i . bdot_j + a_j . bdot_i + 2 adot_i . adot_j) (Haug eq. 9.2.5). */
+ * gamma = -(a_i . bdot_j + a_j . bdot_i + 2 adot_i . adot_j). */
 static void k_dot1(const vec_t *v, double *phi, double *J, double *gamma, int jac, int gam)
 {
     phi[0] = dot3(v[0].val, v[1].val);
@@ -153,7 +156,7 @@ static void k_dot1(const vec_t *v, double *phi, double *J, double *gamma, int ja
                      2.0 * dot3(v[0].vel, v[1].vel));
 }
 
-/* d = r_j + A_j s_j - r_i - A_i s_i and its rate (Haug eq. 9.2.7). */
+/* d = r_j + A_j s_j - r_i - A_i s_i and its rate (Haug eq. 9.2.x). */
 static void point_diff(const double *q, const double *qd, idx bi, idx bj, const vec_t *v,
                        int gam, double *d, double *dd)
 {
@@ -166,8 +169,8 @@ static void point_diff(const double *q, const double *qd, idx bi, idx bj, const 
 
 /* dot-2: Phi = a . d_ij, a on body i (flag 0) or j (flag 1) (Haug eq. 9.2.6); slots a, s_i,
  * s_j.  Phi_r_i = -a^T, Phi_r_j = a^T, Phi_p_i = -a^T B(p_i, s_i'), Phi_p_j = a^T B(p_j, s_j'),
- * plus d^T B(p, a') on a's body; gamma = -(a . (bdot_j - bdot_i) + d . bdot_a + 2 adot . ddot)
- * (Haug eq. 9.2.8). */
+ * plus d^T B(p, a') on a's body; gamma = -(a . (bdot_j - bdot_i) + d . bdot_a + 2 adot . ddot).
+ */
 static void k_dot2(const double *q, const double *qd, idx bi, idx bj, idx flag, const vec_t *v,
                    double *phi, double *J, double *gamma, int jac, int gam)
 {
@@ -201,7 +204,7 @@ static void k_dot2(const double *q, const double *qd, idx bi, idx bj, idx flag, 
 }
 
 /* spherical: Phi = d_ij (3 equations, Haug eq. 9.4.1); slots -, s_i, s_j.
- * Phi_q = [-I, -B(p_i, s_i'), I, B(p_j, s_j')]; gamma = bdot_i - bdot_j (Haug eq. 9.4.2). */
+ * Phi_q = [-I, -B(p_i, s_i'), I, B(p_j, s_j')]; gamma = bdot_i - bdot_j. */
 static void k_spherical(const double *q, const double *qd, idx bi, idx bj, const vec_t *v,
                         double *phi, double *J, double *gamma, int jac, int gam)
 {
@@ -224,8 +227,7 @@ static void k_spherical(const double *q, const double *qd, idx bi, idx bj, const
 }
 
 /* distance: Phi = d . d, target C^2 (Haug eq. 9.2.9); slots -, s_i, s_j.
- * Phi_q = 2 d^T [-I, -B_i, I, B_j]; gamma = -2 (d . (bdot_j - bdot_i) + ddot . ddot)
- * (Haug eq. 9.2.10). */
+ * Phi_q = 2 d^T [-I, -B_i, I, B_j]; gamma = -2 (d . (bdot_j - bdot_i) + ddot . ddot). */
 static void k_distance(const double *q, const double *qd, idx bi, idx bj, const vec_t *v,
                        double *phi, double *J, double *gamma, int jac, int gam)
 {
@@ -321,7 +323,7 @@ static void k_ground(const double *q, idx bi, double *phi, double *J, double *ga
 }
 
 /* normalization: Phi = p^T p (target 1; Haug eq. 6.3.2); Phi_p = 2 p^T;
- * gamma = -2 pd^T pd (Haug eq. 6.3.4 differentiated). */
+ * gamma = -2 pd^T pd (its second time derivative). */
 static void k_normalization(const double *q, const double *qd, idx bi, double *phi, double *J,
                             double *gamma, int jac, int gam)
 {
@@ -677,6 +679,8 @@ static void apply_minv(const mb_model *M, int unit, idx b, const double *x, doub
  * (pairs), assembled in the envelope of its RCM permutation and overwritten by its
  * Cholesky factor L (George and Liu 1981, Ch. 4: the fill stays in the envelope), the
  * diagonal stored as 1 / L_ii.  Returns 0 when S is not positive definite. */
+#define PIVOT_FLOOR 1e-8 /* relative: (sigma_min / sigma)^2 below which a pivot is raised */
+
 static int schur_factor(const mb_model *M, const double *Jc, int unit)
 {
     const idx *sidx = M->sidx, *inc = M->inc, *pairs = M->pairs;
@@ -708,11 +712,20 @@ static int schur_factor(const mb_model *M, const double *Jc, int unit)
                 s -= env[oi + k] * env[oj + k];
             env[oi + j] = s * env[oj + j];
         }
-        double s = env[oi + i];
+        double d0 = env[oi + i], s = d0;
         for (idx k = fi; k < i; k++)
             s -= env[oi + k] * env[oi + k];
-        if (!(s > 0.0))
-            return 0;
+        if (!(s > PIVOT_FLOOR * d0)) {
+            /* A pivot below PIVOT_FLOOR of its diagonal: the kept rows are (nearly) dependent
+             * here, as at a change point of a mechanism (the flat position of a parallelogram
+             * linkage), where the multiplier of the vanishing direction is 0/0.  Raising the
+             * pivot to the floor (a modified Cholesky, Gill & Murray 1974) leaves every other
+             * direction exact and bounds that one, which the projection then corrects; without
+             * it the step size collapsed there (issue 11). */
+            if (!(d0 > 0.0) || !(s > -1e-6 * d0)) /* not a near-zero pivot: indefinite */
+                return 0;
+            s = PIVOT_FLOOR * d0;
+        }
         env[oi + i] = 1.0 / sqrt(s);
     }
     return 1;

@@ -33,7 +33,34 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse.linalg as spla
 
+from mbsim.integrators.base import hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
+
+
+BRANCH_JUMP = 1e3  # scaled deviation of the dependent coordinates that rejects a step
+
+
+def quintic_hermite(a, b):
+    """g(t, k) on [a[0], b[0]]: the quintic Hermite interpolant of q (k = 0) or its rate
+    (k = 1) from the states a, b = (t, q, qd, qdd) at the ends of a step (fifth order)."""
+    t0, q0, v0, a0 = a[:4]
+    t1, q1, v1, a1 = b[:4]
+    h = t1 - t0
+
+    def g(t, k=0):
+        x = (t - t0) / h
+        x2, x3, x4, x5 = x * x, x ** 3, x ** 4, x ** 5
+        if k == 0:
+            return ((1 - 10 * x3 + 15 * x4 - 6 * x5) * q0 + (10 * x3 - 15 * x4 + 6 * x5) * q1
+                    + h * ((x - 6 * x3 + 8 * x4 - 3 * x5) * v0 + (-4 * x3 + 7 * x4 - 3 * x5) * v1)
+                    + h * h * (0.5 * (x2 - 3 * x3 + 3 * x4 - x5) * a0
+                               + 0.5 * (x3 - 2 * x4 + x5) * a1))
+        return ((-30 * x2 + 60 * x3 - 30 * x4) * (q0 - q1) / h
+                + (1 - 18 * x2 + 32 * x3 - 15 * x4) * v0 + (-12 * x2 + 28 * x3 - 15 * x4) * v1
+                + h * (0.5 * (2 * x - 9 * x2 + 12 * x3 - 5 * x4) * a0
+                       + 0.5 * (3 * x2 - 8 * x3 + 5 * x4) * a1))
+
+    return g
 
 
 class Partition:
@@ -64,6 +91,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._pred = None  # the full q predicted for the next stage (see _trial)
         qdd, _, _ = system.accelerations(self.q, self.qd, self.t)
         self._ref = (self.t, self.q.copy(), self.qd.copy(), qdd)  # Newton predictor data
+        self._ref_prev = None  # the same at the start of the last step (dense output)
         self._last = None  # (t, y, q, qd, qdd, factor) of the latest stage
         self._jac = None
         self.part = self._partition(self.t, self.q)
@@ -135,6 +163,17 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             if np.abs(du).max(initial=0.0) <= self.newton_tol:
                 break  # Phi_q of this iterate is within newton_tol of Phi_q(q): keep it
         else:
+            # the corrections stagnate at round-off of an ill-conditioned Phi_u, but the
+            # constraints themselves hold: keep it (a failure here lost whole runs before)
+            if np.abs(T.phi).max(initial=0.0) <= self.newton_tol:
+                qd = np.empty(self.n)
+                qd[iv] = vd
+                rhs = -(T.jac[:, iv] @ vd)
+                if s.rheonomic:
+                    rhs += T.nu
+                qd[iu] = self._solve(fac, rhs)
+                self._jac = T.jac
+                return q, qd, fac
             worst = np.argsort(-np.abs(T.phi))[:3]
             names = s.model.items_of_rows(s.rows[worst])
             raise StageFailure(f"Newton iteration for the dependent coordinates did not "
@@ -175,8 +214,19 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             QD[s] = self._last[3]
         y_new = y + h * (K[:-1].T @ tab.B)
         self._pred = q0 + h * (QD.T @ tab.B)
+        pred = self._pred.copy()
         f_new = self._rhs(t + h, y_new)
         K[-1] = f_new
+        if self.h_fixed is None:
+            # The RK solution of the full q (q' = qd with the method's weights) is accurate to
+            # the local error; the error estimate sees only (v, vd).  A Newton solution of the
+            # dependent coordinates far from it has jumped to another branch of the
+            # constraints (at a change point, e.g. a parallelogram's flat position): reject.
+            dev = rms_norm(self._last[2] - pred, self.atol + self.rtol * np.abs(pred))
+            if dev > BRANCH_JUMP:
+                raise StageFailure(f"t = {t + h:.6g} s: the dependent coordinates moved "
+                                   f"{dev:.3g} tolerances from the RK solution (another "
+                                   f"branch of the constraints)")
         return y_new, f_new
 
     def _context(self):
@@ -195,8 +245,47 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         q, qd, _ = self._complete(t, y[:k], y[k:2 * k], part)
         return q, qd, float(y[-1])
 
+    def _dense_output_impl(self):
+        """The RK interpolant of (v, vd); the dependent coordinates by Newton as at the stages,
+        started from the quintic Hermite interpolant of the full q between the step's ends
+        (the Taylor predictor from the step's end alone failed on violent motion)."""
+        prev, cur = self._ref_prev, self._ref
+        try:  # DOP853's interpolant solves three extra stages: they may fail too
+            out = super()._dense_output_impl()
+        except StageFailure:
+            if prev is None or prev[0] >= cur[0]:
+                raise
+            out = None
+        if prev is None or prev[0] >= cur[0]:
+            return out
+        guess = quintic_hermite(prev, cur)
+
+        w0, w1 = float(self._dense_args[2][-1]), float(self.y[-1])
+
+        def dense(t):
+            self._pred = np.array(guess(t), dtype=float)
+            try:
+                if out is None:
+                    raise StageFailure("no RK interpolant for this step")
+                return out(t)
+            except StageFailure:
+                # near a singular position the step's partition may not solve at t: the
+                # quintic Hermite interpolant of the full state (q, qd, qdd at both ends of
+                # the step: fifth order), projected onto the constraints, at this output only
+                s = self.system
+                q, ok, _, res = s.project_positions(guess(t), t, tol=self.newton_tol)
+                if not ok and res > 1e2 * self.newton_tol:
+                    raise
+                x = (t - prev[0]) / (cur[0] - prev[0])
+                return q, s.project_velocities(q, guess(t, 1), t), (1 - x) * w0 + x * w1
+            finally:
+                self._pred = None
+
+        return dense
+
     def _accept(self, t, y, f):
         lt, ly, q, qd, qdd, fac = self._last  # the FSAL stage: the accepted state
+        self._ref_prev = self._ref
         self._ref = (t, q, qd, qdd)
         sens = self._sensitivity(fac, self._jac, self.part.iv)
         if sens > self.ratio * max(1.0, self.part.s0):

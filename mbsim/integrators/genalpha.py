@@ -33,8 +33,11 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from mbsim.integrators.base import Integrator, hermite, rms_norm
+from mbsim.integrators.base import MAX_REJECTS, Integrator, hermite, rms_norm
 from mbsim.integrators.system import mass_blocks
+
+
+KKT_REG = 1e-10  # relative regularisation of the Newton matrix's zero block (see below)
 
 
 class GeneralizedAlpha(Integrator):
@@ -111,14 +114,25 @@ class GeneralizedAlpha(Integrator):
         return K, C
 
     def _iteration_matrix(self, Mb, J, bp, gp):
+        """The Newton matrix [A, Phi_q^T; Phi_q, -eps I] of the scaled step equations.
+
+        eps = KKT_REG |Phi_q|^2 / |A| regularises the zero block: near a change point of
+        the mechanism (kept rows nearly dependent) the plain matrix is numerically singular
+        and the iteration stalled (issue 11).  Only the iteration matrix changes, never the
+        residual, so the converged step is the same; elsewhere the change is 1e-10 relative."""
         s = self.system
         n, m = s.nq, s.m
         self.system.counters["factorizations"] += 1
+        if sp.issparse(J):
+            jn = float(J.multiply(J).sum(axis=1).max()) if m else 0.0
+        else:
+            jn = float((J * J).sum(axis=1).max()) if m else 0.0
+        eps = KKT_REG * jn / max(float(np.abs(Mb).max()), 1e-300)
         if s.sparse:
             A = sp.csr_matrix((Mb.reshape(-1), (self._bi, self._bj)), shape=(n, n))
             if self.KC is not None:
                 A = A + sp.csr_matrix(gp / bp * self.KC[1] + self.KC[0] / bp)
-            S = sp.bmat([[A, J.T], [J, None]], format="csc")
+            S = sp.bmat([[A, J.T], [J, -eps * sp.identity(m)]], format="csc")
             lu = spla.splu(S)
             return lu.solve
         S = np.zeros((n + m, n + m))
@@ -127,6 +141,7 @@ class GeneralizedAlpha(Integrator):
             S[:n, :n] += gp / bp * self.KC[1] + self.KC[0] / bp
         S[:n, n:] = J.T
         S[n:, :n] = J
+        S[n:, n:] = -eps * np.eye(m)
         lu = la.lu_factor(S, check_finite=False)
         return lambda b: la.lu_solve(lu, b, check_finite=False)
 
@@ -162,6 +177,10 @@ class GeneralizedAlpha(Integrator):
             err = rms_norm(dq, self.atol + self.rtol * np.abs(q))
             if err <= self.newton_tol:
                 break
+            # corrections at round-off of q (tight tolerances near a singular position):
+            # converged as far as double precision allows
+            if np.abs(dq).max(initial=0.0) <= 64 * np.finfo(float).eps * max(1.0, np.abs(q).max()):
+                break
             if it >= 2 and err > 0.9 * prev:
                 return None  # not contracting
             prev = err
@@ -176,11 +195,18 @@ class GeneralizedAlpha(Integrator):
         refreshed = False
         h_abs = self.h_abs
         am, af, gam, beta = self.coef
+        rejects = 0
         while True:
             h = self._clip(h_abs)
+            if not np.isfinite(h):
+                return self._fail(f"step size is not finite ({h})")
             if h < self._min_step() and h < self.t_bound - self.t:
                 return self._fail(f"{self.TOO_SMALL_STEP} ({h:.3g} s): Newton iteration of "
                                   f"the implicit step does not converge")
+            if rejects >= MAX_REJECTS:
+                return self._fail(f"no progress: {rejects} rejected steps in a row "
+                                  f"(step {h:.3g} s)")
+            rejects += 1
             if self.use_fd and self.KC is None:
                 self.KC = self._tangent(self.q, self.qd, self.qdd, self.lam, self.t)
             res = self._newton(h)
@@ -202,6 +228,8 @@ class GeneralizedAlpha(Integrator):
                 break
             est = q - self._predict(self.t + h)
             err = rms_norm(est, self.atol + self.rtol * np.maximum(np.abs(q), np.abs(self.q)))
+            if not np.isfinite(err):
+                err = 1e10  # NaN/inf in the step: reject hard
             factor = self._step_factor(err, -1.0 / 3.0, rejected)
             h_next = h * factor
             if err <= 1:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator
+from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
 
 class Index1(RungeKuttaIntegrator):
@@ -52,14 +52,38 @@ class Index1(RungeKuttaIntegrator):
         out[:n], out[n:2 * n], out[-1] = qd, qdd, power
         return out
 
+    def _project(self, t, q, qd):
+        """(q, qd) put back on Phi = 0 and Phi_q qd = nu; a projection that does not reach
+        its tolerance (near a singular position) is a failed stage: the step is retried
+        smaller."""
+        s = self.system
+        q, ok, its, res = s.project_positions(q, t, tol=self.proj_tol)
+        if not ok and res > max(1e3 * self.proj_tol, 1e-11):
+            raise StageFailure(f"projection onto the constraints did not converge at "
+                               f"t = {t:.6g} s (max |Phi| = {res:.3g})")
+        return q, s.project_velocities(q, qd, t)
+
     def _accept(self, t, y, f):
         if not self.project:
             return y, f
-        n, s = self.n, self.system
-        q, ok, its, res = s.project_positions(y[:n], t, tol=self.proj_tol)
-        qd = s.project_velocities(q, y[n:2 * n], t)
+        n = self.n
+        q, qd = self._project(t, y[:n], y[n:2 * n])
         y = np.concatenate([q, qd, y[-1:]])
         return y, self._rhs(t, y)
+
+    def _dense_output_impl(self):
+        """The RK interpolant; with projection, each sampled state is projected too, so that
+        outputs satisfy the constraints as the steps do (not only to the local error)."""
+        out = super()._dense_output_impl()
+        if not self.project:
+            return out
+
+        def projected(t):
+            q, qd, w = out(t)
+            q, qd = self._project(t, q, qd)
+            return q, qd, w
+
+        return projected
 
 
 class Baumgarte(Index1):

@@ -141,11 +141,15 @@ def compare_results(
     differences: list[Difference] = []
     for name in names:
         missing = [label for label, r in (("a", a), ("b", b)) if name not in r.channels]
+        if len(missing) == 2 and channels is not None:  # a name in neither file: usage error
+            raise KeyError(_unknown_channel(name, a, b))
         if missing:
             problems.append(f"channel {name!r} missing in {' and '.join(missing)}")
             continue
         da = np.asarray(a.channels[name].data, dtype=float)
         db = np.asarray(b.channels[name].data, dtype=float)
+        if time_problem and da.shape[1:] == db.shape[1:] and da.shape[:1] != db.shape[:1]:
+            continue  # different time axes: said once above, not once per channel
         if da.shape != db.shape:
             problems.append(f"channel {name!r}: shape {da.shape} in a, {db.shape} in b")
             continue
@@ -155,6 +159,26 @@ def compare_results(
     differences.sort(key=lambda d: (d.scaled, d.abs_err), reverse=True)
     ok = not problems and not any(d.failed for d in differences)
     return ok, differences, problems
+
+
+def _unknown_channel(name: str, a: Result, b: Result) -> str:
+    """Message for a --channels name in neither file: a component of a channel (compare takes
+    whole channels), a group, or a close name."""
+    import difflib
+
+    known = list(dict.fromkeys(list(b.channels) + list(a.channels)))
+    base = name.rpartition("/")[0]
+    dotted = name.replace("/", ".")
+    if base in known:
+        return (f"{dotted!r} is a component; --channels takes whole channels: "
+                f"{base.replace('/', '.')}")
+    group = [n for n in known if n.startswith(name + "/")]
+    if group:
+        return (f"{dotted!r} is a group; --channels takes channels: "
+                f"{', '.join(n.replace('/', '.') for n in group[:6])}{', ...' * (len(group) > 6)}")
+    close = difflib.get_close_matches(name, known, n=3)
+    hint = f"; did you mean {', '.join(c.replace('/', '.') for c in close)}?" if close else ""
+    return f"no channel {dotted!r} in either file{hint}"
 
 
 def compare_files(

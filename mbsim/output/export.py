@@ -87,6 +87,11 @@ def select_columns(result: Result, selector: str) -> list[Column]:
                 return [col]
         have = ", ".join(c.label for c in cols if c.label) or "none"
         raise KeyError(f"channel {base!r} has no component {comp!r} (components: {have})")
+    group = [n for n in result.channels if n.startswith(key + "/")]
+    if group:  # 'drivers', 'bodies.slider': a group of channels, not one
+        listed = ", ".join(n.replace("/", ".") for n in group[:6]) + (", ..." * (len(group) > 6))
+        raise KeyError(f"{selector!r} is a group of {len(group)} channel(s), not a channel; "
+                       f"name one of: {listed}")
     result.channel(selector)  # raises KeyError with close-name suggestions
     raise KeyError(selector)  # pragma: no cover - channel() found it after all
 

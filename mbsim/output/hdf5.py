@@ -9,15 +9,22 @@ Layout (see ``docs/hdf5.md`` for an ``h5ls -r`` listing)::
     /time             (nt,) float64, attr unit = 's'
     /<channel path>   (nt,) or (nt, k) float64, attrs unit, description, components
     /names/<kind>     (n,) UTF-8 strings: result.names[kind]
+    /linear/...       arrays without a time axis (Result.arrays, listed in the root attribute
+                      ``arrays``; complex kept complex), e.g. linear/eigenvalues; extra root
+                      attributes from Result.attrs (``stable``, ``stability``)
 
-Writes are atomic: the file is built as ``.<name>.tmp-<pid>`` next to the target and moved
-onto it with :func:`os.replace` only once it is complete and closed.
+Writes are atomic: the file is built in memory, written as ``.<name>.tmp-<pid>`` next to the
+target and moved onto it with :func:`os.replace` only once it is complete and closed; a failed
+write (disk full) leaves the target untouched.  Temporary files of runs killed mid-write
+(kill -9) are removed by the next run or sweep into that folder (:func:`prepare_output`).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
+import re
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -25,7 +32,16 @@ from typing import Any
 import h5py
 import numpy as np
 
-from mbsim.result import STATUS_COMPLETE, Channel, Result
+from mbsim.errors import MbsimError, UsageError
+from mbsim.result import STATUS_COMPLETE, STATUS_INCOMPLETE, Channel, Result
+
+log = logging.getLogger(__name__)
+
+
+class OutputError(MbsimError):
+    """A results file that could not be written (disk full, ...): exit 1, file untouched."""
+
+    exit_code = 1
 
 RESERVED = ("time", "deck", "names", "linear")  # top-level names that channels may not use
 COMPRESS_MIN_SIZE = 1000  # datasets with more elements are chunked and gzip-compressed
@@ -186,16 +202,135 @@ def write_result(result: Result, path: str | Path) -> Path:
     """
     path = Path(path)
     paths = _check_names(result.channels)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    check_finite(result)
+    tmp = _tmp_name(path)
     try:
-        with h5py.File(tmp, "w") as f:
+        # The file is built in memory (HDF5's core driver, no backing store) and written with
+        # plain file I/O: HDF5 writing to a full disk itself raises from its object finalisers
+        # and then crashes the interpreter (issue 13: segmentation fault, exit 139), while a
+        # failed os.write is one OSError.  Memory: one copy of the compressed file.
+        with h5py.File(tmp, "w", driver="core", backing_store=False) as f:
             _write_file(f, result, paths)
             f.flush()
+            image = f.id.get_file_image()
+        with open(tmp, "wb") as out:
+            out.write(image)
+            out.flush()
+            os.fsync(out.fileno())
+        del image
         os.replace(tmp, path)
+    except (OSError, RuntimeError) as exc:  # disk full, quota, permissions
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"cannot write the results to {path}: {_reason(exc)} (an earlier "
+                          f"{path.name} is left as it was)") from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def _tmp_name(path: Path) -> Path:
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}")
+
+
+def _reason(exc: BaseException) -> str:
+    """errno's words when there is one ('No space left on device'), else h5py's first clause."""
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    text = " ".join(str(exc).split())
+    for known in ("No space left on device", "File too large", "Disk quota exceeded",
+                  "Permission denied", "Read-only file system"):  # fmt: skip
+        if known.lower() in text.lower():
+            return known
+    return text[:160]
+
+
+TMP_RE = re.compile(r"\.(?P<name>.+)\.tmp-(?P<pid>\d+)")
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):  # someone else's live process (or cannot tell): keep
+        return True
+    return True
+
+
+def remove_stale_temporaries(folder: str | Path) -> list[Path]:
+    """Remove ``.<name>.tmp-<pid>`` files that a killed run (kill -9, power loss) left in
+    ``folder``: those whose process no longer exists.  Returns the files removed."""
+    removed = []
+    try:
+        entries = list(Path(folder).iterdir())
+    except OSError:
+        return removed
+    for p in entries:
+        m = TMP_RE.fullmatch(p.name)
+        if m and not _pid_alive(int(m["pid"])):
+            try:
+                p.unlink()
+                removed.append(p)
+            except OSError:
+                pass  # not ours to remove (permissions): harmless, it stays hidden
+    if removed:
+        log.info("removed %d stale temporary file(s) of dead runs in %s: %s", len(removed),
+                 folder, ", ".join(p.name for p in removed[:5]))
+    return removed
+
+
+def prepare_output(path: str | Path) -> Path:
+    """Check before an analysis that ``path`` can be written: not a folder, its folder exists
+    and takes a new file (tried by creating and removing the temporary file); removes stale
+    temporaries of dead runs there.  Raises UsageError (exit 2) naming the problem."""
+    path = Path(path)
+    folder = path.parent
+    if path.is_dir():
+        raise UsageError(f"output {path} is a folder; give a file name, e.g. "
+                         f"{path / 'results.h5'}")
+    if not folder.exists():
+        raise UsageError(f"output {path}: the folder {folder} does not exist")
+    if not folder.is_dir():
+        raise UsageError(f"output {path}: {folder} is a file, not a folder")
+    tmp = _tmp_name(path)
+    try:
+        with open(tmp, "wb"):
+            pass
+        tmp.unlink()
+    except OSError as exc:
+        raise UsageError(f"output {path}: cannot create a file in {folder}: "
+                         f"{exc.strerror or exc}") from None
+    remove_stale_temporaries(folder)
+    return path
+
+
+def check_finite(result: Result) -> None:
+    """A result marked complete holds no NaN or inf (issue 13): if a channel does, mark it
+    incomplete, naming the channel and the first time, so the CLI exits 1."""
+    if not result.complete:
+        return
+    t = np.asarray(result.t, dtype=float)
+    bad_t = np.flatnonzero(~np.isfinite(t))
+    if bad_t.size:
+        result.status = STATUS_INCOMPLETE
+        result.message = f"time holds NaN or inf (output {int(bad_t[0])})"
+        return
+    for name, ch in result.channels.items():
+        data = np.asarray(ch.data, dtype=float)
+        if data.size and not np.isfinite(data).all():
+            rows = np.flatnonzero(~np.isfinite(data.reshape(data.shape[0], -1)).all(axis=1)) \
+                if data.ndim else np.array([0])
+            k = int(rows[0]) if rows.size else 0
+            when = f" from t = {t[k]:.6g} s" if data.ndim and k < t.size else ""
+            result.status = STATUS_INCOMPLETE
+            result.message = (f"channel {name.replace('/', '.')} holds NaN or inf{when} "
+                              "(an overflow: check the deck's magnitudes); results kept, marked "
+                              "incomplete")
+            log.warning("%s", result.message)
+            return
 
 
 # --------------------------------------------------------------------------- reading
@@ -277,6 +412,24 @@ def read_result(path: str | Path) -> Result:
             arrays=arrays,
             attrs=extra,
         )
+
+
+def result_file_problem(path: str | Path) -> str | None:
+    """Why ``path`` is not a results file of :func:`write_result` (None when it is one):
+    'not an HDF5 file', 'a sweep index, not a results file', ... (plot, export and compare
+    refuse or skip such files by name instead of failing inside h5py)."""
+    path = Path(path)
+    if not path.is_file():
+        return "no such file"
+    try:
+        with h5py.File(path, "r") as f:
+            if "time" in f and "mode" in f.attrs:
+                return None
+            if path.name == "index.h5" or "cases" in f or "sweep" in f.attrs:
+                return "a sweep index, not a results file"
+            return "an HDF5 file without mbsim results (no /time or mode attribute)"
+    except (OSError, RuntimeError, ValueError):
+        return "not an HDF5 file"
 
 
 def read_info(path: str | Path) -> dict[str, Any]:

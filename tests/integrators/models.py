@@ -9,6 +9,7 @@ deck registry's ``tsda`` may not exist yet; it follows the ForceElement contract
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -312,3 +313,93 @@ def parallel_fourbar(N=4, theta0=-np.pi / 2, L=0.2, m_crank=0.5, M=2.0, spacing=
 def parallel_fourbar_state(model, thetad0):
     """Consistent state with every crank turning at thetad0 about +z."""
     return consistent_state(model, omega={"crank0": (0, 0, thetad0)})
+
+
+@dataclasses.dataclass(frozen=True)
+class Problem:
+    """A dynamics problem with an independent reference (tests/integrators/references.py):
+    model, consistent initial state, run length and output step, and ``reference(t)`` ->
+    {body: (r (nt, 3), A (nt, 3, 3))}.  rotating: orientation errors are part of the check;
+    moving: positions change (False for the free body, whose uniform motion any integrator
+    reproduces to round-off)."""
+
+    name: str
+    model: object
+    q0: np.ndarray
+    qd0: np.ndarray
+    t_end: float
+    step: float
+    reference: object
+    rotating: bool = True
+    moving: bool = True
+
+
+def _memo(fn):
+    """fn(t) cached by the output times: the references integrate at rtol 1e-13 in Python
+    (seconds for the heavy top), and every test of a problem asks for the same times."""
+    cache = {}
+
+    def wrapped(t):
+        key = np.round(np.asarray(t, float), 12).tobytes()
+        if key not in cache:
+            cache[key] = fn(np.asarray(t, float))
+        return cache[key]
+
+    return wrapped
+
+
+@functools.lru_cache(maxsize=None)
+def reference_problem(name):
+    """The five reference problems of issue 11 by name (see REFERENCE_PROBLEMS), built once."""
+    pb = _reference_problem(name)
+    return dataclasses.replace(pb, reference=_memo(pb.reference))
+
+
+def _reference_problem(name):
+    from tests.integrators import references as R
+
+    if name == "free_body":
+        J, w0, v0 = (1.0, 2.0, 3.0), (0.4, 0.2, 1.0), (0.1, -0.2, 0.3)
+        model = free_body(J=J)
+        q = model.q0.copy()
+        qd = np.zeros(7)
+        qd[:3] = v0
+        qd[3:] = omega_to_pd(q[3:], w0)  # p = (1, 0, 0, 0): global = body frame
+        ref = functools.partial(R.free_body, J=J, p0=q[3:], pd0=qd[3:], r0=q[:3], v0=qd[:3])
+        return Problem(name, model, q, qd, 10.0, 0.1, ref, moving=False)
+    if name == "heavy_top":
+        model = top()
+        q, qd = top_spinning_state(model, np.radians(30.0), 150.0)
+        ref = functools.partial(R.heavy_top, m=1.0, l=0.1, I1c=2e-3, I3=4e-3, g=9.81,
+                                p0=q[10:14], pd0=qd[10:14])
+        return Problem(name, model, q, qd, 2.0, 0.01, ref)
+    if name == "pendulum":
+        P = PENDULUM
+        model = pendulum(**P)
+        q, qd = consistent_state(model)
+        ref = functools.partial(R.pendulum, theta0=np.radians(150.0), L=P["L"], m=P["m"],
+                                Ic=P["Ic"], g=P["g"])
+        return Problem(name, model, q, qd, 3.0, 0.01, ref)
+    if name == "slider_crank":
+        from mbsim.rotations import A as rot_A
+
+        model = slider_crank()
+        q, qd = slider_crank_state(model, 2 * np.pi)
+        c, r = 7 * model.body_index("crank"), 7 * model.body_index("rod")
+        phi0 = 2 * np.arctan2(q[c + 4], q[c + 3])  # crank p = (cos phi/2, sin phi/2, 0, 0)
+        A_rod0 = rot_A(q[r + 3 : r + 7])
+        ref = functools.partial(R.slider_crank, phi0=phi0, phid0=-2 * np.pi, A_rod0=A_rod0)
+        return Problem(name, model, q, qd, 1.0, 0.01, ref)
+    if name == "parallel_fourbar":
+        P, N, w0 = FOURBAR, 4, 20.0
+        model = parallel_fourbar(N)
+        q, qd = parallel_fourbar_state(model, w0)
+        xs = [i * P["spacing"] for i in range(N)]
+        ref = functools.partial(R.parallel_fourbar, theta0=-np.pi / 2, thetad0=w0, N=N,
+                                L=P["L"], m_crank=P["m_crank"],
+                                I_crank=fourbar_crank_inertia()[2], M=P["M"], g=P["g"], xs=xs)
+        return Problem(name, model, q, qd, 1.0, 0.01, ref)
+    raise KeyError(name)
+
+
+REFERENCE_PROBLEMS = ("free_body", "heavy_top", "pendulum", "slider_crank", "parallel_fourbar")

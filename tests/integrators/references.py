@@ -207,10 +207,11 @@ def _slider_crank_functions(ell, m_rod, J_rod, m_slider, J_crank_x, g, sign):
     mass = (J_crank_x + m_rod * dr.dot(dr) + (w.T * Jg * w)[0, 0]
             + m_slider * x.diff(phi) ** 2)
     V = m_rod * g * r_rod[2]
-    f = {k: sp.lambdify(phi, e, "numpy")
-         for k, e in {"m": mass, "dm": mass.diff(phi), "V": V, "dV": V.diff(phi),
-                      "r_rod": r_rod, "A_rod": A, "x": x}.items()}
-    return f
+    # one lambdified function for the right-hand side (common subexpressions shared), the
+    # poses only at the output times
+    rhs = sp.lambdify(phi, [mass, mass.diff(phi), V, V.diff(phi)], "math", cse=True)
+    pose = sp.lambdify(phi, [r_rod, A, x], "numpy", cse=True)
+    return rhs, pose
 
 
 def slider_crank(t, phi0, phid0, ell=0.3, m_rod=0.5, J_rod=(0.004, 0.0004, 0.004),
@@ -220,14 +221,16 @@ def slider_crank(t, phi0, phid0, ell=0.3, m_rod=0.5, J_rod=(0.004, 0.0004, 0.004
     branch of x' (+-); returns {"crank", "rod", "slider": (r, A)} and "energy" (T + V)."""
     sign = 1
     if A_rod0 is not None:
-        A_try = np.array(_slider_crank_functions(ell, m_rod, tuple(J_rod), m_slider, J_crank_x,
-                                                 g, 1)["A_rod"](phi0), float)
+        _, pose = _slider_crank_functions(ell, m_rod, tuple(J_rod), m_slider, J_crank_x, g, 1)
+        A_try = np.array(pose(phi0)[1], float)
         sign = 1 if np.sum(A_try[:, 0] * np.asarray(A_rod0)[:, 0]) > 0 else -1
-    f = _slider_crank_functions(ell, m_rod, tuple(J_rod), m_slider, J_crank_x, g, sign)
+    rhs_f, pose = _slider_crank_functions(ell, m_rod, tuple(J_rod), m_slider, J_crank_x, g,
+                                          sign)
 
     def rhs(_, y):
         ph, phd = y
-        return [phd, -(0.5 * f["dm"](ph) * phd * phd + f["dV"](ph)) / f["m"](ph)]
+        m, dm, _, dV = rhs_f(ph)
+        return [phd, -(0.5 * dm * phd * phd + dV) / m]
 
     t = np.asarray(t, float)
     sol = solve_ivp(rhs, (t[0], t[-1]), [phi0, phid0], t_eval=t, method="DOP853", rtol=RTOL,
@@ -240,11 +243,13 @@ def slider_crank(t, phi0, phid0, ell=0.3, m_rod=0.5, J_rod=(0.004, 0.0004, 0.004
     A_c[:, 1, 1], A_c[:, 1, 2], A_c[:, 2, 1], A_c[:, 2, 2] = (np.cos(ph), -np.sin(ph),
                                                               np.sin(ph), np.cos(ph))
     r_c = np.broadcast_to([0.0, 0.1, 0.12], (nt, 3))
-    r_rod = np.array([np.ravel(np.array(f["r_rod"](a), float)) for a in ph])
-    A_rod = np.array([np.array(f["A_rod"](a), float) for a in ph])
-    x = np.array([float(f["x"](a)) for a in ph])
+    poses = [pose(a) for a in ph]
+    r_rod = np.array([np.ravel(np.array(r, float)) for r, _, _ in poses])
+    A_rod = np.array([np.array(A, float) for _, A, _ in poses])
+    x = np.array([float(x) for _, _, x in poses])
     r_s = np.stack([x, np.zeros(nt), np.zeros(nt)], axis=1)
-    energy = np.array([0.5 * f["m"](a) * ad * ad + f["V"](a) for a, ad in zip(ph, phd)])
+    energy = np.array([0.5 * m * ad * ad + V for (m, _, V, _), ad in
+                       zip(map(rhs_f, ph), phd)])
     return {"crank": (r_c, A_c), "rod": (r_rod, A_rod),
             "slider": (r_s, np.broadcast_to(np.eye(3), (nt, 3, 3))),
             "phi": ph, "phid": phd, "energy": energy}

@@ -152,7 +152,7 @@ TILT40 = {"parameters.alpha": "40 deg", "parameters.yA": "-1.12836", "parameters
 @pytest.fixture(scope="module")
 def inverse30(tmp_path_factory):
     out = study(tmp_path_factory, "inverse30")
-    assert [p.name for p in out.figures] == ["fig12_4_2.png", "fig12_4_3.png"]
+    assert [p.name for p in out.figures] == ["fig12_4_2.png", "fig12_4_3.png", "fig12_4_1.png"]
     return out
 
 

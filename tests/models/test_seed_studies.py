@@ -301,8 +301,8 @@ def test_governor_stiffer_spring_longer_transition(tmp_path_factory):
     """Sec. 12.6.4: "the stiffer the spring, the longer the transition time from the initial
     steady state to another steady state". Every stable case ends with the engine torque
     balancing the load: dl = Te/C = 4 mm. With k = 1000 the loop is unstable at C = 12 500
-    in this model (see test_governor_instability_threshold). Regression: final speeds and
-    transition (2 % settling) times."""
+    in this model (see test_governor_instability_threshold and test_governor_eigenvalues):
+    it does not settle. Regression: final speeds and transition (2 % settling) times."""
     out = study(tmp_path_factory, GOVERNOR, "spring_rate")
     res = results(out)
     v = out.values
@@ -310,6 +310,10 @@ def test_governor_stiffer_spring_longer_transition(tmp_path_factory):
         assert v[k]["final collar y [m]"] == pytest.approx(0.05 - 50 / 12500, abs=2e-5)
         assert v[k]["growth"] < 0.8
     assert v["k1000"]["growth"] > 1.0
+    # the unstable case has no new steady state: no transition time (NaN), printed so
+    assert np.isnan(v["k1000"]["transition [s]"])
+    header, rows = out.table
+    assert rows[0][header.index("transition [s]")] == "does not settle"
     assert v["k3000"]["transition [s]"] > v["k2000"]["transition [s]"]
     assert v["k3000"]["final speed [rad/s]"] < v["k2000"]["final speed [rad/s]"]
     assert v["k2000"]["final speed [rad/s]"] == pytest.approx(9.443, abs=5e-3)

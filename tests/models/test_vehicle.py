@@ -147,7 +147,8 @@ LANE_CASES = {"model1_lane1": "model1_lc1", "model1_lane2": "model1_lc2", "lane1
 @pytest.fixture(scope="module")
 def lane_change_study(tmp_path_factory):
     out = study(tmp_path_factory, "lane_change")
-    names = ["fig12_5_7.png", "fig12_5_8.png", "fig12_5_9.png", "fig12_5_10.png"]
+    names = ["fig12_5_6a.png", "fig12_5_7.png", "fig12_5_8.png", "fig12_5_9.png",
+             "fig12_5_10.png"]
     assert [p.name for p in out.figures] == names
     return out
 
@@ -171,8 +172,8 @@ def test_lane_change_is_3_6_m(lane_changes):
 def test_stabilizer_bars_reduce_peak_roll(lane_changes, n):
     """Sec. 12.5.4: "Roll motions of the vehicle are compared in Fig. 12.5.10 for both models
     and with both lane-change drivers. The roll-stabilizer effect in model 2 is clearly
-    observed." Peak roll (exact angle about the chassis' forward axis) 3.71 -> 2.14 deg and
-    7.44 -> 3.14 deg; "clearly" is read as a cut of at least a quarter."""
+    observed." Peak roll (exact angle about the chassis' forward axis) 3.37 -> 1.95 deg and
+    5.58 -> 2.65 deg; "clearly" is read as a cut of at least a quarter."""
     roll1 = np.abs(angles(lane_changes[f"model1_lane{n}"])[0]).max()
     roll2 = np.abs(angles(lane_changes[f"lane{n}"])[0]).max()
     assert roll2 < 0.75 * roll1, (np.degrees(roll1), np.degrees(roll2))
@@ -181,7 +182,8 @@ def test_stabilizer_bars_reduce_peak_roll(lane_changes, n):
 @pytest.fixture(scope="module")
 def circle_study(tmp_path_factory):
     out = study(tmp_path_factory, "circle")
-    assert [p.name for p in out.figures] == ["fig12_5_11.png", "fig12_5_12.png", "fig12_5_13.png"]
+    assert [p.name for p in out.figures] == ["fig12_5_6b.png", "fig12_5_11.png", "fig12_5_12.png",
+                                             "fig12_5_13.png"]  # fmt: skip
     return out
 
 
@@ -216,9 +218,10 @@ def test_circle_55_mph_saturates_slides_and_slows(circles):
     F_lat = mu F_ver, until the speed of the vehicle substantially decreases due to large
     lateral slip", "considerable speed loss ... in the 55 mph case" and "the vehicle is not
     tangent to the path during the maximum slip period" (Figs. 12.5.11-12.5.13). Measured
-    (curve 3 held at -6.5 mm): all four tires at mu F_ver together 64 % of the time after the
-    ramp (1.7-8.0 s), the last saturation at 8.9 s at 14 m/s; 24.6 -> 13.6 m/s; the heading
-    up to 14.8 deg off the path, within 0.2 deg again in the last second."""
+    (curve 3 held at -6.5 mm, C_alpha = 30 kN/rad): all four tires at mu F_ver together 61 %
+    of the time after the ramp (82 % of 1.7-8.0 s), the last saturation at 7.6 s at 10.8 m/s;
+    24.6 -> 10.6 m/s; the heading up to 21.5 deg off the path, within 0.04 deg again in the
+    last second."""
     res = circles[55]
     t, v = res.t, speed(res)
     after = t > RAMP_END
@@ -241,9 +244,9 @@ def test_circle_55_mph_saturates_slides_and_slows(circles):
 @pytest.mark.slow
 def test_circle_20_mph_follows_the_steer(circles):
     """The contrast at 20 mph: no tire saturates (at most 27 % of mu F_ver), the speed stays
-    (chassis 8.94 -> 8.76 m/s), the car is tangent to its path within 1 deg and drives the
-    Ackermann circle of its front wheels' steer (3.07 deg: 2.468 m / tan 3.07 deg = 46.0 m;
-    measured 47.0 m, the tires' slip angles adding a little understeer)."""
+    (chassis 8.94 -> 8.66 m/s), the car is tangent to its path within 0.6 deg and drives the
+    Ackermann circle of its front wheels' steer (3.07 deg: 2.468 m / tan 3.07 deg = 46.1 m;
+    measured 47.4 m, the tires' slip angles adding a little understeer)."""
     res = circles[20]
     for w in WHEELS:
         assert not saturated(res, w).any(), w
@@ -261,24 +264,26 @@ def test_circle_20_mph_follows_the_steer(circles):
 
 @pytest.mark.slow
 def test_circle_40_mph_stays_below_the_car_limit(circles):
-    """40 mph, the middle case: the car understeers to a 52.8 m circle at up to 0.72 mu g, the
-    outer tires at most at 65 % of mu F_ver, within 2.3 deg of tangent (rear axle; the
-    chassis 1.4 deg), and loses 11.5 % of its speed (17.9 -> 15.8 m/s), a quarter of the
-    55 mph loss. Not the contrast of 20 mph: the unloaded inner tires run at mu F_ver from the
-    end of the ramp on (model 1 has no bars and C_alpha does not fall with the load, so an
-    inner tire reaches its limit from about 0.5 mu g; no rack hold value avoids it at 40 mph
-    and still lets 55 mph slide: docs/models.md, Steering)."""
+    """40 mph, the middle case (C_alpha = 30 kN/rad): the car understeers at up to 0.71 mu g,
+    the outer tires at most at 64 % of mu F_ver, within 3.5 deg of tangent, and loses 17 % of
+    its speed (17.9 -> 14.8 m/s), under a third of the 55 mph loss (57 %). Not the contrast
+    of 20 mph: the unloaded inner tires run at mu F_ver for 85 % of the time after the ramp,
+    until the car has slowed (last at 8.8 s): model 1 has no bars and C_alpha does not fall
+    with the load, so an inner tire reaches its limit from about 0.5 mu g; no rack hold value
+    avoids it at 40 mph and still lets 55 mph slide: docs/models.md, Steering."""
     res = circles[40]
     after = res.t > RAMP_END
     for w in ("fr", "rr"):  # the outer (right) tires stay clear of the limit
         fl = np.abs(res.channel(f"forces/tire_{w}/F_lat").data)
         fv = res.channel(f"forces/tire_{w}/F_ver").data
         assert not saturated(res, w).any() and (fl / (0.8 * fv)).max() < 0.8, w
-    assert saturated(res, "fl")[after].all() and saturated(res, "rl")[after].all()
+    assert saturated(res, "fl")[after].mean() > 0.8 and saturated(res, "rl")[after].mean() > 0.8
     v, v55 = speed(res), speed(circles[55])
-    assert v[-1] > 0.85 * v[0]
+    assert v[-1] > 0.8 * v[0]
     assert 1 - v[-1] / v[0] < 0.35 * (1 - v55[-1] / v55[0])
-    assert np.degrees(np.abs(drift(res)).max()) < 2.0  # nearly tangent to the path
+    # within 3.5 deg of tangent (the chassis; 21.5 deg at 55 mph): the softer tires' slip
+    # angles at 0.7 mu g, not a slide
+    assert np.abs(drift(res)).max() < 0.25 * np.abs(drift(circles[55])).max()
 
 
 def test_settling_from_table_12_5_8(tmp_path_factory, equilibrium_model1):
@@ -307,11 +312,13 @@ def test_settling_from_table_12_5_8(tmp_path_factory, equilibrium_model1):
 
 # Regression (study equilibrium): chassis z, e1, FR and RR wheel z, rack z [m]; FR and RR tire
 # loads [N]. The minimum-energy search converges to ~1e-7 m: 2e-5 m, 2e-6 and 0.5 N; the case
-# settled dynamically (30 s, stopped at speeds below 2e-3) lies within 2e-5 m and 1 N of it.
+# settled dynamically (stopped at speeds below 2e-3, within t_end = 60 s: with C_alpha =
+# 30 kN/rad the tires damp the plan motion less and 30 s no longer sufficed) lies within
+# 2e-5 m and 1 N of it.
 EQUILIBRIUM = {
     "model1": (0.546016, -0.00155119, 0.344979, 0.26167, 0.167286, 3564.15, 3346.01),
     "model2": (0.545865, -0.00154516, 0.344957, 0.261643, 0.16715, 3568.58, 3351.39),
-    "settle": (0.546006, -0.0015532, 0.344977, 0.261669, 0.16727, 3564.66, 3346.19),
+    "settle": (0.546017, -0.00155104, 0.344979, 0.26167, 0.167287, 3564.11, 3345.98),
 }
 EQUILIBRIUM_COLUMNS = ("chassis z [m]", "chassis e1", "FR wheel z [m]", "RR wheel z [m]",
                        "rack z [m]", "FR tire load [N]", "RR tire load [N]")  # fmt: skip
@@ -347,10 +354,10 @@ def test_equilibrium_study(tmp_path_factory):
 # leave a heading error that the end position integrates): tolerances 0.05 m, 0.03 deg,
 # 0.05 m/s^2.
 LANE_CHANGE = {
-    "model1_lc1": (-3.59819, 3.71057, 4.11712, 0),
-    "model1_lc2": (-3.5759, 7.44062, 5.92968, 1),
-    "model2_lc1": (-3.67521, 2.14458, 4.14916, 1),
-    "model2_lc2": (-2.36185, 3.13559, 5.38669, 1),
+    "model1_lc1": (-3.5939, 3.37305, 3.74513, 0),
+    "model1_lc2": (-3.61864, 5.58082, 5.18876, 1),
+    "model2_lc1": (-3.70632, 1.95468, 3.80441, 0),
+    "model2_lc2": (-1.7737, 2.64532, 4.83437, 1),
 }
 LANE_CHANGE_COLUMNS = ("x final [m]", "peak roll [deg]", "peak lateral acc [m/s^2]",
                        "saturated FL")  # fmt: skip
@@ -369,9 +376,9 @@ def test_lane_change_regression(lane_change_study, case):
 # 0.0009/0.0007/0.002 (40 mph) and 0.14/0.28/0.33 (55 mph: the slide): tolerances
 # 0.001/0.001/0.001, 0.002/0.002/0.004 and 0.3/0.6/0.7.
 CIRCLE = {
-    "mph20": ((8.65207, 0.810474, 0.684328, 0, 0, 0, 0), (0.001, 0.001, 0.001, 0, 0, 0, 0)),
-    "mph40": ((15.6466, 3.38503, 2.33771, 1, 1, 0, 0), (0.002, 0.002, 0.004, 0, 0, 0, 0)),
-    "mph55": ((13.5072, 16.8998, 16.2597, 1, 1, 1, 1), (0.3, 0.6, 0.7, 0, 0, 0, 0)),
+    "mph20": ((8.55216, 1.2659, 1.1241, 0, 0, 0, 0), (0.001, 0.001, 0.001, 0, 0, 0, 0)),
+    "mph40": ((14.649, 5.42508, 4.3904, 1, 1, 0, 0), (0.002, 0.002, 0.004, 0, 0, 0, 0)),
+    "mph55": ((10.4553, 23.4908, 23.0436, 1, 1, 1, 1), (0.3, 0.6, 0.7, 0, 0, 0, 0)),
 }
 CIRCLE_COLUMNS = ("speed final [m/s]", "max slip FL [deg]", "max slip RL [deg]", "saturated FL",
                   "saturated RL", "saturated FR", "saturated RR")  # fmt: skip

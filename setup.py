@@ -1,0 +1,49 @@
+"""Build step of mbsim: the C kernels (mbsim/fast/kernels.c) as a plain shared library.
+
+Everything else is declared in pyproject.toml.  The library is not a Python extension
+module (no Python.h, no PyInit_): mbsim.fast._lib loads it with ctypes.  A failed compile
+does not fail the install: it warns, and mbsim compiles the kernels at first use instead
+(into ~/.cache/mbsim), or says which compiler to install.
+"""
+
+import hashlib
+from pathlib import Path
+
+from setuptools import Extension, setup
+from setuptools.command.build_ext import build_ext
+
+SOURCE = Path("mbsim") / "fast" / "kernels.c"
+
+
+class BuildKernels(build_ext):
+    """build_ext that tolerates a missing or failing C compiler."""
+
+    def get_export_symbols(self, ext):
+        return []  # no PyInit_ function to export: a plain library
+
+    def run(self):
+        try:
+            super().run()
+        except Exception as exc:  # noqa: BLE001 - any build failure: warn, compile later
+            self.warn(f"mbsim: the C kernels were not built ({exc}); they will be compiled "
+                      "at first use (needs a C compiler: e.g. apt install gcc)")
+
+    def build_extension(self, ext):
+        try:
+            super().build_extension(ext)
+        except Exception as exc:  # noqa: BLE001
+            self.warn(f"mbsim: the C kernels were not built ({exc}); they will be compiled "
+                      "at first use (needs a C compiler: e.g. apt install gcc)")
+
+
+digest = hashlib.sha256(SOURCE.read_bytes()).hexdigest()[:16]  # = mbsim.fast._lib.source_hash
+kernels = Extension(
+    "mbsim.fast._kernels",
+    sources=[str(SOURCE)],
+    define_macros=[("MB_SOURCE_HASH", f'"{digest}"')],
+    extra_compile_args=["-O2", "-std=c99"],
+    libraries=["m"],
+    optional=True,
+)
+
+setup(ext_modules=[kernels], cmdclass={"build_ext": BuildKernels})
