@@ -2,7 +2,7 @@
 error of the last link's bottom point against a tight reference, cost growth with N, and,
 when ``exudyn`` is installed, Exudyn's implicit solver side by side in the same run.
 
-    python benchmarks/chain.py [--sizes 4,16,64] [--repeats 3]
+    python benchmarks/chain.py [--sizes 4,16,64,256] [--repeats 3]
 
 Reference: projection-dop853 at rtol 1e-11.  Each code runs a ladder (mbsim: rtol;
 Exudyn's generalized-alpha with its sparse linear solver: number of fixed steps); times
@@ -44,7 +44,7 @@ def run_mbsim(model, n, integrator, rtol):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sizes", default="4,16,64")
+    ap.add_argument("--sizes", default="4,16,64,256")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--rtols", default="1e-4,1e-6,1e-8")
     ap.add_argument("--exudyn-steps", default="250,1000,4000,16000")

@@ -616,13 +616,12 @@ def list_(what):
         for name, cls in FORCES.items():
             click.echo(f"{name:<22} {cls.description}")
     elif what == "integrators":
-        try:
-            from mbsim.integrators import INTEGRATORS
-        except ImportError:
-            INTEGRATORS = {}
+        from mbsim.integrators import DEFAULT, INTEGRATORS
+
         for name, cls in INTEGRATORS.items():
             doc = getattr(cls, "description", "") or (cls.__doc__ or "").strip().splitlines()[0]
-            click.echo(f"{name:<22} {doc}")
+            mark = " (default)" if name == DEFAULT else ""
+            click.echo(f"{name:<22} {doc}{mark}")
     elif what == "modes":
         from mbsim.api import ANALYSES
 

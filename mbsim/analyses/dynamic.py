@@ -148,11 +148,14 @@ def dynamic(model, options=None):
     check_tolerances(opt, model.file)
     if opt.get("atol") is None:  # follows rtol: 1e-8 at the default rtol 1e-6 (m, rad, m/s)
         opt["atol"] = ATOL_PER_RTOL * float(opt["rtol"])
-    if opt.get("accuracy") is not None:
-        explicit = {k for k in ("integrator", "h") if k in given or k in deck_opt}
-        res = _accuracy_run(model, opt, progress, explicit)
-    else:
-        res = _single_run(model, opt, progress)
+    # NaN and overflow are detected and reported by the integrators (non-finite error norms,
+    # states), so numpy's RuntimeWarning lines would only be noise on stderr
+    with np.errstate(all="ignore"):
+        if opt.get("accuracy") is not None:
+            explicit = {k for k in ("integrator", "h") if k in given or k in deck_opt}
+            res = _accuracy_run(model, opt, progress, explicit)
+        else:
+            res = _single_run(model, opt, progress)
     res.wall_time = _time.perf_counter() - wall0
     return res
 

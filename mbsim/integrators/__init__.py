@@ -7,9 +7,8 @@ follows is in :class:`mbsim.integrators.base.Integrator`.
 - index1.py: index-1 ODE with Baumgarte stabilisation or with projection
 - genalpha.py: implicit index-3 generalized-alpha and HHT (Arnold & Bruls 2007)
 - rk.py: the RK tableaus and the step loop they share
-- system.py: the equations of motion (numpy; fused.py evaluates the constraints in one pass,
-  kkt.py assembles the Schur complement body by body); :mod:`mbsim.fast` offers a compiled
-  stand-in with the same interface, which the dynamic analysis prefers
+- system.py: the equations of motion the integrators call: :class:`mbsim.fast.dynamics.System`,
+  the one implementation (C kernels); :mod:`mbsim.equations` is the plain numpy reference
 """
 
 from __future__ import annotations

@@ -34,7 +34,6 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from mbsim.integrators.base import MAX_REJECTS, Integrator, hermite, rms_norm
-from mbsim.integrators.system import mass_blocks
 
 
 KKT_REG = 1e-10  # relative regularisation of the Newton matrix's zero block (see below)
@@ -90,7 +89,7 @@ class GeneralizedAlpha(Integrator):
         s.counters["function_evaluations"] += 1
         T = s.terms(q, t, jac=True, nu=s.rheonomic)
         Q = s.generalized_forces(q, qd, t)
-        Mb = mass_blocks(s.model, q)
+        Mb = s.mass_blocks(q)
         r = np.einsum("bij,bj->bi", Mb, qdd.reshape(-1, 7)).reshape(-1) + T.jac.T @ lam - Q
         return r, T, Q, Mb
 

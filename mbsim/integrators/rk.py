@@ -234,7 +234,8 @@ class RungeKuttaIntegrator(Integrator):
                 y_new, f_new = self._trial(h)
                 err = 0.0
                 if self.tableau.embedded and self.h_fixed is None:
-                    err = self.tableau.error_norm(self.K, h, self._scale(self.y, y_new))
+                    err = max(self.tableau.error_norm(self.K, h, self._scale(self.y, y_new)),
+                              self._extra_error(h))
                     if not np.isfinite(err):  # NaN/inf in a stage: reject hard
                         raise StageFailure(f"error norm {err} at step {h:.3g} s")
                 if err <= 1:
@@ -269,6 +270,10 @@ class RungeKuttaIntegrator(Integrator):
 
     def _accept(self, t, y, f):
         return y, f
+
+    def _extra_error(self, h) -> float:
+        """A family's own error norm of the trial step beside the embedded one (0: none)."""
+        return 0.0
 
     def _recover(self):
         return False
