@@ -29,6 +29,8 @@ triggers a new partition at the start of the step.
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import scipy.linalg as la
 import scipy.sparse.linalg as spla
@@ -36,6 +38,8 @@ import scipy.sparse.linalg as spla
 from mbsim.integrators.base import hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
+
+log = logging.getLogger(__name__)
 
 BRANCH_JUMP = 1e3  # scaled deviation of the dependent coordinates that rejects a step
 
@@ -303,6 +307,8 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             else:
                 self.part = part
                 self.counters["repartitions"] += 1
+                log.debug("t = %.6g s: coordinates partitioned again (sensitivity %.3g); "
+                          "independent: %s", t, sens, part.iv.tolist())
                 iv = part.iv
                 y = np.concatenate([q[iv], qd[iv], y[-1:]])
                 f = np.concatenate([qd[iv], qdd[iv], f[-1:]])
