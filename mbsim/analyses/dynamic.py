@@ -513,9 +513,7 @@ def _accuracy_run(model, opt, progress, explicit):
         "requested": tol, "integrator": cls.name, "rtol": float(opt["rtol"]),
         "atol": float(opt["atol"]), "h": opt.get("h"), "runs": len(runs), "estimate": e,
         "met": bool(e <= tol), "cpu": cpu, "history": runs}
-    if not res.complete:
-        pass
-    elif e > tol:
+    if res.complete and e > tol:
         res.summary.setdefault("warnings", []).append(
             f"accuracy {tol:g} not reached: estimated error {e:.3g} after {len(runs)} runs")
     res.settings["accuracy"] = tol
@@ -530,8 +528,7 @@ def _accelerations_lstsq(model, system, q, qd, t):
     from mbsim import equations as eq
 
     T = eq.constraints(model, q, t, qd=qd, phi=False, gamma=True)
-    Q = system.generalized_forces(q, qd, t) if hasattr(system, "generalized_forces") else \
-        eq.applied_forces(model, q, qd, t)[0]
+    Q = system.generalized_forces(q, qd, t)
     M = eq.mass_matrix(model, q)
     J, g = T.jac, T.gamma
     n, m = model.nq, J.shape[0]
