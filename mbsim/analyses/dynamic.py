@@ -63,10 +63,14 @@ DEFAULTS = {"t_start": 0.0, "t_end": 1.0, "step": 0.01, "integrator": DEFAULT, "
             "atol": None, "h": None, "max_steps": 1_000_000, "tol": 1e-10, "sparse": None,
             "error_estimate": True, "estimate_ratio": 5.0, "accuracy": None}
 
-ACCURACY_START = 0.2
-"""--accuracy: first tolerance = this x the requested error (rtol = atol).  Measured:
-benchmarks/accuracy.py (projection-dop853 reaches 0.3-3 x rtol in position on the seed
-decks and the reference problems)."""
+ACCURACY_START = 3e-3
+"""--accuracy: first tolerance = this x the requested error (rtol = atol).  The ratio true
+error / rtol of projection-dop853 on the reference problems is 1-650 at loose and 1-220 at
+tight tolerances (largest on the fast top: orientation phase error over 300 rad of spin),
+so tol/300 meets the request at the first attempt on all but the loosest top request, and
+for an order-8 method a tolerance 100x tighter than needed costs only ~100^(1/9) = 1.7x
+the steps, less than a missed attempt (benchmarks/accuracy.py; 0.2 missed on 12 of 15
+cases and cost 2.5-3.7x the cheapest pair)."""
 ACCURACY_MARGIN = 0.5  # a refinement aims at this fraction of the request
 ATOL_PER_RTOL = 1e-2  # atol when not given: rtol / 100 (as mbsim bench's ladder)
 ESTIMATE_STEPS = 10  # the companion run may take at most this x the run's steps (+100)
@@ -160,118 +164,201 @@ def dynamic(model, options=None):
     return res
 
 
-def _single_run(model, opt, progress=None):
-    """One integration with its error estimate: the Result of :func:`dynamic`."""
+class Trajectory:
+    """What one integration produced at the output times: t, q, qd, w (work of the
+    non-conservative forces), h (the step across each output) and the equations of motion
+    (the Stepper's system, i.e. its row set) in use there.  Recording only this during the
+    integration keeps a run that is not kept (the companion, a missed ``accuracy`` attempt)
+    cheap; the channels of the kept run are computed afterwards, vectorised where they can
+    be (:func:`_build_result`)."""
+
+    def __init__(self):
+        self.t, self.q, self.qd, self.w, self.h, self.systems = [], [], [], [], [], []
+        self.status, self.message, self.cpu = "complete", "", 0.0
+        self.interrupted = False
+        self.run = None  # the Stepper
+
+    def add(self, t, q, qd, w, h, system):
+        # the state first, t last: a Ctrl-C in between leaves lists of unequal length, which
+        # __len__ and trim() reduce to the complete outputs
+        self.q.append(np.array(q, float))
+        self.qd.append(np.array(qd, float))
+        self.w.append(float(w))
+        self.h.append(float(h))
+        self.systems.append(system)
+        self.t.append(float(t))
+
+    def __len__(self):
+        return min(len(self.t), len(self.q), len(self.qd), len(self.systems))
+
+    def trim(self, n=None):
+        n = len(self) if n is None else n
+        for v in (self.t, self.q, self.qd, self.w, self.h, self.systems):
+            del v[n:]
+
+    @property
+    def complete(self):
+        return self.status == "complete"
+
+
+def _trajectory(run, times, q0, qd0, max_steps, progress=None):
+    """Integrate ``run`` (a :class:`Stepper`) over ``times`` recording a
+    :class:`Trajectory`; a Ctrl-C ends it as incomplete with what was computed."""
     cpu0 = _time.process_time()
-    opt = dict(opt)
-    cls = integrator_class(str(opt["integrator"]))
-    t0, t1 = float(opt["t_start"]), float(opt["t_end"])
-    times = output_times(t0, t1, float(opt["step"]))
-    if not cls.adaptive and opt.get("h") is None:
-        opt["h"] = float(opt["step"])
-    q, qd, summary = _initial(model, t0, opt)
-    q_start, qd_start = q.copy(), qd.copy()
-    rank, red = rank_and_redundant(model, _jac(model, q, t0))
-    rows = np.setdiff1d(np.arange(model.m), red)
-    try:
-        run = Stepper(model, cls, opt, t0, q, qd, t1, rows)
-    except NUMERICAL_ERRORS as exc:
-        raise DeckError(f"the equations of motion cannot be solved at t_start = {t0:g} s "
-                        f"({cls.name}): {exc}", Where(model.file, "bodies")) from exc
-    system = run.system
-    rec = Recorder(model)
-    mon = {k: [] for k in ("pos", "vel", "energy", "work", "h", "lam")}
-    states = {"q": [], "qd": []}  # the outputs' states, for the error estimate
-    V0 = system.energy(q, qd)[1]
-    n_out_eval = 0
+    tr = Trajectory()
+    tr.run = run
+    t1 = float(times[-1])
 
     def record(t, q, qd, w, h):
-        nonlocal n_out_eval
-        system = run.system
-        try:
-            qdd, lam, _ = system.accelerations(q, qd, t)
-        except NUMERICAL_ERRORS:  # exactly at a singular position: least squares
-            qdd, lam = _accelerations_lstsq(model, system, q, qd, t)
-        n_out_eval += 1
-        T, V = system.energy(q, qd)
-        pv, vv = system.violations(q, qd, t)
-        lam_all = system.full_lam(lam)
-        # monitors first, the output row last: a Ctrl-C in between leaves at most one extra
-        # monitor value, trimmed below, never a row without its monitors
-        for key, v in (("pos", pv), ("vel", vv), ("energy", T + V), ("work", w + V - V0),
-                       ("h", h), ("lam", lam_all)):
-            mon[key].append(v)
-        states["q"].append(np.array(q, float))
-        states["qd"].append(np.array(qd, float))
-        rec.add(t, q, qd, qdd)
+        tr.add(t, q, qd, w, h, run.system)
         if progress is not None:
             progress(t, t1)
 
-    status, message = "complete", ""
     try:
-        try:
-            record(t0, q, qd, 0.0, np.nan)
-        except NUMERICAL_ERRORS as exc:
-            raise DeckError(f"the equations of motion cannot be solved at t_start = {t0:g} s: "
-                            f"{exc}", Where(model.file, "bodies")) from exc
-        status, message = _integrate(run, times, record, int(opt["max_steps"]))
-        if mon["h"] and not np.isfinite(mon["h"][0]):  # the step across t_start: the first one
-            mon["h"][0] = run.first_step or 0.0
-        if status != "complete":
-            message = _explain(model, run.system, run.solver, message)
+        record(times[0], q0, qd0, 0.0, np.nan)
+        tr.status, tr.message = _integrate(run, times, record, max_steps)
     except KeyboardInterrupt:  # Ctrl-C: keep what was computed, marked incomplete
+        tr.status, tr.interrupted = STATUS_INCOMPLETE, True
+        tr.message = (f"t = {run.solver.t:.6g} s: interrupted (Ctrl-C) before "
+                      f"t_end = {t1:g} s")
+    tr.trim()
+    if len(tr.h) > 1 and not np.isfinite(tr.h[0]):  # the step across t_start: the first one
+        tr.h[0] = run.first_step or 0.0
+    tr.cpu = _time.process_time() - cpu0
+    return tr
+
+
+class _Prepared:
+    """What every integration of one dynamic analysis shares: the method, the output
+    times, the consistent initial state and the independent rows chosen at t_start."""
+
+    def __init__(self, model, opt):
+        self.cpu0 = _time.process_time()
+        self.cls = integrator_class(str(opt["integrator"]))
+        t0, t1 = float(opt["t_start"]), float(opt["t_end"])
+        self.times = output_times(t0, t1, float(opt["step"]))
+        self.q0, self.qd0, self.summary = _initial(model, t0, opt)
+        self.rank, self.red = rank_and_redundant(model, _jac(model, self.q0, t0))
+        self.rows = np.setdiff1d(np.arange(model.m), self.red)
+        self.cpu = _time.process_time() - self.cpu0
+
+    def stepper(self, model, opt):
+        t0 = float(self.times[0])
+        try:
+            return Stepper(model, self.cls, opt, t0, self.q0.copy(), self.qd0.copy(),
+                           float(self.times[-1]), self.rows)
+        except NUMERICAL_ERRORS as exc:
+            raise DeckError(f"the equations of motion cannot be solved at t_start = {t0:g} s "
+                            f"({self.cls.name}): {exc}", Where(model.file, "bodies")) from exc
+
+
+def _main_trajectory(model, prep, opt, progress=None):
+    run = prep.stepper(model, opt)
+    return _trajectory(run, prep.times, prep.q0, prep.qd0, int(opt["max_steps"]), progress)
+
+
+def _single_run(model, opt, progress=None):
+    """One integration with its error estimate: the Result of :func:`dynamic`."""
+    opt = dict(opt)
+    prep = _Prepared(model, opt)
+    if not prep.cls.adaptive and opt.get("h") is None:
+        opt["h"] = float(opt["step"])
+    tr = _main_trajectory(model, prep, opt, progress)
+    est = None
+    if opt.get("error_estimate", True) and len(tr) >= 2:
+        est = _estimate(model, prep, opt, tr)
+    return _build_result(model, prep, opt, tr, est)
+
+
+def _output_row(model, system, t, q, qd):
+    """(qdd, lam over all rows, max |Phi|, max |Phi_q qd - nu|) at one output."""
+    try:
+        qdd, lam, _ = system.accelerations(q, qd, t)
+    except NUMERICAL_ERRORS:  # exactly at a singular position: least squares
+        qdd, lam = _accelerations_lstsq(model, system, q, qd, t)
+    pv, vv = system.violations(q, qd, t)
+    return qdd, system.full_lam(lam), pv, vv
+
+
+def _build_result(model, prep, opt, tr, est):
+    """The Result of a run: the standard channels and monitors at the outputs of ``tr``,
+    its summary, and the error estimate ``est`` (a dict of :func:`_estimate`, or None)."""
+    cpu0 = _time.process_time()
+    cls, run = prep.cls, tr.run
+    status, message = tr.status, tr.message
+    counters = run.all_counters()  # before the outputs' own evaluations
+    rec = Recorder(model)
+    lam, pos, vel = [], [], []
+    n = len(tr)
+    try:
+        for k in range(n):
+            try:
+                qdd, la, pv, vv = _output_row(model, tr.systems[k], tr.t[k], tr.q[k], tr.qd[k])
+            except NUMERICAL_ERRORS as exc:
+                if k == 0:
+                    raise DeckError(f"the equations of motion cannot be solved at t_start = "
+                                    f"{tr.t[0]:g} s: {exc}", Where(model.file, "bodies")) from exc
+                status, message = STATUS_INCOMPLETE, (f"t = {tr.t[k]:.6g} s: evaluating the "
+                                                      f"outputs failed: {exc}")
+                break
+            lam.append(la)
+            pos.append(pv)
+            vel.append(vv)
+            rec.add(tr.t[k], tr.q[k], tr.qd[k], qdd)
+    except KeyboardInterrupt:  # Ctrl-C while the outputs are evaluated: keep those done
         status = STATUS_INCOMPLETE
-        message = f"t = {run.solver.t:.6g} s: interrupted (Ctrl-C) before t_end = {t1:g} s"
-    solver, system = run.solver, run.system
+        message = message or f"t = {tr.t[len(rec)]:.6g} s: interrupted (Ctrl-C)"
     n = len(rec)
-    for v in list(mon.values()) + list(states.values()):
-        del v[n:]
-    if mon["h"] and not np.isfinite(mon["h"][0]):
-        mon["h"][0] = 0.0
+    if n < len(tr):
+        tr.trim(n)
+    if not tr.complete and not tr.interrupted:
+        message = _explain(model, run.system, run.solver, message)
     res = rec.result("dynamic")
     if n:
-        res.add("monitors/position_violation", mon["pos"], "", "max |Phi| over all rows")
-        res.add("monitors/velocity_violation", mon["vel"], "", "max |Phi_q qd - nu|")
-        res.add("monitors/energy", mon["energy"], "J", "kinetic + potential energy T + V")
-        res.add("monitors/work_nonconservative", mon["work"], "J",
+        from mbsim.analyses.common import body_kinematics, kinetic_energies, potential_energies
+
+        Q = np.array(tr.q)
+        kin = body_kinematics(model, Q, np.array(tr.qd), rec.qdd)
+        V = potential_energies(model, Q, kin)
+        energy = kinetic_energies(model, kin) + V
+        res.add("monitors/position_violation", pos, "", "max |Phi| over all rows")
+        res.add("monitors/velocity_violation", vel, "", "max |Phi_q qd - nu|")
+        res.add("monitors/energy", energy, "J", "kinetic + potential energy T + V")
+        res.add("monitors/work_nonconservative", np.array(tr.w) + V - V[0], "J",
                 "work of non-conservative forces and drivers; energy - work is conserved")
-        res.add("monitors/step_size", mon["h"], "s",
+        res.add("monitors/step_size", np.nan_to_num(np.array(tr.h), nan=0.0), "s",
                 "integrator step across each output (t_start: the first step)")
-        res.add("constraints/lam", mon["lam"], "", "Lagrange multipliers per constraint row",
+        res.add("constraints/lam", lam, "", "Lagrange multipliers per constraint row",
                 model.row_label)
     res.status, res.message = status, message
     res.settings = {k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
                         else v) for k, v in opt.items()
                     if k not in ("q0", "qd0") and (v is None or np.isscalar(v))}
     res.settings["integrator"] = cls.name
-    counters = run.all_counters()
-    counters["function_evaluations"] -= n_out_eval
-    counters["output_evaluations"] = n_out_eval
+    counters["output_evaluations"] = n
     res.counters = counters
+    summary = dict(prep.summary)
+    rank, red = prep.rank, prep.red
     summary.update({"integrator": cls.name, "formulation": cls.formulation,
                     "rtol": float(opt["rtol"]), "atol": float(opt["atol"]),
                     "h": None if opt.get("h") is None else float(opt["h"]),
                     "dof": model.nq - rank, "rank": rank,
                     "redundant": model.items_of_rows(red) if red.size else [],
                     "row_changes": run.changes,
-                    "sparse": system.sparse, "equations": "C kernels (mbsim.fast)",
-                    "t_reached": float(solver.t)})
-    cpu_run = _time.process_time() - cpu0
+                    "sparse": run.system.sparse, "equations": "C kernels (mbsim.fast)",
+                    "t_reached": float(run.solver.t)})
+    cpu_run = prep.cpu + tr.cpu + _time.process_time() - cpu0
     summary["cpu"] = cpu_run
-    if opt.get("error_estimate", True) and n >= 2:
-        try:
-            est = _estimate(model, cls, opt, rows, q_start, qd_start, res.t,
-                            np.array(states["q"]), np.array(states["qd"]),
-                            ESTIMATE_STEPS * int(counters.get("steps", 0)) + 100)
-        except KeyboardInterrupt:
-            est = {"method": "interrupted (Ctrl-C) before it finished"}
+    if est is not None:
+        est = dict(est)
         est["relative_cost"] = est.get("cpu", 0.0) / max(cpu_run, 1e-9)
-        summary["error_estimate"] = {k: v for k, v in est.items() if k != "channels"}
-        for name, (data, unit, desc) in est.get("channels", {}).items():
+        summary["error_estimate"] = {k: v for k, v in est.items()
+                                     if k != "channels" and not k.startswith("_")}
+        for name, data, unit, desc in _error_channels(est, len(prep.times), n):
             res.add(name, data, unit, desc)
         if est.get("position") is not None:
             res.attrs["error_estimate"] = float(est["position"])
-            Qa = np.array(states["q"]).reshape(n, model.nb, 7)[:, :, :3]
+            Qa = np.array(tr.q).reshape(n, model.nb, 7)[:, :, :3]
             span = float(np.max(np.ptp(Qa, axis=0), initial=0.0))
             if est["position"] > 0.01 * max(span, 1e-3) or est["orientation"] > 0.05:
                 summary.setdefault("warnings", []).append(
@@ -384,11 +471,16 @@ def _integrate(run, times, record, max_steps):
     return "complete", ""
 
 
-def _estimate(model, cls, opt, rows, q0, qd0, t, Q, QD, max_steps=None):
-    """The global error estimate of a run with outputs (t, Q, QD) (module doc): a companion
-    integration and the differences at the output times.  Returns a dict for the summary
-    with the channels to add."""
-    cpu0 = _time.process_time()
+ERROR_UNITS = {
+    "position": ("m", "estimated global error of positions (bodies, output points)"),
+    "orientation": ("rad", "estimated global error of orientations (rotation angle)"),
+    "velocity": ("m/s", "estimated global error of centroid and point velocities"),
+    "angular_velocity": ("rad/s", "estimated global error of angular velocities")}
+
+
+def _companion_options(cls, opt):
+    """(options, Richardson factor, description) of the companion run of a run with
+    ``opt`` (module doc)."""
     copt = dict(opt)
     copt["h0"] = None
     rho = float(opt.get("estimate_ratio", 5.0))
@@ -403,41 +495,59 @@ def _estimate(model, cls, opt, rows, q0, qd0, t, Q, QD, max_steps=None):
         factor = 1.0
         method = (f"companion run at rtol/{rho:g} = {copt['rtol']:.3g}, "
                   f"atol/{rho:g} = {copt['atol']:.3g}")
-    times = np.asarray(t, float)
-    try:
-        run = Stepper(model, cls, copt, float(times[0]), q0, qd0, float(times[-1]), rows)
-    except NUMERICAL_ERRORS as exc:
-        return {"method": f"{method}: could not start ({exc})", "cpu": _time.process_time() - cpu0}
-    got = {"q": [np.array(q0, float)], "qd": [np.array(qd0, float)]}
+    return copt, factor, method
 
-    def record(tk, q, qd, w, h):
-        got["q"].append(np.array(q, float))
-        got["qd"].append(np.array(qd, float))
 
-    limit = int(opt["max_steps"]) if max_steps is None else min(int(opt["max_steps"]), max_steps)
-    status, msg = _integrate(run, times, record, limit)
-    solver = run.solver
-    n = len(got["q"])
-    err = state_differences(model, Q[:n], QD[:n], np.array(got["q"]), np.array(got["qd"]))
-    out = {"method": method, "cpu": _time.process_time() - cpu0,
-           "steps": int(run.all_counters()["steps"])}
-    if status != "complete":
-        out["note"] = f"companion run stopped early ({msg}); estimate up to t = {times[n-1]:.6g} s"
-    units = {"position": ("m", "estimated global error of positions (bodies, output points)"),
-             "orientation": ("rad", "estimated global error of orientations (rotation angle)"),
-             "velocity": ("m/s", "estimated global error of centroid and point velocities"),
-             "angular_velocity": ("rad/s", "estimated global error of angular velocities")}
-    chans = {}
-    for key, (unit, desc) in units.items():
-        e = factor * err[key]
-        full = np.full(times.size, np.nan)
-        full[:n] = e
-        out[key] = float(np.max(e))
-        if n == times.size:
-            chans[f"error/{key}"] = (full, unit, desc)
-    out["channels"] = chans
+def _estimate(model, prep, opt, tr, companion=None):
+    """The global error estimate of the run ``tr`` (module doc): a companion integration
+    (or the given one, a Trajectory at the companion's options) and the differences at the
+    output times.  Returns a dict for the summary, with the companion as ``_companion``."""
+    cpu0 = _time.process_time()
+    copt, factor, method = _companion_options(prep.cls, opt)
+    times = np.asarray(tr.t, float)
+    if companion is None:
+        limit = min(int(opt["max_steps"]),
+                    ESTIMATE_STEPS * int(tr.run.all_counters().get("steps", 0)) + 100)
+        try:
+            run = Stepper(model, prep.cls, copt, float(times[0]), prep.q0.copy(),
+                          prep.qd0.copy(), float(times[-1]), prep.rows)
+        except NUMERICAL_ERRORS as exc:
+            return {"method": f"{method}: could not start ({exc})",
+                    "cpu": _time.process_time() - cpu0}
+        companion = _trajectory(run, times, prep.q0, prep.qd0, limit)
+        if companion.interrupted:
+            return {"method": "interrupted (Ctrl-C) before it finished",
+                    "cpu": _time.process_time() - cpu0}
+    n = min(len(companion), len(tr))
+    err = state_differences(model, np.array(tr.q[:n]), np.array(tr.qd[:n]),
+                            np.array(companion.q[:n]), np.array(companion.qd[:n]))
+    out = {"method": method, "cpu": companion.cpu + _time.process_time() - cpu0,
+           "steps": int(companion.run.all_counters()["steps"]), "_companion": companion,
+           "_copt": copt}
+    if not companion.complete or n < len(tr):
+        out["note"] = (f"companion run stopped early ({companion.message}); estimate up to "
+                       f"t = {times[n - 1]:.6g} s")
+    out["channels"] = {key: factor * err[key] for key in ERROR_UNITS}
+    for key in ERROR_UNITS:
+        out[key] = float(np.max(out["channels"][key]))
     log.info("error estimate: position %.3g m, orientation %.3g rad (%s)", out["position"],
              out["orientation"], method)
+    return out
+
+
+def _error_channels(est, nt, n):
+    """(name, data, unit, description) of the error/* channels of an estimate over the n
+    outputs of a run of nt output times (only when the run and its companion both
+    reached every output: a partial estimate is in the summary only)."""
+    chans = est.get("channels") or {}
+    if n != nt or not chans:
+        return []
+    out = []
+    for key, (unit, desc) in ERROR_UNITS.items():
+        e = np.asarray(chans[key], float)
+        if e.size != n:
+            return []
+        out.append((f"error/{key}", e, unit, desc))
     return out
 
 
@@ -478,44 +588,65 @@ def state_differences(model, Q, QD, Qc, QDc):
 
 def _accuracy_run(model, opt, progress, explicit):
     """``accuracy`` = TOL: the run whose estimated position (m) and orientation (rad) errors
-    are at most TOL.  The integrator is the user's, else the default; an adaptive method
-    starts at rtol = atol = ACCURACY_START x TOL, a fixed-step one at its step; the error
-    estimate of that run decides, and if it missed, the tolerance (or step) is refined once
-    by the measured ratio, assuming the error proportional to the tolerance (h^p for a
-    fixed step), aiming at ACCURACY_MARGIN x TOL."""
+    are at most TOL.
+
+    The integrator is the user's, else the default.  An adaptive method starts at
+    rtol = atol = ACCURACY_START x TOL, a fixed-step one at its step; the error estimate of
+    that run (its companion at rtol/rho, or h/2) decides.  If it missed, the tolerance (or
+    step) is refined once by the measured ratio, assuming the error proportional to the
+    tolerance (h^p for a fixed step) and aiming at ACCURACY_MARGIN x TOL; when that
+    refinement is no tighter than the companion's own setting, the companion (already
+    computed, and about rho times more accurate) becomes the run and only a new companion
+    is integrated.  Only the kept run's channels are computed."""
     tol = float(opt["accuracy"])
     opt = dict(opt, error_estimate=True)
-    cls = integrator_class(str(opt["integrator"]))
+    prep = _Prepared(model, opt)
+    cls = prep.cls
     fixed = (not cls.adaptive) or ("h" in explicit and opt.get("h") is not None)
     if fixed:
         opt["h"] = float(opt.get("h") or opt["step"])
     else:
         opt["rtol"] = opt["atol"] = ACCURACY_START * tol
-    runs, cpu = [], 0.0
-    while True:
-        res = _single_run(model, opt, progress)
-        est = res.summary.get("error_estimate", {})
+    tr = _main_trajectory(model, prep, opt, progress)
+    history, cpu, est, companion = [], prep.cpu, None, None
+    while len(tr) >= 2:
+        est = _estimate(model, prep, opt, tr, companion)
         e = max(est.get("position") or 0.0, est.get("orientation") or 0.0)
-        cpu += res.summary.get("cpu", 0.0) + est.get("cpu", 0.0)
-        runs.append({"rtol": float(opt["rtol"]), "atol": float(opt["atol"]),
-                     "h": opt.get("h"), "estimate": e, "status": res.status})
-        if e <= tol or not res.complete or len(runs) == 2 or est.get("position") is None:
+        cpu += tr.cpu + est.get("cpu", 0.0)
+        history.append({"rtol": float(opt["rtol"]), "atol": float(opt["atol"]),
+                        "h": opt.get("h"), "estimate": e, "status": tr.status,
+                        "promoted": companion is not None})
+        if e <= tol or not tr.complete or len(history) == 2 or est.get("position") is None:
             break
         ratio = min(max(ACCURACY_MARGIN * tol / e, 1e-4), 0.5)
+        new = dict(opt)
         if fixed:
-            opt["h"] = float(opt["h"]) * ratio ** (1.0 / max(cls.order, 1))
+            new["h"] = float(opt["h"]) * ratio ** (1.0 / max(cls.order, 1))
         else:
-            opt["rtol"] = max(float(opt["rtol"]) * ratio, 1e-13)
-            opt["atol"] = max(float(opt["atol"]) * ratio, 1e-15)
-        log.info("accuracy %.3g: estimate %.3g missed; refining (rtol %.3g, h %s)", tol, e,
-                 opt["rtol"], opt.get("h"))
+            new["rtol"] = max(float(opt["rtol"]) * ratio, 1e-13)
+            new["atol"] = max(float(opt["atol"]) * ratio, 1e-15)
+        copt, comp = est["_copt"], est["_companion"]
+        promote = comp.complete and (new["h"] >= copt["h"] if fixed
+                                     else new["rtol"] >= copt["rtol"])
+        log.info("accuracy %.3g: estimate %.3g missed; %s", tol, e,
+                 "the companion becomes the run" if promote else
+                 f"refining (rtol {new['rtol']:.3g}, h {new.get('h')})")
+        if promote:
+            opt, tr, companion = dict(copt, h0=opt.get("h0")), comp, None
+        else:
+            opt, companion = new, None
+            tr = _main_trajectory(model, prep, opt, progress)
+    if est is not None:
+        est = {k: v for k, v in est.items() if not k.startswith("_")}
+    res = _build_result(model, prep, opt, tr, est)
+    e = history[-1]["estimate"] if history else math.inf
     res.summary["accuracy"] = {
         "requested": tol, "integrator": cls.name, "rtol": float(opt["rtol"]),
-        "atol": float(opt["atol"]), "h": opt.get("h"), "runs": len(runs), "estimate": e,
-        "met": bool(e <= tol), "cpu": cpu, "history": runs}
+        "atol": float(opt["atol"]), "h": opt.get("h"), "runs": len(history),
+        "estimate": e, "met": bool(e <= tol), "cpu": cpu, "history": history}
     if res.complete and e > tol:
         res.summary.setdefault("warnings", []).append(
-            f"accuracy {tol:g} not reached: estimated error {e:.3g} after {len(runs)} runs")
+            f"accuracy {tol:g} not reached: estimated error {e:.3g} after {len(history)} runs")
     res.settings["accuracy"] = tol
     return res
 
