@@ -94,6 +94,14 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
     options = {"t_end": t_end, "step": step, "integrator": integrator, "rtol": rtol,
                "atol": atol, "accuracy": accuracy, "error_estimate": error_estimate,
                "method": method}
+    # the command line's tolerances and step are the same for every case: a bad one is a
+    # usage error now (exit 2), not one failed case after another
+    from mbsim.deck.limits import OPEN_UNIT, setting_problems
+    from mbsim.errors import UsageError
+
+    given = {k: v for k, v in options.items() if v is not None and k in (*OPEN_UNIT, "step")}
+    for key, message in setting_problems(given):
+        _fail(UsageError(f"--{key.replace('_', '-')}: {message}"), deck)
     try:
         plan = plan_sweep(
             deck, mode, [parse_param(p) for p in params],

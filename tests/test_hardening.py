@@ -148,6 +148,17 @@ def test_bad_time_options_are_usage_errors(tmp_path, option, value):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("option, value", [("--step", "0"), ("--rtol", "2"),
+                                           ("--accuracy", "-1")])
+def test_bad_sweep_options_are_usage_errors_before_any_case(tmp_path, option, value):
+    # the same for every case: refused once, exit 2, no case run and no folder made (before:
+    # every case "failed" with the same message, exit 1)
+    out = tmp_path / "sw"
+    one_error(cli("sweep", MODELS / "governor.yaml", "-m", "dynamic", "--param", "k=1000,2000",
+                  option, value, "-o", out), 2, option)  # fmt: skip
+    assert not out.exists()
+
+
 def test_limits_name_the_variable_and_can_be_raised(tmp_path, monkeypatch):
     table = "{table: {t: [0, 1, 2, 3], value: [0, 1, 2, 3]}}"
     p = deck(tmp_path, SLIDER.replace(DRIVER, f"function: {table}"))
