@@ -739,7 +739,7 @@ def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
                 local = isinstance(executor, cf.ProcessPoolExecutor) or (
                     executor is None and not scheduler)
                 spool = stack.enter_context(tempfile.TemporaryDirectory(
-                    prefix=".spool-", dir=sweep.out_dir, ignore_cleanup_errors=True)) \
+                    prefix=f".spool-{os.getpid()}-", dir=sweep.out_dir, ignore_cleanup_errors=True)) \
                     if local else None
                 ex = executor or stack.enter_context(
                     open_executor(jobs, scheduler, ncases=len(todo)))

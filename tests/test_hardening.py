@@ -363,6 +363,24 @@ def test_a_sweep_removes_stale_temporaries_of_dead_runs(tmp_path):
     assert not stale.exists() and (tmp_path / "ell=0.3.h5").exists()
 
 
+def test_a_sweep_removes_result_spools_of_dead_sweeps(tmp_path):
+    # issue 13's note: a sweep killed with kill -9 left its .spool-* folder (pickled case
+    # results) for good; the next sweep in the folder removes those of dead processes only
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = tmp_path / f".spool-{dead.pid}-abc123"
+    live = tmp_path / f".spool-{os.getpid()}-def456"
+    for d in (stale, live):
+        d.mkdir()
+        (d / "case1.pkl").write_bytes(b"pickled")
+    res = cli("sweep", MODELS / "slider_crank.yaml", "-m", "kinematic", "--param", "ell=0.3",
+              "--t-end", "0.02", "-o", tmp_path, "-j", "1", "-q")  # fmt: skip
+    assert res.exit_code == 0, res.stderr
+    assert not stale.exists() and live.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".spool-")
+                and p != live]  # the sweep's own spool is gone too
+
+
 def test_sigterm_on_run_keeps_the_outputs_reached(tmp_path):
     # issue: SIGTERM on `run` left no partial file (Ctrl-C did).  A kinematic run of 2*10^5
     # outputs (minutes); SIGTERM once it has started.

@@ -246,6 +246,8 @@ def _reason(exc: BaseException) -> str:
 
 
 TMP_RE = re.compile(r"\.(?P<name>.+)\.tmp-(?P<pid>\d+)")
+SPOOL_RE = re.compile(r"\.spool-(?P<pid>\d+)-.+")
+"""A sweep's result spool folder (mbsim.sweep), named after the sweeping process."""
 
 
 def _pid_alive(pid: int) -> bool:
@@ -261,14 +263,23 @@ def _pid_alive(pid: int) -> bool:
 
 
 def remove_stale_temporaries(folder: str | Path) -> list[Path]:
-    """Remove ``.<name>.tmp-<pid>`` files that a killed run (kill -9, power loss) left in
-    ``folder``: those whose process no longer exists.  Returns the files removed."""
+    """Remove ``.<name>.tmp-<pid>`` files and sweep spool folders ``.spool-<pid>-*`` that a
+    killed run (kill -9, power loss) left in ``folder``: those whose process no longer
+    exists.  Returns the paths removed."""
+    import shutil
+
     removed = []
     try:
         entries = list(Path(folder).iterdir())
     except OSError:
         return removed
     for p in entries:
+        m = SPOOL_RE.fullmatch(p.name)
+        if m and p.is_dir() and not p.is_symlink() and not _pid_alive(int(m["pid"])):
+            shutil.rmtree(p, ignore_errors=True)
+            if not p.exists():
+                removed.append(p)
+            continue
         m = TMP_RE.fullmatch(p.name)
         if m and not _pid_alive(int(m["pid"])):
             try:
