@@ -505,6 +505,7 @@ def _estimate(model, prep, opt, tr, companion=None):
     cpu0 = _time.process_time()
     copt, factor, method = _companion_options(prep.cls, opt)
     times = np.asarray(tr.t, float)
+    spent = 0.0  # CPU of a companion computed before (a promoted run's: its own)
     if companion is None:
         limit = min(int(opt["max_steps"]),
                     ESTIMATE_STEPS * int(tr.run.all_counters().get("steps", 0)) + 100)
@@ -518,10 +519,12 @@ def _estimate(model, prep, opt, tr, companion=None):
         if companion.interrupted:
             return {"method": "interrupted (Ctrl-C) before it finished",
                     "cpu": _time.process_time() - cpu0}
+    else:
+        spent = companion.cpu
     n = min(len(companion), len(tr))
     err = state_differences(model, np.array(tr.q[:n]), np.array(tr.qd[:n]),
                             np.array(companion.q[:n]), np.array(companion.qd[:n]))
-    out = {"method": method, "cpu": companion.cpu + _time.process_time() - cpu0,
+    out = {"method": method, "cpu": spent + _time.process_time() - cpu0,
            "steps": int(companion.run.all_counters()["steps"]), "_companion": companion,
            "_copt": copt}
     if not companion.complete or n < len(tr):
