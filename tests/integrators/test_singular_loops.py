@@ -70,7 +70,6 @@ KNOWN_RUN = {
     ("gcp-dop853", 1e-6): "gcp takes a 0.045 s step across a flat passage: 6.4 mm error "
                           "(its error estimate reports it)",
     ("gcp-rk45", 1e-10): "2e-8 m at rtol 1e-10, over the 2e-9 m bound",
-    ("baumgarte", 1e-10): "Baumgarte without projection jumps branch at a flat passage",
     ("genalpha", 1e-6): "5e-5 m at rtol 1e-6", ("hht", 1e-6): "6e-5 m at rtol 1e-6",
     ("genalpha", 1e-8): "Newton does not converge at a flat passage",
     ("hht", 1e-8): "Newton does not converge at a flat passage",
@@ -80,9 +79,6 @@ KNOWN_RUN = {
 KNOWN_ESTIMATE = {
     ("gcp-dop853", 1e-10): "estimate 13x optimistic at a true error of 3.9e-10 m",
     ("gcp-rk4", 1e-10): "estimate 59x pessimistic at a true error of 6e-10 m",
-    ("baumgarte", 1e-6): "the companion run jumps branch at a flat passage (estimate 0.4 m)",
-    ("baumgarte", 1e-8): "the companion run jumps branch at a flat passage (estimate 0.4 m)",
-    ("baumgarte", 1e-10): "Baumgarte without projection jumps branch at a flat passage",
     ("genalpha", 1e-8): "the run stops at a flat passage",
     ("genalpha", 1e-10): "the run stops at a flat passage",
     ("hht", 1e-8): "the run stops at a flat passage",
