@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse.linalg as spla
 
-from mbsim.integrators.base import hermite, rms_norm
+from mbsim.integrators.base import rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
 
@@ -209,26 +209,31 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         K[0] = self.f
         for s in range(1, tab.n_stages):
             a = tab.A[s, :s]
-            self._pred = q0 + h * (QD[:s].T @ a)
+            pred = q0 + h * (QD[:s].T @ a)
+            self._pred = pred.copy()
             K[s] = self._rhs(t + tab.C[s] * h, y + h * (K[:s].T @ a))
             QD[s] = self._last[3]
         y_new = y + h * (K[:-1].T @ tab.B)
-        self._pred = q0 + h * (QD.T @ tab.B)
-        pred = self._pred.copy()
+        pred = q0 + h * (QD.T @ tab.B)
+        self._pred = pred.copy()
         f_new = self._rhs(t + h, y_new)
         K[-1] = f_new
-        self._QD = (QD, self._last[3], q0, pred)  # the full q's stages, for _extra_error
-        if self.h_fixed is None:
-            # The RK solution of the full q (q' = qd with the method's weights) is accurate to
-            # the local error; the error estimate sees only (v, vd).  A Newton solution of the
-            # dependent coordinates far from it has jumped to another branch of the
-            # constraints (at a change point, e.g. a parallelogram's flat position): reject.
-            dev = rms_norm(self._last[2] - pred, self.atol + self.rtol * np.abs(pred))
-            if dev > BRANCH_JUMP:
-                raise StageFailure(f"t = {t + h:.6g} s: the dependent coordinates moved "
-                                   f"{dev:.3g} tolerances from the RK solution (another "
-                                   f"branch of the constraints)")
+        self._QD = (np.vstack([QD, self._last[3]]), q0, pred)  # for _extra_error, dense
+        self._check_branch(t + h, self._last[2], pred)
         return y_new, f_new
+
+    def _check_branch(self, t, q, pred):
+        """Reject a Newton solution q of the dependent coordinates far from the RK solution
+        pred of the full q (q' = qd with the method's weights, accurate to the local error):
+        it has jumped to another branch of the constraints (at a change point, e.g. a
+        parallelogram's flat position).  Fixed step: no tolerance to measure it with."""
+        if self.h_fixed is not None:
+            return
+        dev = rms_norm(q - pred, self.atol + self.rtol * np.abs(pred))
+        if dev > BRANCH_JUMP:
+            raise StageFailure(f"t = {t:.6g} s: the dependent coordinates moved {dev:.3g} "
+                               f"tolerances from the RK solution (another branch of the "
+                               f"constraints)")
 
     def _extra_error(self, h):
         """The embedded error estimate of the full q (q' = qd, the stages' full velocities),
@@ -236,8 +241,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         dependent coordinates is nearly singular, and a step that the (v, vd) estimate
         accepts can still be far off in u (measured: 5.6 mm instead of 1e-9 m on the
         parallel four-bar's flat passage at rtol 1e-8)."""
-        QD, qd1, q0, q1 = self._QD
-        Kq = np.vstack([QD, qd1[None, :]])
+        Kq, q0, q1 = self._QD
         scale = self.atol + self.rtol * np.maximum(np.abs(q0), np.abs(q1))
         return self.tableau.error_norm(Kq, h, scale)
 
@@ -258,38 +262,70 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         return q, qd, float(y[-1])
 
     def _dense_output_impl(self):
-        """The RK interpolant of (v, vd); the dependent coordinates by Newton as at the stages,
-        started from the quintic Hermite interpolant of the full q between the step's ends
-        (the Taylor predictor from the step's end alone failed on violent motion)."""
-        prev, cur = self._ref_prev, self._ref
-        try:  # DOP853's interpolant solves three extra stages: they may fail too
-            out = super()._dense_output_impl()
-        except StageFailure:
-            if prev is None or prev[0] >= cur[0]:
-                raise
-            out = None
-        if prev is None or prev[0] >= cur[0]:
-            return out
-        guess = quintic_hermite(prev, cur)
+        """The RK interpolant of (v, vd); the dependent coordinates by Newton as at the stages.
 
-        w0, w1 = float(self._dense_args[2][-1]), float(self.y[-1])
+        Every Newton solve here starts from the same RK method applied to the full q
+        (q' = qd with the stages' full velocities, ``_trial``): DOP853's three extra stages
+        from their RK combination, an output time from the continuous extension of q.
+        Either is accurate to the local error, so that Newton stays on the branch the step
+        followed.  A worse start (the Taylor predictor from the step's end, measured on the
+        parallel four-bar at rtol 1e-6) lands, near a flat passage, on a solution of the
+        independent rows that the dropped redundant rows do not satisfy: the cranks no
+        longer parallel, the extra stages' accelerations wrong, 6 mm of error at the outputs
+        although both ends of the step were within 2e-7 m."""
+        t0, h, y0, y1, K, ctx = self._dense_args
+        QD, q0, q1 = self._dense_q
+        tab = self.tableau
+        stage_qd = list(QD)  # the full qd of every stage, extra stages appended below
+        extra = iter(getattr(tab, "A_EXTRA", ()))
+
+        def stage(t, y):  # an extra stage of the interpolant (DOP853)
+            a = next(extra)[: len(stage_qd)]
+            pred = q0 + h * (np.array(stage_qd).T @ a)
+            self._pred = pred.copy()
+            try:
+                f = self._rhs(t, y, ctx)
+            finally:
+                self._pred = None
+            self._check_branch(t, self._last[2], pred)
+            stage_qd.append(self._last[3])
+            return f
+
+        try:  # the extra stages may fail near a singular position
+            g = tab.dense(stage, t0, h, y0, y1, K)
+        except StageFailure:
+            g = None
+        prev, cur = self._ref_prev, self._ref
+        hermite5 = quintic_hermite(prev, cur) if prev is not None and prev[0] < cur[0] else None
+        if g is None and hermite5 is None:
+            raise StageFailure("no interpolant for this step")
+        gq = None
+        if g is not None:  # the continuous extension of the full q, from the same stages
+            done = iter(stage_qd[len(QD):])
+            gq = tab.dense(lambda t, y: next(done), t0, h, q0, q1, np.array(stage_qd[: len(QD)]))
+        w0, w1 = float(y0[-1]), float(self.y[-1])
 
         def dense(t):
-            self._pred = np.array(guess(t), dtype=float)
             try:
-                if out is None:
+                if g is None:
                     raise StageFailure("no RK interpolant for this step")
-                return out(t)
+                pred = gq(t)
+                self._pred = pred.copy()
+                q, qd, w = self._state_from_y(t, g(t), ctx)
+                self._check_branch(t, q, pred)
+                return q, qd, w
             except StageFailure:
+                if hermite5 is None:
+                    raise
                 # near a singular position the step's partition may not solve at t: the
                 # quintic Hermite interpolant of the full state (q, qd, qdd at both ends of
                 # the step: fifth order), projected onto the constraints, at this output only
                 s = self.system
-                q, ok, _, res = s.project_positions(guess(t), t, tol=self.newton_tol)
+                q, ok, _, res = s.project_positions(hermite5(t), t, tol=self.newton_tol)
                 if not ok and res > 1e2 * self.newton_tol:
                     raise
                 x = (t - prev[0]) / (cur[0] - prev[0])
-                return q, s.project_velocities(q, guess(t, 1), t), (1 - x) * w0 + x * w1
+                return q, s.project_velocities(q, hermite5(t, 1), t), (1 - x) * w0 + x * w1
             finally:
                 self._pred = None
 
@@ -297,6 +333,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
 
     def _accept(self, t, y, f):
         lt, ly, q, qd, qdd, fac = self._last  # the FSAL stage: the accepted state
+        self._dense_q = self._QD  # the accepted trial's full-q stages (dense output)
         self._ref_prev = self._ref
         self._ref = (t, q, qd, qdd)
         sens = self._sensitivity(fac, self._jac, self.part.iv)
