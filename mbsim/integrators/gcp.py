@@ -25,6 +25,33 @@ Haug eq. 11.4.x, du = -Phi_u^-1 Phi_v dv) is checked after every accepted step; 
 again at the current state.  (The condition number of Phi_u alone misses the classic case:
 for a free body Phi_u = 2 e0 is 1 x 1 with condition 1 while e0 -> 0.)  A failed stage also
 triggers a new partition at the start of the step.
+
+Near a change point: tangent coordinates.  Where the mechanism approaches a singular position
+(the parallel four-bar's flat position: Phi_q loses rank there, the independent rows admit a
+second solution branch), Phi_u is close to singular for every choice of v, and round-off in
+the dependent coordinates (~eps / sigma_min) becomes noise in ud (~1/sigma^2) and in the
+accelerations (~1/sigma^3) along the soft directions of Phi_q.  That noise lies in the
+directions M-orthogonal to the tangent space (the constraint forces' directions,
+M^-1 Phi_q^T), so that a coordinate v sees it in proportion to its share of them (measured on
+the four-bar 1e-3 rad from flat: 2e-4 rad/s^2 in a crank's Euler parameter, 7e-6 m/s^2 in the
+coupler's y).  When the LU pivots of Phi_u fall below ``SINGULAR_PIVOT`` of the largest, the
+independent coordinates become the tangent coordinates v = C q, C = (N^T M N)^-1 N^T M, N an
+orthonormal basis of the null space of Phi_q at the partition point (the M-orthogonal
+projection onto the tangent space: Mani, Haug & Atkinson 1985 choose v in the null space by
+the SVD of Phi_q; Potra & Yen 1991 parametrize the constraint manifold by its tangent space).
+C annihilates the M-orthogonal soft directions, so v'' does not carry the noise (measured
+there: 1e-9 instead of 2e-4 at 1e-3 rad, 1e-7 instead of 0.1 at 1e-4 rad).  q then solves
+[Phi(q, t); C q - v] = 0 by Newton on the square matrix A = [Phi_q; C]; qd = A^-1 [nu; vd];
+the accelerations come from the reduced equations (T^T M T) v'' = T^T (Q - M p), T = A^-1
+[0; I], p = A^-1 [gamma; 0] (Haug Sec. 11.4 with T in place of [I; -Phi_u^-1 Phi_v]), which
+solve only A (not the Schur complement, whose condition is the square of Phi_q's and whose
+pivot floor in kernels.c changes the result near singular positions).  A stage computed in
+coordinates with Phi_u that near singular fails its step, which is tried again from its start
+in tangent coordinates (a step may cross the singular position with no accepted point near
+it).  The tangent partition is replaced when its sensitivity max |T| grows (as a coordinate
+one), or as soon as the coordinate choice's Phi_u is no longer near singular: RK4's error
+constant is larger in the position-like tangent coordinates (measured 7x on the four-bar)
+than in the Euler parameters the null-space choice picks.
 """
 
 from __future__ import annotations
@@ -33,6 +60,7 @@ import logging
 
 import numpy as np
 import scipy.linalg as la
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from mbsim.integrators.base import rms_norm
@@ -42,6 +70,11 @@ from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, Stage
 log = logging.getLogger(__name__)
 
 BRANCH_JUMP = 1e3  # scaled deviation of the dependent coordinates that rejects a step
+# Phi_u with LU pivots below this fraction of its largest: tangent coordinates (module doc).
+# The noise they avoid grows like eps / (pivot ratio)^3: 2e-7 of v'' at a pivot ratio of 6e-4
+# (measured, a crank's Euler parameter 3e-3 rad from the four-bar's flat position), 1e-8 at
+# 2e-3, 1e-3 at 2e-5; above the threshold the coordinates keep the cheaper Schur solve.
+SINGULAR_PIVOT = 1e-3
 
 
 def quintic_hermite(a, b):
@@ -68,12 +101,25 @@ def quintic_hermite(a, b):
 
 
 class Partition:
-    """iv: (nv,) independent coordinates; iu: (m_a,) dependent ones; s0: sensitivity."""
+    """iv: (nv,) independent coordinates; iu: (m_a,) dependent ones; s0: sensitivity;
+    C: None, or (nv, nq) the tangent coordinates v = C q (module doc; iv, iu are then the
+    coordinate choice at the partition point, kept for comparison only)."""
 
-    __slots__ = ("iv", "iu", "s0")
+    __slots__ = ("iv", "iu", "s0", "C")
 
-    def __init__(self, iv, iu, s0):
-        self.iv, self.iu, self.s0 = iv, iu, s0
+    def __init__(self, iv, iu, s0, C=None):
+        self.iv, self.iu, self.s0, self.C = iv, iu, s0, C
+
+    @property
+    def k(self):
+        return self.iv.size
+
+    def v(self, x):
+        """The independent part of a full vector x (q, qd or qdd)."""
+        return x[self.iv] if self.C is None else self.C @ x
+
+    def same(self, other):
+        return (self.C is None and other.C is None and np.array_equal(self.iu, other.iu))
 
 
 class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
@@ -98,12 +144,16 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._ref_prev = None  # the same at the start of the last step (dense output)
         self._last = None  # (t, y, q, qd, qdd, factor) of the latest stage
         self._jac = None
+        self._tangent_ok = True  # False once the mass matrix is singular on a tangent space
+        self._tangent_wanted = False  # a stage of the failed step was near a change point
         self.part = self._partition(self.t, self.q)
-        self.n_err = 2 * self.part.iv.size  # (v, vd); the work integral is not controlled
+        self.n_err = 2 * self.part.k  # (v, vd); the work integral is not controlled
         self._start()
 
     # -- partitioning ----------------------------------------------------------------------
-    def _partition(self, t, q):
+    def _partition(self, t, q, tangent=False):
+        """The coordinate partition at q, or tangent coordinates where its Phi_u is near
+        singular (or ``tangent``: a stage of the step from q was; module doc)."""
         s = self.system
         J = s.terms(q, t, phi=False).jac
         Jd = J.toarray() if s.sparse else J
@@ -122,7 +172,60 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             raise StageFailure("the constraint Jacobian lost rank: no set of dependent "
                                "coordinates (a lock-up or a bifurcation)")
         iv = np.setdiff1d(np.arange(self.n), iu)
-        return Partition(iv, iu, self._sensitivity(self._factor(J, iu), J, iv))
+        fac = self._factor(J, iu)
+        part = None
+        if (tangent or self._pivot_ratio(fac) < SINGULAR_PIVOT) and self._tangent_ok:
+            part = self._tangent_partition(q, J, Jd, iv, iu)
+            self._tangent_ok = part is not None
+        return part or Partition(iv, iu, self._sensitivity(fac, J, iv))
+
+    def _pivot_ratio(self, fac):
+        """Smallest / largest |pivot| of the LU factors of Phi_u (an estimate of how close to
+        singular it is: at the four-bar's flat position, 0.2 x the angle from it)."""
+        d = np.abs(fac.U.diagonal() if self.system.sparse else np.diag(fac[0]))
+        return float(d.min() / d.max()) if d.size and d.max() > 0 else 1.0
+
+    def _tangent_partition(self, q, J, Jd, iv, iu):
+        """Tangent coordinates at q (module doc); None where the mass matrix is singular on the
+        tangent space (a massless motion: no M-orthogonal projection)."""
+        m, k = Jd.shape[0], iv.size
+        Qf, _ = la.qr(Jd.T, check_finite=False)
+        N = Qf[:, m:m + k]
+        MN = self._mass_times(q, N)
+        try:
+            cf = la.cho_factor(N.T @ MN, check_finite=False)
+        except la.LinAlgError:
+            return None
+        C = la.cho_solve(cf, MN.T, check_finite=False)  # C N = I
+        part = Partition(iv, iu, 0.0, C)
+        part.s0 = self._tangent_sensitivity(self._factor_tangent(J, C), k)
+        return part
+
+    def _mass_times(self, q, X):
+        """M(q) X, M block diagonal (System.mass_blocks)."""
+        Mb = self.system.mass_blocks(q)
+        nb = Mb.shape[0]
+        return np.einsum("bij,bjk->bik", Mb, X.reshape(nb, 7, -1)).reshape(X.shape)
+
+    def _factor_tangent(self, J, C):
+        """LU of A = [Phi_q; C] (n x n)."""
+        self.system.counters["factorizations"] += 1
+        if self.system.sparse:
+            try:
+                return spla.splu(sp.vstack([J, sp.csr_matrix(C)]).tocsc())
+            except RuntimeError as exc:
+                raise StageFailure(f"singular [Phi_q; C] ({exc})") from exc
+        return la.lu_factor(np.vstack([J, C]), check_finite=False)
+
+    def _tangent_basis(self, fac, k):
+        """T = A^-1 [0; I] (n x k): the tangent space with C T = I."""
+        E = np.zeros((self.n, k))
+        E[self.n - k:] = np.eye(k)
+        return self._solve(fac, E)
+
+    def _tangent_sensitivity(self, fac, k):
+        """max |T|: as max |Phi_u^-1 Phi_v| for coordinates, how far q moves per unit of v."""
+        return float(np.abs(self._tangent_basis(fac, k)).max(initial=0.0))
 
     def _factor(self, J, iu):
         self.system.counters["factorizations"] += 1
@@ -157,6 +260,8 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             t0, q0, qd0, qdd0 = self._ref
             tau = t - t0
             q = q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
+        if part.C is not None:
+            return self._complete_tangent(t, v, vd, part, q)
         q[iv] = v
         for _ in range(self.max_newton):
             T = s.terms(q, t, jac=True, nu=s.rheonomic)
@@ -180,6 +285,51 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._jac = T.jac
         return q, qd, fac
 
+    def _complete_tangent(self, t, v, vd, part, q):
+        """_complete for tangent coordinates: Newton on [Phi(q, t); C q - v] = 0, then
+        A qd = [nu; vd]."""
+        s, C = self.system, part.C
+        for _ in range(self.max_newton):
+            T = s.terms(q, t, jac=True, nu=s.rheonomic)
+            fac = self._factor_tangent(T.jac, C)
+            dq = self._solve(fac, np.concatenate([T.phi, C @ q - v]))
+            q -= dq
+            s.counters["newton_iterations"] += 1
+            if np.abs(dq).max(initial=0.0) <= self.newton_tol:
+                break
+        else:
+            if np.abs(T.phi).max(initial=0.0) > self.newton_tol:
+                self._raise_newton_failure(T, t)
+        nu = T.nu if s.rheonomic else np.zeros(s.m)
+        qd = self._solve(fac, np.concatenate([nu, vd]))
+        self._jac = T.jac
+        return q, qd, fac
+
+    def _tangent_accelerations(self, t, q, qd, fac, part):
+        """(qdd, power) in tangent coordinates from the reduced equations (module doc):
+        (T^T M T) v'' = T^T (Q - M p), the constraint forces dropping out (T^T Phi_q^T = 0);
+        power = Q.qd - lam.nu with lam from A^T [lam; mu] = Q - M qdd (mu = 0)."""
+        s, k = self.system, part.k
+        G = s.terms(q, t, qd=qd, phi=False, jac=False, gamma=True, nu=s.rheonomic)
+        Tb = self._tangent_basis(fac, k)
+        p = self._solve(fac, np.concatenate([G.gamma, np.zeros(k)]))
+        Q = s.generalized_forces(q, qd, t)
+        MTp = self._mass_times(q, np.column_stack([Tb, p]))
+        try:
+            a = la.solve(Tb.T @ MTp[:, :k], Tb.T @ (Q - MTp[:, k]), assume_a="sym",
+                         check_finite=False)
+        except la.LinAlgError as exc:
+            raise StageFailure(f"t = {t:.6g} s: singular reduced mass matrix ({exc})") from exc
+        s.counters["factorizations"] += 1
+        qdd = Tb @ a + p
+        power = float(Q @ qd)
+        if s.rheonomic:
+            r = Q - self._mass_times(q, qdd[:, None])[:, 0]
+            lam = (fac.solve(r, trans="T") if s.sparse
+                   else la.lu_solve(fac, r, trans=1, check_finite=False))[: s.m]
+            power -= float(lam @ G.nu)
+        return qdd, power
+
     def _raise_newton_failure(self, T, t):
         s = self.system
         worst = np.argsort(-np.abs(T.phi))[:3]
@@ -190,12 +340,15 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
 
     def _rhs(self, t, y, ctx=None):
         part = ctx or self.part
-        k = part.iv.size
+        k = part.k
         q, qd, fac = self._complete(t, y[:k], y[k:2 * k], part)
-        qdd, _, power = self.system.accelerations(q, qd, t, jac=self._jac)
+        if part.C is None:
+            qdd, _, power = self.system.accelerations(q, qd, t, jac=self._jac)
+        else:
+            qdd, power = self._tangent_accelerations(t, q, qd, fac, part)
         self._last = (t, y, q, qd, qdd, fac)
         out = np.empty_like(y)
-        out[:k], out[k:2 * k], out[-1] = y[k:2 * k], qdd[part.iv], power
+        out[:k], out[k:2 * k], out[-1] = y[k:2 * k], part.v(qdd), power
         return out
 
     # -- the RK family hooks -----------------------------------------------------------------
@@ -212,15 +365,29 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             pred = q0 + h * (QD[:s].T @ a)
             self._pred = pred.copy()
             K[s] = self._rhs(t + tab.C[s] * h, y + h * (K[:s].T @ a))
+            self._check_singular(t + tab.C[s] * h)
             QD[s] = self._last[3]
         y_new = y + h * (K[:-1].T @ tab.B)
         pred = q0 + h * (QD.T @ tab.B)
         self._pred = pred.copy()
         f_new = self._rhs(t + h, y_new)
+        self._check_singular(t + h)
         K[-1] = f_new
         self._QD = (np.vstack([QD, self._last[3]]), q0, pred)  # for _extra_error, dense
         self._check_branch(t + h, self._last[2], pred)
         return y_new, f_new
+
+    def _check_singular(self, t):
+        """A stage in coordinates with Phi_u near singular fails the trial, so that the step is
+        tried again from its start in tangent coordinates (``_recover``): an accepted point
+        need not fall near the change point (a step of DOP853 or RK4 crosses the four-bar's
+        flat position, 1e-2 rad wide at SINGULAR_PIVOT, with stages on both sides)."""
+        if self.part.C is None and self._tangent_ok:
+            ratio = self._pivot_ratio(self._last[5])
+            if ratio < SINGULAR_PIVOT:
+                self._tangent_wanted = True
+                raise StageFailure(f"t = {t:.6g} s: Phi_u near singular (pivot ratio "
+                                   f"{ratio:.3g}); tangent coordinates")
 
     def _check_branch(self, t, q, pred):
         """Reject a Newton solution q of the dependent coordinates far from the RK solution
@@ -249,15 +416,15 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         return self.part
 
     def _y_from_state(self):
-        iv = self.part.iv
-        return np.concatenate([self.q[iv], self.qd[iv], [self.w]])
+        v = self.part.v
+        return np.concatenate([v(self.q), v(self.qd), [self.w]])
 
     def _state_from_y(self, t, y, ctx=None):
         last = self._last
         if last is not None and last[0] == t and last[1] is y:
             return last[2], last[3], float(y[-1])
         part = ctx or self.part
-        k = part.iv.size
+        k = part.k
         q, qd, _ = self._complete(t, y[:k], y[k:2 * k], part)
         return q, qd, float(y[-1])
 
@@ -336,36 +503,47 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._dense_q = self._QD  # the accepted trial's full-q stages (dense output)
         self._ref_prev = self._ref
         self._ref = (t, q, qd, qdd)
-        sens = self._sensitivity(fac, self._jac, self.part.iv)
-        if sens > self.ratio * max(1.0, self.part.s0):
+        cur = self.part
+        if cur.C is None:
+            sens = self._sensitivity(fac, self._jac, cur.iv)
+            change = self._pivot_ratio(fac) < SINGULAR_PIVOT  # towards a change point
+            limit = self.ratio * max(1.0, cur.s0)
+        else:  # max |T| grows as 1 / cos of the tangent's rotation since the partition
+            sens = self._tangent_sensitivity(fac, cur.k)
+            limit = self.ratio * cur.s0
+            # back to coordinates as soon as their Phi_u is no longer near singular
+            change = self._pivot_ratio(self._factor(self._jac, cur.iu)) >= SINGULAR_PIVOT
+        if change or sens > limit:
             part = self._partition(t, q)
-            if np.array_equal(part.iu, self.part.iu):
-                self.part.s0 = max(sens, part.s0)  # the same set is still the best
+            if part.same(cur):
+                cur.s0 = max(sens, part.s0)  # the same set is still the best
             else:
                 self.part = part
                 self.counters["repartitions"] += 1
                 log.debug("t = %.6g s: coordinates partitioned again (sensitivity %.3g); "
-                          "independent: %s", t, sens, part.iv.tolist())
-                iv = part.iv
-                y = np.concatenate([q[iv], qd[iv], y[-1:]])
-                f = np.concatenate([qd[iv], qdd[iv], f[-1:]])
+                          "independent: %s", t, sens,
+                          "tangent" if part.C is not None else part.iv.tolist())
+                v = part.v
+                y = np.concatenate([v(q), v(qd), y[-1:]])
+                f = np.concatenate([v(qd), v(qdd), f[-1:]])
                 self._last = (t, y, q, qd, qdd, fac)
         return y, f
 
     def _recover(self):
         """After a failed stage: partition again at the start of the step."""
         t0, q0, qd0, qdd0 = self._ref
+        wanted, self._tangent_wanted = self._tangent_wanted, False
         try:
-            part = self._partition(t0, q0)
+            part = self._partition(t0, q0, tangent=wanted)
         except StageFailure:
             return False
-        if np.array_equal(part.iu, self.part.iu):
+        if part.same(self.part):
             return False
         self.part = part
         self.counters["repartitions"] += 1
-        iv = part.iv
-        self.y = np.concatenate([q0[iv], qd0[iv], self.y[-1:]])
-        self.f = np.concatenate([qd0[iv], qdd0[iv], self.f[-1:]])
+        v = part.v
+        self.y = np.concatenate([v(q0), v(qd0), self.y[-1:]])
+        self.f = np.concatenate([v(qd0), v(qdd0), self.f[-1:]])
         return True
 
 

@@ -67,10 +67,6 @@ def run(name, rtol, pb=None):
 # still executes and is reported as xfail; fix and remove).  KNOWN_RUN: the run itself
 # (completes, error bound, CPU); KNOWN_ESTIMATE: its error estimate's honesty.
 KNOWN_RUN = {
-    ("gcp-rk45", 1e-10): "2e-8 m at rtol 1e-10, over the 2e-9 m bound: within 1e-3 rad of a "
-                         "flat position the accelerations on the independent rows carry "
-                         "~1e-4 relative noise (a second solution branch crosses there) that "
-                         "the embedded error test sees only in part",
     ("genalpha", 1e-6): "5e-5 m at rtol 1e-6", ("hht", 1e-6): "6e-5 m at rtol 1e-6",
     ("genalpha", 1e-8): "Newton does not converge at a flat passage",
     ("hht", 1e-8): "Newton does not converge at a flat passage",
@@ -78,10 +74,6 @@ KNOWN_RUN = {
     ("hht", 1e-10): "Newton does not converge at a flat passage",
 }
 KNOWN_ESTIMATE = {
-    ("gcp-dop853", 1e-10): "estimate 13x optimistic at a true error of 3.9e-10 m "
-                           "(near-flat acceleration noise, as gcp-rk45 1e-10)",
-    ("gcp-rk4", 1e-10): "estimate 59x pessimistic: the h/2 companion puts more stages near "
-                        "the flat positions and is 54x less accurate than the run",
     ("genalpha", 1e-8): "the run stops at a flat passage",
     ("genalpha", 1e-10): "the run stops at a flat passage",
     ("hht", 1e-8): "the run stops at a flat passage",
