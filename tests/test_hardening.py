@@ -5,6 +5,7 @@ file, line and key path; command-line errors the option), the documented exit co
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import subprocess
@@ -399,6 +400,34 @@ def test_sigterm_on_run_keeps_the_outputs_reached(tmp_path):
     assert "interrupted" in err and "marked incomplete" in err
     r = read_result(out)
     assert r.status == "incomplete" and 1 < len(r.t) < 200_001
+
+
+def test_sigterm_on_a_dynamic_run_stops_it_without_the_error_estimate(tmp_path):
+    # a SIGTERM (timeout, a batch system) during a long dynamic run used to end the run and
+    # then start its error estimate's companion integration, as long again (found with
+    # `timeout 120 mbsim run models/compressor.yaml --mode dynamic --integrator genalpha`,
+    # still running 10 min later)
+    out = tmp_path / "d.h5"
+    p = subprocess.Popen([sys.executable, "-m", "mbsim", "-v", "run",
+                          str(MODELS / "governor.yaml"), "-m", "dynamic", "--t-end", "5e3",
+                          "--step", "0.01", "-o", str(out), "--no-progress"],
+                         stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
+    for line in p.stderr:  # wait for the analysis to start (the -v log line)
+        if "dynamic analysis of" in line:
+            break
+    time.sleep(1.0)
+    t0 = time.monotonic()
+    p.terminate()  # SIGTERM
+    _, err = p.communicate(timeout=60)
+    assert time.monotonic() - t0 < 20, "the run went on after SIGTERM"
+    assert p.returncode == 1, err
+    assert "interrupted" in err and "marked incomplete" in err
+    r = read_result(out)
+    assert r.status == "incomplete" and 1 < len(r.t) < 500_001
+    with h5py.File(out) as f:
+        assert "error_estimate" not in f.attrs
+        summary = json.loads(f.attrs["summary"])
+    assert summary["error_estimate"]["method"].startswith("not computed")
 
 
 def test_a_complete_result_never_holds_nan(tmp_path):

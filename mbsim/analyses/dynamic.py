@@ -265,7 +265,9 @@ def _single_run(model, opt, progress=None):
         opt["h"] = float(opt["step"])
     tr = _main_trajectory(model, prep, opt, progress)
     est = None
-    if opt.get("error_estimate", True) and len(tr) >= 2:
+    if tr.interrupted:  # the user asked to stop: not another integration now
+        est = {"method": "not computed: the run was interrupted"}
+    elif opt.get("error_estimate", True) and len(tr) >= 2:
         est = _estimate(model, prep, opt, tr)
     return _build_result(model, prep, opt, tr, est)
 
@@ -612,7 +614,7 @@ def _accuracy_run(model, opt, progress, explicit):
         opt["rtol"] = opt["atol"] = ACCURACY_START * tol
     tr = _main_trajectory(model, prep, opt, progress)
     history, cpu, est, companion = [], prep.cpu, None, None
-    while len(tr) >= 2:
+    while len(tr) >= 2 and not tr.interrupted:
         est = _estimate(model, prep, opt, tr, companion)
         e = max(est.get("position") or 0.0, est.get("orientation") or 0.0)
         cpu += tr.cpu + est.get("cpu", 0.0)
