@@ -549,20 +549,23 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
 
 class GcpRK45(GeneralizedCoordinatePartitioning):
     name = "gcp-rk45"
-    description = "coordinate partitioning (Wehage-Haug), Dormand-Prince 5(4) on (v, vd)"
+    description = ("coordinate partitioning (Wehage-Haug), Dormand-Prince 5(4) on (v, vd); "
+                   "tangent coordinates near singular positions")
     order = 5
 
 
 class GcpDop853(GeneralizedCoordinatePartitioning):
     name = "gcp-dop853"
-    description = "coordinate partitioning (Wehage-Haug), DOP853 (order 8) on (v, vd)"
+    description = ("coordinate partitioning (Wehage-Haug), DOP853 (order 8) on (v, vd); "
+                   "tangent coordinates near singular positions")
     order = 8
     tableau = Dop853
 
 
 class GcpRK4(GeneralizedCoordinatePartitioning):
     name = "gcp-rk4"
-    description = "coordinate partitioning (Wehage-Haug), classic fixed-step RK4 (needs --step)"
+    description = ("coordinate partitioning (Wehage-Haug), classic fixed-step RK4 (needs --step); "
+                   "tangent coordinates near singular positions")
     order = 4
     adaptive = False
     tableau = ClassicRK4
