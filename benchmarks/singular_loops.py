@@ -1,0 +1,45 @@
+"""The four parallel cranks through their singular positions, every integrator (issue 11).
+
+    python benchmarks/singular_loops.py [--integrators a,b] [--rtols 1e-6,1e-8,1e-10]
+
+One run per (method, rtol) of tests/integrators/test_singular_loops.py's problem (atol =
+rtol/100; fixed-step methods at the step that test uses for that rtol), against its exact
+one-DOF reduction: status, true position error, the issue's bound 10 rtol + 1e-9 m, the error
+estimate and estimate / true error, CPU s (whole analysis with its estimate) and its ratio to
+the method's first rtol.  A run still going after 120 s wall is interrupted (a failure).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from mbsim.integrators import INTEGRATORS  # noqa: E402
+from tests.integrators.test_singular_loops import run  # noqa: E402
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--integrators", default=",".join(INTEGRATORS))
+    ap.add_argument("--rtols", default="1e-6,1e-8,1e-10")
+    a = ap.parse_args(argv)
+    rtols = [float(r) for r in a.rtols.split(",")]
+    print(f"{'method':18s} {'rtol':>7s} {'status':10s} {'error m':>9s} {'bound':>8s} "
+          f"{'estimate':>9s} {'est/err':>7s} {'CPU s':>7s} {'x first':>7s}")
+    for name in a.integrators.split(","):
+        first = None
+        for r in rtols:
+            res, cpu, err = run(name, r)
+            est = res.summary.get("error_estimate", {}).get("position", float("nan"))
+            first = first or cpu
+            print(f"{name:18s} {r:7.0e} {res.status:10s} {err:9.3g} {10 * r + 1e-9:8.2g} "
+                  f"{est:9.3g} {est / err if err else float('nan'):7.3g} {cpu:7.2f} "
+                  f"{cpu / first:7.2f}{'' if res.complete else '  ' + res.message[:90]}",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    main()
