@@ -382,21 +382,29 @@ def test_a_sweep_removes_result_spools_of_dead_sweeps(tmp_path):
                 and p != live]  # the sweep's own spool is gone too
 
 
+def _sigterm_run(deck, mode, out, *options):
+    """Start `mbsim -v run DECK -m MODE -o OUT OPTIONS`, SIGTERM it 1 s after its analysis has
+    started (the -v log line); returns (exit code, stderr, seconds from SIGTERM to exit)."""
+    p = subprocess.Popen([sys.executable, "-m", "mbsim", "-v", "run", str(deck), "-m", mode,
+                          *options, "-o", str(out), "--no-progress"],
+                         stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
+    for line in p.stderr:
+        if f"{mode} analysis of" in line:
+            break
+    time.sleep(1.0)
+    t0 = time.monotonic()
+    p.terminate()  # SIGTERM
+    _, err = p.communicate(timeout=60)
+    return p.returncode, err, time.monotonic() - t0
+
+
 def test_sigterm_on_run_keeps_the_outputs_reached(tmp_path):
     # issue: SIGTERM on `run` left no partial file (Ctrl-C did).  A kinematic run of 2*10^5
     # outputs (minutes); SIGTERM once it has started.
     out = tmp_path / "k.h5"
-    p = subprocess.Popen([sys.executable, "-m", "mbsim", "-v", "run",
-                          str(MODELS / "slider_crank.yaml"), "-m", "kinematic", "--t-end", "200",
-                          "--step", "0.001", "-o", str(out), "--no-progress"],
-                         stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
-    for line in p.stderr:  # wait for the analysis to start (the -v log line)
-        if "kinematic analysis of" in line:
-            break
-    time.sleep(1.0)
-    p.terminate()  # SIGTERM
-    _, err = p.communicate(timeout=60)
-    assert p.returncode == 1, err
+    code, err, _ = _sigterm_run(MODELS / "slider_crank.yaml", "kinematic", out,
+                                "--t-end", "200", "--step", "0.001")
+    assert code == 1, err
     assert "interrupted" in err and "marked incomplete" in err
     r = read_result(out)
     assert r.status == "incomplete" and 1 < len(r.t) < 200_001
@@ -408,19 +416,10 @@ def test_sigterm_on_a_dynamic_run_stops_it_without_the_error_estimate(tmp_path):
     # `timeout 120 mbsim run models/compressor.yaml --mode dynamic --integrator genalpha`,
     # still running 10 min later)
     out = tmp_path / "d.h5"
-    p = subprocess.Popen([sys.executable, "-m", "mbsim", "-v", "run",
-                          str(MODELS / "governor.yaml"), "-m", "dynamic", "--t-end", "5e3",
-                          "--step", "0.01", "-o", str(out), "--no-progress"],
-                         stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
-    for line in p.stderr:  # wait for the analysis to start (the -v log line)
-        if "dynamic analysis of" in line:
-            break
-    time.sleep(1.0)
-    t0 = time.monotonic()
-    p.terminate()  # SIGTERM
-    _, err = p.communicate(timeout=60)
-    assert time.monotonic() - t0 < 20, "the run went on after SIGTERM"
-    assert p.returncode == 1, err
+    code, err, seconds = _sigterm_run(MODELS / "governor.yaml", "dynamic", out,
+                                      "--t-end", "5e3", "--step", "0.01")
+    assert seconds < 20, "the run went on after SIGTERM"
+    assert code == 1, err
     assert "interrupted" in err and "marked incomplete" in err
     r = read_result(out)
     assert r.status == "incomplete" and 1 < len(r.t) < 500_001
