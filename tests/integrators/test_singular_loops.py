@@ -10,9 +10,10 @@ position (t = 0.083, 0.463 or 0.843 s) or ended far off (gcp-dop853 at rtol 1e-8
 reported complete); only the fixed-step rk4 passed every setting.
 
 Asserted, as the issue asks: each run completes at rtol 1e-6, 1e-8, 1e-10 (fixed-step methods
-at a step H_FOR_RTOL chosen to reach that error: RK4's error ~ h^4 measured 5e-7, 1.5e-8,
-6e-11 m at h = 5, 2, 0.5 ms); position error <= 10 rtol + 1e-9 m; CPU
-(time.process_time, the whole analysis with its error estimate) <= 10 x the CPU of the same
+at the largest of the steps 5, 2, 1, 0.5 ms that reaches that error: RK4's error ~ h^4,
+measured 5e-7, 1.5e-8, 9e-10 m at h = 5, 2, 1 ms for rk4, 1.1e-9 m at 1 ms for gcp-rk4; at
+0.35 ms rk4 is 3e-7 m off, its stages nearer the flat positions); position error
+<= 10 rtol + 1e-9 m; CPU (time.process_time, the whole analysis with its error estimate) <= 10 x the CPU of the same
 method's rtol 1e-6 run.  Beyond the issue's list: each run's error_estimate is within a
 factor 10 of its true error (the honesty asked of the default, here for every method), and
 the deck and the CLI's --accuracy reproduce the reduction.
@@ -31,7 +32,7 @@ from tests.integrators import models as M
 from tests.integrators import references as R
 
 RTOLS = (1e-6, 1e-8, 1e-10)
-H_FOR_RTOL = {1e-6: 5e-3, 1e-8: 2e-3, 1e-10: 5e-4}  # s, fixed-step methods (module doc)
+H_FOR_RTOL = {1e-6: 5e-3, 1e-8: 2e-3, 1e-10: 1e-3}  # s, fixed-step methods (module doc)
 SLOW = {"genalpha", "hht"}  # second-order implicit: 1e3-1e4 steps, seconds per run
 BASE_CPU = {}
 STALL_LIMIT = 120.0  # s wall: a run still going then has stalled (issue 11: "nothing stalls")
