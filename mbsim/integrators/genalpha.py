@@ -283,9 +283,9 @@ class GeneralizedAlpha(Integrator):
 
     def _noise_floor(self, q, h):
         """(nq,) the part of the local error estimate that round-off alone makes: the
-        corrections dq that Phi's round-off (the level :meth:`_at_roundoff` accepts, random
-        signs: two draws) produces
-        through the last Newton matrix, times the weights with which the estimate q1 - p(t1)
+        corrections dq that Phi's round-off (the level the Newton iteration's round-off test
+        accepts, ROUNDOFF_ULPS; random signs, two draws) produces through the last Newton
+        matrix, times the weights with which the estimate q1 - p(t1)
         takes it from q1 and from the two previous states (Hermite extrapolation: their q
         and their qd, whose noise is gam/(beta h) dq).  Near a singular position
         (sigma_min(Phi_q) -> 0) it grows as eps / sigma_min; elsewhere it is ~ulp of q."""
