@@ -738,9 +738,11 @@ def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
                 # removed after the pool has stopped (an ExitStack exits in reverse order)
                 local = isinstance(executor, cf.ProcessPoolExecutor) or (
                     executor is None and not scheduler)
+                # named after this process: a sweep killed with kill -9 leaves it, and the
+                # next run or sweep here removes it (output.hdf5.remove_stale_temporaries)
                 spool = stack.enter_context(tempfile.TemporaryDirectory(
-                    prefix=f".spool-{os.getpid()}-", dir=sweep.out_dir, ignore_cleanup_errors=True)) \
-                    if local else None
+                    prefix=f".spool-{os.getpid()}-", dir=sweep.out_dir,
+                    ignore_cleanup_errors=True)) if local else None
                 ex = executor or stack.enter_context(
                     open_executor(jobs, scheduler, ncases=len(todo)))
 
