@@ -51,7 +51,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from mbsim import equations as eq
-from mbsim.fast.constraints import SPARSE_NQ, FastConstraints
+from mbsim.fast.constraints import FastConstraints
 
 NB = 24
 EL_TSDA, EL_FORCE, EL_FORCE_LOCAL, EL_TORQUE, EL_TORQUE_LOCAL = range(5)
@@ -263,6 +263,15 @@ class System:
         self.counters["constraint_evaluations"] += 1
         rhs = self._velocity_residual(q, qd, t)[self.rows]
         return self.fc._qd - self._correction(rhs)
+
+    def drift(self, q, qd, t):
+        """(dq, dqd): the mass-weighted first Newton corrections that project_positions and
+        project_velocities would make at (q, qd), i.e. how far the state is from the
+        constraint set in coordinates (one constraint evaluation)."""
+        self.counters["constraint_evaluations"] += 1
+        v = self._velocity_residual(q, qd, t)[self.rows]
+        dq = self._correction(self.fc.phi_all[self.rows]).copy()  # _correction's buffer
+        return dq, self._correction(v).copy()
 
     def _velocity_residual(self, q, qd, t):
         """(m,) Phi_q qd - nu on all rows (phi_all, Jc left in the buffers; qd loaded)."""
