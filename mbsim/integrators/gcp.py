@@ -249,59 +249,45 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
 
     # -- the stage function ----------------------------------------------------------------
     def _complete(self, t, v, vd, part):
-        """q from Newton on Phi(u, v, t) = 0, qd from the velocity equations.
+        """q from Newton on Phi(u, v, t) = 0, qd from the velocity equations; in tangent
+        coordinates (part.C) Newton on [Phi(q, t); C q - v] = 0 and A qd = [nu; vd].
 
         The start is the RK combination of the full stage velocities (``_trial``), exact to
         the local error, so that two Newton steps (correct, confirm) usually suffice."""
-        s, (iv, iu) = self.system, (part.iv, part.iu)
+        s, (iv, iu), C = self.system, (part.iv, part.iu), part.C
         if self._pred is not None:
             q, self._pred = self._pred, None
         else:  # second-order Taylor predictor from the last accepted state
             t0, q0, qd0, qdd0 = self._ref
             tau = t - t0
             q = q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
-        if part.C is not None:
-            return self._complete_tangent(t, v, vd, part, q)
-        q[iv] = v
+        if C is None:
+            q[iv] = v
         for _ in range(self.max_newton):
             T = s.terms(q, t, jac=True, nu=s.rheonomic)
-            fac = self._factor(T.jac, iu)
-            du = self._solve(fac, T.phi)
-            q[iu] -= du
+            if C is None:
+                fac = self._factor(T.jac, iu)
+                dx = self._solve(fac, T.phi)
+                q[iu] -= dx
+            else:
+                fac = self._factor_tangent(T.jac, C)
+                dx = self._solve(fac, np.concatenate([T.phi, C @ q - v]))
+                q -= dx
             s.counters["newton_iterations"] += 1
-            if np.abs(du).max(initial=0.0) <= self.newton_tol:
+            if np.abs(dx).max(initial=0.0) <= self.newton_tol:
                 break  # Phi_q of this iterate is within newton_tol of Phi_q(q): keep it
         else:
             # the corrections may stagnate at round-off of an ill-conditioned Phi_u while the
             # constraints themselves hold: then keep it (a failure here lost whole runs)
             if np.abs(T.phi).max(initial=0.0) > self.newton_tol:
                 self._raise_newton_failure(T, t)
-        qd = np.empty(self.n)
-        qd[iv] = vd
-        rhs = -(T.jac[:, iv] @ vd)
-        if s.rheonomic:
-            rhs += T.nu
-        qd[iu] = self._solve(fac, rhs)
-        self._jac = T.jac
-        return q, qd, fac
-
-    def _complete_tangent(self, t, v, vd, part, q):
-        """_complete for tangent coordinates: Newton on [Phi(q, t); C q - v] = 0, then
-        A qd = [nu; vd]."""
-        s, C = self.system, part.C
-        for _ in range(self.max_newton):
-            T = s.terms(q, t, jac=True, nu=s.rheonomic)
-            fac = self._factor_tangent(T.jac, C)
-            dq = self._solve(fac, np.concatenate([T.phi, C @ q - v]))
-            q -= dq
-            s.counters["newton_iterations"] += 1
-            if np.abs(dq).max(initial=0.0) <= self.newton_tol:
-                break
-        else:
-            if np.abs(T.phi).max(initial=0.0) > self.newton_tol:
-                self._raise_newton_failure(T, t)
         nu = T.nu if s.rheonomic else np.zeros(s.m)
-        qd = self._solve(fac, np.concatenate([nu, vd]))
+        if C is None:
+            qd = np.empty(self.n)
+            qd[iv] = vd
+            qd[iu] = self._solve(fac, nu - T.jac[:, iv] @ vd)
+        else:
+            qd = self._solve(fac, np.concatenate([nu, vd]))
         self._jac = T.jac
         return q, qd, fac
 
