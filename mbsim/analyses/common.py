@@ -90,6 +90,7 @@ class Recorder:
         self._t = np.empty(capacity)
         self._s = np.empty((3, capacity, model.nq))  # q, qd, qdd rows
         self.extra: dict[str, list] = {}
+        self._kin = (None, -1)  # kinematics() and the number of outputs it was computed for
 
     def add(self, t, q, qd, qdd, **extra):
         n = self._n
@@ -121,6 +122,13 @@ class Recorder:
     def qdd(self) -> np.ndarray:
         return self._s[2, : self._n]
 
+    def kinematics(self) -> dict:
+        """:func:`body_kinematics` of the recorded outputs, computed once (the result's
+        channels and the dynamic analysis' energy monitors both use it)."""
+        if self._kin[1] != self._n:
+            self._kin = (body_kinematics(self.model, self.q, self.qd, self.qdd), self._n)
+        return self._kin[0]
+
     def result(self, mode: str, only=None) -> Result:
         """The Result with the standard channels (``only``: slash patterns, default the
         deck's ``outputs: only:``; see :func:`mbsim.measures.selected`)."""
@@ -151,7 +159,7 @@ class Recorder:
                 r == path or r.startswith(path + "/") or r.startswith(path + "[")
                 for r in refs)
 
-        kin = body_kinematics(model, self.q, self.qd, self.qdd)
+        kin = self.kinematics()
         for b, name in enumerate(model.body_names):
             for key, unit, desc in BODY_CHANNELS:
                 path = f"bodies/{name}/{key}"

@@ -317,11 +317,10 @@ def _build_result(model, prep, opt, tr, est):
         message = _explain(model, run.system, run.solver, message)
     res = rec.result("dynamic")
     if n:
-        from mbsim.analyses.common import body_kinematics, kinetic_energies, potential_energies
+        from mbsim.analyses.common import kinetic_energies, potential_energies
 
-        Q = np.array(tr.q)
-        kin = body_kinematics(model, Q, np.array(tr.qd), rec.qdd)
-        V = potential_energies(model, Q, kin)
+        kin = rec.kinematics()
+        V = potential_energies(model, rec.q, kin)
         energy = kinetic_energies(model, kin) + V
         res.add("monitors/position_violation", pos, "", "max |Phi| over all rows")
         res.add("monitors/velocity_violation", vel, "", "max |Phi_q qd - nu|")
