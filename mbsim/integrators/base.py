@@ -40,6 +40,9 @@ class Integrator(ABC):
 
     1. Class data: ``name`` (the registry and ``--integrator`` name), ``description`` (one
        line for ``mbsim list integrators``), ``order`` (global order of q in h),
+       ``tolerance_exponent`` (kappa: the global error of an adaptive run grows as
+       rtol^kappa; 1 for the Runge-Kutta pairs, whose local extrapolation and error-per-step
+       control make the error proportional to the tolerance),
        ``adaptive`` (True: has an error estimate and controls its step from rtol/atol;
        every integrator also takes a fixed step ``h``), ``formulation`` ('gcp' | 'index-1' |
        'index-3').  Family facts (tableaus, alpha parameters) are class data too.
@@ -65,6 +68,7 @@ class Integrator(ABC):
     name = ""
     description = ""
     order = 0
+    tolerance_exponent = 1.0
     adaptive = True
     formulation = ""
 

@@ -45,6 +45,10 @@ class GeneralizedAlpha(Integrator):
     description = ("implicit index-3 generalized-alpha (Arnold-Bruls), rho_inf = 0.8, "
                    "Newton on (q, lam), error-controlled step")
     order = 2
+    # error per step of an order-2 method: local error ~ h^3 = tol, so h ~ tol^(1/3) and the
+    # global error ~ h^2 ~ tol^(2/3) (measured error / rtol 44 -> 536 from rtol 1e-6 to 1e-10
+    # on the slider-crank, 49 -> 560 on the four parallel cranks: x11 for x21.5 predicted)
+    tolerance_exponent = 2.0 / 3.0
     formulation = "index-3"
     rho_inf = 0.8
     max_newton = 10
