@@ -2,7 +2,7 @@
 
     python benchmarks/accuracy.py [--repeats 3] [--problems pendulum,heavy_top]
                                   [--integrators a,b] [--requests 1e-4,1e-6,1e-8]
-                                  [--max-cpu 20]
+                                  [--max-cpu 20] [--accuracy-integrator NAME]
 
 The problems are the five of tests/integrators/models.py:reference_problem, each with an
 independent reference (tests/integrators/references.py: scipy DOP853 at rtol 1e-13 or a
@@ -88,10 +88,13 @@ def timed(pb, opts, repeats):
     return res, statistics.median(cpus)
 
 
-def accuracy_runs(pb, requests, repeats):
+def accuracy_runs(pb, requests, repeats, integrator=None):
     rows = []
     for tol in requests:
-        res, cpu = timed(pb, {"accuracy": tol}, repeats)
+        opts = {"accuracy": tol}
+        if integrator:
+            opts["integrator"] = integrator
+        res, cpu = timed(pb, opts, repeats)
         err, pos = true_error(pb, res)
         acc = res.summary.get("accuracy", {})
         est = res.summary.get("error_estimate", {})
@@ -153,6 +156,8 @@ def main(argv=None):
                     help="stop a method's ladder after a run over this CPU (s)")
     ap.add_argument("--timeout", type=float, default=TIMEOUT,
                     help="interrupt a run after this wall time (s); it counts as failed")
+    ap.add_argument("--accuracy-integrator", default=None,
+                    help="the integrator of the accuracy runs (default: mbsim's default)")
     a = ap.parse_args(argv)
     globals()["TIMEOUT"] = a.timeout
     names = [n for n in a.integrators.split(",") if n]
@@ -161,7 +166,7 @@ def main(argv=None):
     for prob in a.problems.split(","):
         pb = M.reference_problem(prob)
         pb.reference(np.linspace(0.0, pb.t_end, 2))  # sympy set-up outside the timings
-        acc = accuracy_runs(pb, requests, a.repeats)
+        acc = accuracy_runs(pb, requests, a.repeats, a.accuracy_integrator)
         sw = sweep(pb, names, a.repeats, a.max_cpu)
         for row in acc:
             table.append((prob, row, cheapest(sw, row["request"])))
