@@ -704,15 +704,65 @@ def _initial(model, t0, opt):
     return q, qd, summary
 
 
+SINGULAR_CONDITION = 1e6  # Phi_q condition from which a failure names the constraints
+SWITCH_PROBE = 1e-9  # s: the states probed either side of a failure along the motion
+SWITCH_JUMP = 1e-2  # relative change of an element's load across the probe that is a jump
+
+
 def _explain(model, system, solver, msg):
-    """The integrator's message plus the joints nearest to a singular configuration."""
+    """The integrator's message plus what is special at the last accepted state: the
+    constraints nearest to a singular configuration (where Phi_q's condition is at least
+    SINGULAR_CONDITION), and the force elements whose load jumps there (a law that switches
+    on the sign of a velocity or a coordinate, as a valve or dry friction: the motion cannot
+    be continued past such a point by any step, and the step size collapses)."""
+    notes = []
     try:
         J = system.terms(solver.q, solver.t, phi=False).jac
         J = J.toarray() if hasattr(J, "toarray") else J
         rows, s = singular_rows(model, J)
-        names = model.items_of_rows(system.rows[rows])
         cond = s[0] / s[-1] if s[-1] > 0 else np.inf
-        return (f"{msg} (last accepted state t = {solver.t:.6g} s; Phi_q condition "
-                f"{cond:.3g}; constraints nearest to singular: {', '.join(names)})")
+        note = f"Phi_q condition {cond:.3g}"
+        if cond >= SINGULAR_CONDITION:
+            names = model.items_of_rows(system.rows[rows])
+            note += f"; constraints nearest to singular: {', '.join(names)}"
+        notes.append(note)
     except (np.linalg.LinAlgError, ValueError):  # the explanation must not hide the failure
+        pass
+    jumps = _switching_forces(model, system, solver.q, solver.qd, solver.t)
+    if jumps:
+        notes.append(f"force elements whose load jumps there: {', '.join(jumps)} (a law "
+                     f"that switches on the motion: where the motion stays at the switch, "
+                     f"a sliding mode, no step passes it)")
+    if not notes:
         return msg
+    return f"{msg} (last accepted state t = {solver.t:.6g} s; {'; '.join(notes)})"
+
+
+def _switching_forces(model, system, q, qd, t):
+    """Names of the force elements whose load differs by more than SWITCH_JUMP of its size
+    between the states SWITCH_PROBE s before and after (q, qd, t) along the motion (Taylor
+    steps with the accelerations there).  A smooth law changes by its rate x 2e-9 s there:
+    1e-6 relative for a 1e7 N/m spring at 10 m/s against a 1e3 N load."""
+    try:
+        qdd = system.accelerations(q, qd, t)[0]
+    except NUMERICAL_ERRORS:
+        return []
+    from mbsim import equations as eq
+
+    e = SWITCH_PROBE
+    states = [(q + sg * e * qd + 0.5 * e * e * qdd, qd + sg * e * qdd, t + sg * e)
+              for sg in (-1.0, 1.0)]
+    out = []
+    for el in model.forces:
+        loads = []
+        try:
+            for qs, vs, ts in states:
+                F, n = np.zeros((model.nb, 3)), np.zeros((model.nb, 3))
+                el.apply(eq.State(model, qs, vs), ts, F, n)
+                loads.append(np.concatenate([F.ravel(), n.ravel()]))
+        except Exception:  # noqa: BLE001 - the explanation must not hide the failure
+            continue
+        size = max(np.abs(loads[0]).max(), np.abs(loads[1]).max())
+        if size > 0 and np.abs(loads[1] - loads[0]).max() > SWITCH_JUMP * size:
+            out.append(el.name or type(el).__name__)
+    return out

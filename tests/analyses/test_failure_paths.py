@@ -5,6 +5,7 @@ or a forced failure of the equations of motion; each ends with exit 1 (or 2 for 
 setting), one ``error:`` line, and an HDF5 file marked incomplete where a run had started.
 """
 
+import dataclasses
 from pathlib import Path
 
 import h5py
@@ -177,3 +178,55 @@ def test_settings_are_checked_before_the_run():
                 {"atol": 0.0}, {"h_max": -1.0}):
         with pytest.raises(DeckError):
             _free_body_run(bad)
+
+
+def test_a_sliding_mode_names_the_switching_forces(tmp_path):
+    """The compressor's base deck (motor off, rotor at rest, 500 psi): the valve law pushes
+    a piston only while it compresses (v < 0), so the pistons the rotor's start would drive
+    into compression stall at v = 0, and no step can pass (h_min).  The message named the
+    constraints "nearest to singular" at Phi_q condition 48, which they are not; now it
+    names the air forces whose load jumps across the stall and no constraints."""
+    out = tmp_path / "c.h5"
+    r = cli("run", MODELS / "compressor.yaml", "--mode", "dynamic", "--t-end", "0.02",
+            "-o", out)
+    assert_clean(r, (1,))
+    line = error_lines(r.output)[0]
+    assert "force elements whose load jumps there: air" in line, line
+    assert "nearest to singular" not in line
+    jumped = line.split("jumps there: ")[1].split(" (")[0].split(", ")
+    assert jumped and all(name.startswith("air") for name in jumped), line
+    with h5py.File(out) as f:
+        assert f.attrs["status"] == "incomplete"
+
+
+def test_smooth_forces_are_not_blamed():
+    """The probe of _switching_forces on a smooth element: a stiff TSDA (k = 1e7 N/m, c = 1e3
+    N s/m) on a body moving at 10 m/s changes by ~1e-6 of its load across +-1e-9 s, far
+    below the 1e-2 that counts as a jump (the compressor test above shows a jump caught)."""
+    from mbsim.model import compile_model
+    from tests.helpers import body, spec
+
+    model = compile_model(spec([body("ground", ground=True), body("b", 2.0, (1.0, 2.0, 3.0))],
+                               forces=[M.tsda("spring", "ground", "b", k=1e7, c=1e3, L0=0.5)],
+                               gravity=(0, 0, -9.81)))
+    system = dyn.make_system(model, np.arange(model.m))
+    q = model.q0.copy()
+    q[7:10] = (0.3, 0.4, 0.2)
+    qd = np.zeros(model.nq)
+    qd[7:10] = (10.0, -3.0, 2.0)
+    assert len(model.forces) == 1
+    assert dyn._switching_forces(model, system, q, qd, 0.0) == []
+    # the same probe sees a load that does switch: a spring force only while stretching
+    spring = model.forces[0]
+
+    class Valve:
+        name = "valve"
+
+        def apply(self, st, t, F, n):
+            if st.rd[1] @ (st.r[1] - st.r[0]) > 0:
+                spring.apply(st, t, F, n)
+
+    model = dataclasses.replace(model, forces=(spring, Valve()))
+    q[7:10] = (0.3, 0.0, 0.0)
+    qd[7:10] = (0.0, 1.0, 0.0)  # moving across the spring: its length rate is 0 here
+    assert dyn._switching_forces(model, system, q, qd, 0.0) == ["valve"]
