@@ -704,15 +704,15 @@ def _initial(model, t0, opt):
     return q, qd, summary
 
 
-SINGULAR_CONDITION = 1e6  # Phi_q condition from which a failure names the constraints
+SINGULAR_CONDITION = 1e6  # Phi_q condition from which a failure blames the constraints
 SWITCH_PROBE = 1e-9  # s: the states probed either side of a failure along the motion
 SWITCH_JUMP = 1e-2  # relative change of an element's load across the probe that is a jump
 
 
 def _explain(model, system, solver, msg):
     """The integrator's message plus what is special at the last accepted state: the
-    constraints nearest to a singular configuration (where Phi_q's condition is at least
-    SINGULAR_CONDITION), and the force elements whose load jumps there (a law that switches
+    constraints nearest to a singular configuration (said to be near singular only where
+    Phi_q's condition is at least SINGULAR_CONDITION), and the force elements whose load jumps there (a law that switches
     on the sign of a velocity or a coordinate, as a valve or dry friction: the motion cannot
     be continued past such a point by any step, and the step size collapses)."""
     notes = []
@@ -721,11 +721,11 @@ def _explain(model, system, solver, msg):
         J = J.toarray() if hasattr(J, "toarray") else J
         rows, s = singular_rows(model, J)
         cond = s[0] / s[-1] if s[-1] > 0 else np.inf
-        note = f"Phi_q condition {cond:.3g}"
-        if cond >= SINGULAR_CONDITION:
-            names = model.items_of_rows(system.rows[rows])
-            note += f"; constraints nearest to singular: {', '.join(names)}"
-        notes.append(note)
+        names = ", ".join(model.items_of_rows(system.rows[rows]))
+        notes.append(f"Phi_q condition {cond:.3g}; constraints nearest to singular: {names}"
+                     if cond >= SINGULAR_CONDITION else
+                     f"Phi_q condition {cond:.3g}, not near singular (its weakest rows: "
+                     f"{names})")
     except (np.linalg.LinAlgError, ValueError):  # the explanation must not hide the failure
         pass
     jumps = _switching_forces(model, system, solver.q, solver.qd, solver.t)
