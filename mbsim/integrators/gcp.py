@@ -34,8 +34,9 @@ accelerations (~1/sigma^3) along the soft directions of Phi_q.  That noise lies 
 directions M-orthogonal to the tangent space (the constraint forces' directions,
 M^-1 Phi_q^T), so that a coordinate v sees it in proportion to its share of them (measured on
 the four-bar 1e-3 rad from flat: 2e-4 rad/s^2 in a crank's Euler parameter, 7e-6 m/s^2 in the
-coupler's y).  When the LU pivots of Phi_u fall below ``SINGULAR_PIVOT`` of the largest, the
-independent coordinates become the tangent coordinates v = C q, C = (N^T M N)^-1 N^T M, N an
+coupler's y).  When the LU pivots of Phi_u fall below ``singular_pivot(rtol)`` of the largest
+(1e-3, more at tolerances below 2e-7), the independent coordinates become the tangent
+coordinates v = C q, C = (N^T M N)^-1 N^T M, N an
 orthonormal basis of the null space of Phi_q at the partition point (the M-orthogonal
 projection onto the tangent space: Mani, Haug & Atkinson 1985 choose v in the null space by
 the SVD of Phi_q; Potra & Yen 1991 parametrize the constraint manifold by its tangent space).
@@ -71,10 +72,26 @@ log = logging.getLogger(__name__)
 
 BRANCH_JUMP = 1e3  # scaled deviation of the dependent coordinates that rejects a step
 # Phi_u with LU pivots below this fraction of its largest: tangent coordinates (module doc).
-# The noise they avoid grows like eps / (pivot ratio)^3: 2e-7 of v'' at a pivot ratio of 6e-4
+# The noise they avoid grows like (pivot ratio)^-2.5: 2e-7 of v'' at a pivot ratio of 6e-4
 # (measured, a crank's Euler parameter 3e-3 rad from the four-bar's flat position), 1e-8 at
 # 2e-3, 1e-3 at 2e-5; above the threshold the coordinates keep the cheaper Schur solve.
 SINGULAR_PIVOT = 1e-3
+
+
+def singular_pivot(rtol, adaptive=True):
+    """The pivot ratio below which tangent coordinates are used: SINGULAR_PIVOT, or for an
+    adaptive run at a tighter tolerance (eps / rtol)^(1/3), where the noise of the coordinate
+    accelerations (measured law above) reaches rtol: 6e-4, 2.8e-3, 1.3e-2, 6e-2 at rtol 1e-6,
+    1e-8, 1e-10, 1e-12 against 3e-4, 2e-3, 1.3e-2, 8e-2 from the law.  With the fixed 1e-3 the
+    noise read as local error at tight tolerances: gcp-dop853 on the four parallel cranks
+    ended 1.3e-10, 5.8e-9, 4.7e-10 m off at rtol 1e-10, 1e-11, 1e-12 (now 4.6e-11, 4.6e-10,
+    4.2e-11), gcp-rk45's estimate at 1e-10 was 0.27 of its error (now 0.79), and DOP853's
+    extra dense-output stages fell in coordinates next to a flat position (3e-9 m at one
+    output of the shaken linkage, tests/integrators/test_gcp_tangent_rheonomic.py), for
+    10-20 % more CPU (benchmarks/singular_loops.py).  Defaults (rtol 1e-6) are unchanged."""
+    if not adaptive:
+        return SINGULAR_PIVOT
+    return max(SINGULAR_PIVOT, (np.finfo(float).eps / rtol) ** (1.0 / 3.0))
 
 
 def quintic_hermite(a, b):
@@ -138,6 +155,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self.newton_tol = float(self.options.get(
             "newton_tol", 1e-12 if self.h_fixed else min(1e-9, max(1e-12, 1e-2 * self.atol))))
         self.counters["repartitions"] = 0
+        self.singular_pivot = singular_pivot(self.rtol, self.h_fixed is None)
         self._pred = None  # the full q predicted for the next stage (see _trial)
         qdd, _, _ = system.accelerations(self.q, self.qd, self.t)
         self._ref = (self.t, self.q.copy(), self.qd.copy(), qdd)  # Newton predictor data
@@ -174,7 +192,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         iv = np.setdiff1d(np.arange(self.n), iu)
         fac = self._factor(J, iu)
         part = None
-        if (tangent or self._pivot_ratio(fac) < SINGULAR_PIVOT) and self._tangent_ok:
+        if (tangent or self._pivot_ratio(fac) < self.singular_pivot) and self._tangent_ok:
             part = self._tangent_partition(q, J, Jd, iv, iu)
             self._tangent_ok = part is not None
         return part or Partition(iv, iu, self._sensitivity(fac, J, iv))
@@ -370,7 +388,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         flat position, 1e-2 rad wide at SINGULAR_PIVOT, with stages on both sides)."""
         if self.part.C is None and self._tangent_ok:
             ratio = self._pivot_ratio(self._last[5])
-            if ratio < SINGULAR_PIVOT:
+            if ratio < self.singular_pivot:
                 self._tangent_wanted = True
                 raise StageFailure(f"t = {t:.6g} s: Phi_u near singular (pivot ratio "
                                    f"{ratio:.3g}); tangent coordinates")
@@ -492,13 +510,13 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         cur = self.part
         if cur.C is None:
             sens = self._sensitivity(fac, self._jac, cur.iv)
-            change = self._pivot_ratio(fac) < SINGULAR_PIVOT  # towards a change point
+            change = self._pivot_ratio(fac) < self.singular_pivot  # towards a change point
             limit = self.ratio * max(1.0, cur.s0)
         else:  # max |T| grows as 1 / cos of the tangent's rotation since the partition
             sens = self._tangent_sensitivity(fac, cur.k)
             limit = self.ratio * cur.s0
             # back to coordinates as soon as their Phi_u is no longer near singular
-            change = self._pivot_ratio(self._factor(self._jac, cur.iu)) >= SINGULAR_PIVOT
+            change = self._pivot_ratio(self._factor(self._jac, cur.iu)) >= self.singular_pivot
         if change or sens > limit:
             part = self._partition(t, q)
             if part.same(cur):
