@@ -155,6 +155,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self.newton_tol = float(self.options.get(
             "newton_tol", 1e-12 if self.h_fixed else min(1e-9, max(1e-12, 1e-2 * self.atol))))
         self.counters["repartitions"] = 0
+        self.counters["tangent_partitions"] = 0
         self.singular_pivot = singular_pivot(self.rtol, self.h_fixed is None)
         self._pred = None  # the full q predicted for the next stage (see _trial)
         qdd, _, _ = system.accelerations(self.q, self.qd, self.t)
@@ -522,8 +523,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             if part.same(cur):
                 cur.s0 = max(sens, part.s0)  # the same set is still the best
             else:
-                self.part = part
-                self.counters["repartitions"] += 1
+                self._switch(part)
                 log.debug("t = %.6g s: coordinates partitioned again (sensitivity %.3g); "
                           "independent: %s", t, sens,
                           "tangent" if part.C is not None else part.iv.tolist())
@@ -532,6 +532,14 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
                 f = np.concatenate([v(qd), v(qdd), f[-1:]])
                 self._last = (t, y, q, qd, qdd, fac)
         return y, f
+
+    def _switch(self, part):
+        """Make ``part`` the partition; counters ``repartitions`` (every change) and
+        ``tangent_partitions`` (the changes into tangent coordinates)."""
+        self.part = part
+        self.counters["repartitions"] += 1
+        if part.C is not None:
+            self.counters["tangent_partitions"] += 1
 
     def _recover(self):
         """After a failed stage: partition again at the start of the step."""
@@ -543,8 +551,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             return False
         if part.same(self.part):
             return False
-        self.part = part
-        self.counters["repartitions"] += 1
+        self._switch(part)
         v = part.v
         self.y = np.concatenate([v(q0), v(qd0), self.y[-1:]])
         self.f = np.concatenate([v(qd0), v(qdd0), self.f[-1:]])

@@ -319,6 +319,7 @@ def test_run_through_flat_positions(rtol, monkeypatch):
     near = [(t, nu) for t, s, nu in seen if abs(s) < 0.1]
     assert near and max(nu for _, nu in near) >= 0.01, seen[:5]
     assert res.counters["repartitions"] >= 2  # into tangent coordinates and out again
+    assert res.counters["tangent_partitions"] >= 1  # the counter sees what the spy saw
     err = 0.0
     for k, t in enumerate(res.t):
         qe = exact_state(model, t, th[k], thd[k])[0]
