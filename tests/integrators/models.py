@@ -281,6 +281,31 @@ def fourbar_crank_inertia(L=0.2, m_crank=0.5):
     return (1e-4, m_crank * L * L / 12, m_crank * L * L / 12)
 
 
+def parallel_fourbar_parts(N=4, theta0=-np.pi / 2, L=0.2, m_crank=0.5, M=2.0, spacing=0.3,
+                           mount="ground"):
+    """(bodies, joints) of :func:`parallel_fourbar` without the ground: the N cranks, the
+    coupler and the 2N revolutes, the pivots G<i> on the body ``mount``."""
+    xs = [i * spacing for i in range(N)]
+    xbar = float(np.mean(xs))
+    c, s = np.cos(theta0), np.sin(theta0)
+    p0 = from_axis_angle((0, 0, 1), theta0)
+    Jc = fourbar_crank_inertia(L, m_crank)
+    W = xs[-1] - xs[0]
+    bodies = [body(f"crank{i}", m_crank, Jc, (x + L / 2 * c, L / 2 * s, 0), p0)
+              for i, x in enumerate(xs)]
+    bodies.append(body("coupler", M, (1e-3, M * W * W / 12, M * W * W / 12 + 1e-3),
+                       (xbar + L * c, L * s, 0)))
+    joints = []
+    for i, x in enumerate(xs):
+        joints.append(joint(f"G{i}", "revolute", mount, f"crank{i}",
+                            {mount: pts((x, 0, 0), (x, 0, 1), (x + 1, 0, 0)),
+                             f"crank{i}": pts((-L / 2, 0, 0), (-L / 2, 0, 1))}))
+        joints.append(joint(f"C{i}", "revolute", f"crank{i}", "coupler",
+                            {f"crank{i}": pts((L / 2, 0, 0), (L / 2, 0, 1), (L / 2 + 1, 0, 0)),
+                             "coupler": pts((x - xbar, 0, 0), (x - xbar, 0, 1))}))
+    return bodies, joints
+
+
 def parallel_fourbar(N=4, theta0=-np.pi / 2, L=0.2, m_crank=0.5, M=2.0, spacing=0.3, g=9.81):
     """N parallel cranks (N >= 2, N - 1 four-bar loops) carrying one coupler: crank<i>
     turns about global z on revolute G<i> at (x_i, 0, 0), x_i = i spacing; its tip carries
@@ -288,26 +313,40 @@ def parallel_fourbar(N=4, theta0=-np.pi / 2, L=0.2, m_crank=0.5, M=2.0, spacing=
     crank after the second adds 4 redundant equations in 3-D; at theta = 0, pi (cranks
     along the ground line) the constraint Jacobian loses one more rank (singular position).
     Started at crank angle theta0 (all cranks parallel, coupler level)."""
-    xs = [i * spacing for i in range(N)]
-    xbar = float(np.mean(xs))
-    c, s = np.cos(theta0), np.sin(theta0)
-    p0 = from_axis_angle((0, 0, 1), theta0)
-    Jc = fourbar_crank_inertia(L, m_crank)
-    W = xs[-1] - xs[0]
-    bodies = [body("ground", ground=True)]
-    bodies += [body(f"crank{i}", m_crank, Jc, (x + L / 2 * c, L / 2 * s, 0), p0)
-               for i, x in enumerate(xs)]
-    bodies.append(body("coupler", M, (1e-3, M * W * W / 12, M * W * W / 12 + 1e-3),
-                       (xbar + L * c, L * s, 0)))
-    joints = []
-    for i, x in enumerate(xs):
-        joints.append(joint(f"G{i}", "revolute", "ground", f"crank{i}",
-                            {"ground": pts((x, 0, 0), (x, 0, 1), (x + 1, 0, 0)),
-                             f"crank{i}": pts((-L / 2, 0, 0), (-L / 2, 0, 1))}))
-        joints.append(joint(f"C{i}", "revolute", f"crank{i}", "coupler",
-                            {f"crank{i}": pts((L / 2, 0, 0), (L / 2, 0, 1), (L / 2 + 1, 0, 0)),
-                             "coupler": pts((x - xbar, 0, 0), (x - xbar, 0, 1))}))
-    return compile_model(spec(bodies, joints, gravity=(0, -g, 0)))
+    bodies, joints = parallel_fourbar_parts(N, theta0, L, m_crank, M, spacing)
+    return compile_model(spec([body("ground", ground=True)] + bodies, joints,
+                              gravity=(0, -g, 0)))
+
+
+def parallel_fourbar_motion(model, th, thd, thdd, base=(0.0, 0.0, 0.0), direction=(1, 0, 0)):
+    """q, qd, qdd of the linkage of FOURBAR's data (parallel_fourbar_parts) at crank angle th,
+    rate thd and acceleration thdd: the cranks turned by th about z with their pivots at
+    (x_i, 0, 0), the coupler translating on a circle of radius L; every body but the ground
+    moved by base = (s, s', s'') along ``direction`` (a mount that slides)."""
+    L, xs = FOURBAR["L"], [i * FOURBAR["spacing"] for i in range(4)]
+    d = np.asarray(direction, float)
+    s0, s1, s2 = base
+    q, qd, qdd = (np.zeros(model.nq) for _ in range(3))
+    c, s = np.cos(th), np.sin(th)
+    for b, name in enumerate(model.body_names):
+        o = 7 * b
+        q[o + 3] = 1.0
+        if name == "ground":
+            continue
+        q[o:o + 3], qd[o:o + 3], qdd[o:o + 3] = s0 * d, s1 * d, s2 * d
+        if not (name == "coupler" or name.startswith("crank")):
+            continue
+        x0, f = (np.mean(xs), L) if name == "coupler" else (xs[int(name[-1])], L / 2)
+        q[o:o + 3] += (x0 + f * c, f * s, 0)
+        qd[o:o + 3] += (-f * s * thd, f * c * thd, 0)
+        qdd[o:o + 3] += (-f * (s * thdd + c * thd ** 2), f * (c * thdd - s * thd ** 2), 0)
+        if name != "coupler":
+            e = np.array([np.cos(th / 2), 0, 0, np.sin(th / 2)])
+            de = np.array([-np.sin(th / 2), 0, 0, np.cos(th / 2)])
+            q[o + 3:o + 7] = e
+            qd[o + 3:o + 7] = 0.5 * thd * de
+            qdd[o + 3:o + 7] = 0.5 * thdd * de - 0.25 * thd ** 2 * e
+    return q, qd, qdd
 
 
 def parallel_fourbar_state(model, thetad0):

@@ -7,7 +7,6 @@ coupler rotating), which the 11 redundant rows forbid.  The monitors measure the
 all 52 rows, so they show whether the run stayed on the mechanism's own motion.
 """
 
-import numpy as np
 
 from mbsim.analyses.dynamic import dynamic
 from tests.integrators import models as M

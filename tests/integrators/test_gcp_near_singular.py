@@ -14,33 +14,13 @@ from tests.integrators import models as M
 
 P = M.FOURBAR
 N = 4
-XS = [i * P["spacing"] for i in range(N)]
 MASS = N * (M.fourbar_crank_inertia()[2] + P["m_crank"] * P["L"] ** 2 / 4) + P["M"] * P["L"] ** 2
 GRAV = P["g"] * (N * P["m_crank"] * P["L"] / 2 + P["M"] * P["L"])
 
 
 def exact_state(model, th, thd):
-    """q, qd, qdd of the linkage at crank angle th, rate thd (cranks turn about z, the coupler
-    translates on a circle of radius L; theta'' from the reduction)."""
-    L, thdd = P["L"], -GRAV * np.cos(th) / MASS
-    q, qd, qdd = (np.zeros(model.nq) for _ in range(3))
-    for b, name in enumerate(model.body_names):
-        o = 7 * b
-        q[o + 3] = 1.0
-        if name == "ground":
-            continue
-        x0, f = (np.mean(XS), L) if name == "coupler" else (XS[int(name[-1])], L / 2)
-        c, s = np.cos(th), np.sin(th)
-        q[o:o + 3] = (x0 + f * c, f * s, 0)
-        qd[o:o + 3] = (-f * s * thd, f * c * thd, 0)
-        qdd[o:o + 3] = (-f * (s * thdd + c * thd ** 2), f * (c * thdd - s * thd ** 2), 0)
-        if name != "coupler":
-            e = np.array([np.cos(th / 2), 0, 0, np.sin(th / 2)])
-            de = np.array([-np.sin(th / 2), 0, 0, np.cos(th / 2)])
-            q[o + 3:o + 7] = e
-            qd[o + 3:o + 7] = 0.5 * thd * de
-            qdd[o + 3:o + 7] = 0.5 * thdd * de - 0.25 * thd ** 2 * e
-    return q, qd, qdd
+    """q, qd, qdd of the linkage at crank angle th, rate thd (theta'' from the reduction)."""
+    return M.parallel_fourbar_motion(model, th, thd, -GRAV * np.cos(th) / MASS)
 
 
 def setup(theta_ref):

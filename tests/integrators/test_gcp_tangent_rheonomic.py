@@ -34,14 +34,12 @@ from mbsim.expr import parse_expression
 from mbsim.integrators import INTEGRATORS
 from mbsim.integrators import gcp
 from mbsim.model import compile_model
-from mbsim.rotations import from_axis_angle
 from tests.helpers import body, driver, func, joint, pts, spec
 from tests.integrators import models as M
 
 P = M.FOURBAR
 N = 4
 L, G = P["L"], P["g"]
-XS = [i * P["spacing"] for i in range(N)]
 I_CRANK = M.fourbar_crank_inertia()[2]
 MASS = N * (I_CRANK + P["m_crank"] * L ** 2 / 4) + P["M"] * L ** 2
 S = N * P["m_crank"] * L / 2 + P["M"] * L
@@ -55,25 +53,11 @@ def shaken_fourbar(shaken=True):
     """parallel_fourbar(4) with its pivots G<i> on the body ``base`` (module doc); the base
     slides on the ground along D, driven by s(t) = AMP sin(W t), or (shaken=False) is welded
     to the ground."""
-    m_crank, Mc = P["m_crank"], P["M"]
-    xbar, wd = float(np.mean(XS)), XS[-1] - XS[0]
-    c, s = np.cos(THETA0), np.sin(THETA0)
-    p0 = from_axis_angle((0, 0, 1), THETA0)
-    bodies = [body("ground", ground=True), body("base", 5.0, (0.1, 0.2, 0.3))]
-    bodies += [body(f"crank{i}", m_crank, M.fourbar_crank_inertia(), (x + L / 2 * c, L / 2 * s, 0),
-                    p0) for i, x in enumerate(XS)]
-    bodies.append(body("coupler", Mc, (1e-3, Mc * wd * wd / 12, Mc * wd * wd / 12 + 1e-3),
-                       (xbar + L * c, L * s, 0)))
     frame = pts((0, 0, 0), tuple(D), (0, 0, 1))
+    parts, loops = M.parallel_fourbar_parts(N, THETA0, mount="base")
+    bodies = [body("ground", ground=True), body("base", 5.0, (0.1, 0.2, 0.3))] + parts
     joints = [joint("slide", "translational" if shaken else "fixed", "ground", "base",
-                    {"ground": frame, "base": frame})]
-    for i, x in enumerate(XS):
-        joints.append(joint(f"G{i}", "revolute", "base", f"crank{i}",
-                            {"base": pts((x, 0, 0), (x, 0, 1), (x + 1, 0, 0)),
-                             f"crank{i}": pts((-L / 2, 0, 0), (-L / 2, 0, 1))}))
-        joints.append(joint(f"C{i}", "revolute", f"crank{i}", "coupler",
-                            {f"crank{i}": pts((L / 2, 0, 0), (L / 2, 0, 1), (L / 2 + 1, 0, 0)),
-                             "coupler": pts((x - xbar, 0, 0), (x - xbar, 0, 1))}))
+                    {"ground": frame, "base": frame})] + loops
     drivers = ([driver("shake", "translation",
                        func("expression", expr=parse_expression(f"{AMP}*sin({W}*t)")),
                        joint="slide")] if shaken else [])
@@ -97,29 +81,8 @@ def exact_state(model, t, th, thd, shaken=True):
     """q, qd, qdd of the mechanism at time t, crank angle th (relative to the base) and rate
     thd: the base at s(t) D, crank<i> turned by th about z with its pivot at the base point
     (x_i, 0, 0), the coupler translating on a circle of radius L about the base."""
-    s0, s1, s2 = base_motion(t, shaken)
-    thdd = theta_acc(t, th, shaken)
-    q, qd, qdd = (np.zeros(model.nq) for _ in range(3))
-    c, s = np.cos(th), np.sin(th)
-    for b, name in enumerate(model.body_names):
-        o = 7 * b
-        q[o + 3] = 1.0
-        if name == "ground":
-            continue
-        q[o:o + 3], qd[o:o + 3], qdd[o:o + 3] = s0 * D, s1 * D, s2 * D
-        if name == "base":
-            continue
-        x0, f = (np.mean(XS), L) if name == "coupler" else (XS[int(name[-1])], L / 2)
-        q[o:o + 3] += (x0 + f * c, f * s, 0)
-        qd[o:o + 3] += (-f * s * thd, f * c * thd, 0)
-        qdd[o:o + 3] += (-f * (s * thdd + c * thd ** 2), f * (c * thdd - s * thd ** 2), 0)
-        if name != "coupler":
-            e = np.array([np.cos(th / 2), 0, 0, np.sin(th / 2)])
-            de = np.array([-np.sin(th / 2), 0, 0, np.cos(th / 2)])
-            q[o + 3:o + 7] = e
-            qd[o + 3:o + 7] = 0.5 * thd * de
-            qdd[o + 3:o + 7] = 0.5 * thdd * de - 0.25 * thd ** 2 * e
-    return q, qd, qdd
+    return M.parallel_fourbar_motion(model, th, thd, theta_acc(t, th, shaken),
+                                     base_motion(t, shaken), D)
 
 
 def exact_power(model, qd, qdd, thd, thdd):

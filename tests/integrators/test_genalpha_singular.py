@@ -8,7 +8,6 @@ test on dq could not be met (residuals at round-off, dq noise ~1e-3..1e-2 of the
 then the local error estimate, made of that noise, rejected every step down to h_min.
 """
 
-import numpy as np
 import pytest
 
 from mbsim.analyses.dynamic import dynamic
