@@ -712,9 +712,10 @@ SWITCH_JUMP = 1e-2  # relative change of an element's load across the probe that
 def _explain(model, system, solver, msg):
     """The integrator's message plus what is special at the last accepted state: the
     constraints nearest to a singular configuration (said to be near singular only where
-    Phi_q's condition is at least SINGULAR_CONDITION), and the force elements whose load jumps there (a law that switches
-    on the sign of a velocity or a coordinate, as a valve or dry friction: the motion cannot
-    be continued past such a point by any step, and the step size collapses)."""
+    Phi_q's condition is at least SINGULAR_CONDITION), and the force elements whose load
+    jumps there (a law that switches on the sign of a velocity or a coordinate, as a valve
+    or dry friction: where the motion stays at the switch no step passes it, and the step
+    size collapses)."""
     notes = []
     try:
         J = system.terms(solver.q, solver.t, phi=False).jac

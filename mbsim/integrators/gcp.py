@@ -36,8 +36,8 @@ M^-1 Phi_q^T), so that a coordinate v sees it in proportion to its share of them
 the four-bar 1e-3 rad from flat: 2e-4 rad/s^2 in a crank's Euler parameter, 7e-6 m/s^2 in the
 coupler's y).  When the LU pivots of Phi_u fall below ``singular_pivot(rtol)`` of the largest
 (1e-3, more at tolerances below 2e-7), the independent coordinates become the tangent
-coordinates v = C q, C = (N^T M N)^-1 N^T M, N an
-orthonormal basis of the null space of Phi_q at the partition point (the M-orthogonal
+coordinates v = C q, C = (N^T M N)^-1 N^T M, N an orthonormal basis of the null space of
+Phi_q at the partition point (the M-orthogonal
 projection onto the tangent space: Mani, Haug & Atkinson 1985 choose v in the null space by
 the SVD of Phi_q; Potra & Yen 1991 parametrize the constraint manifold by its tangent space).
 C annihilates the M-orthogonal soft directions, so v'' does not carry the noise (measured
