@@ -165,8 +165,9 @@ def test_dense_output_failure_ends_as_incomplete(monkeypatch):
 
 
 def test_a_crawling_run_stops_with_a_diagnosis():
-    """Accepted steps far below the time scale (here forced by h_max = 5e-12 s, above h_min = 1e-12 s): the stall
-    watchdog ends the run after 200 of them, instead of crawling towards max_steps."""
+    """Accepted steps far below the time scale (here forced by h_max = 5e-12 s, above
+    h_min = 1e-12 s): the stall watchdog ends the run after 200 of them, instead of crawling
+    towards max_steps."""
     res = _free_body_run({"h_max": 5e-12})
     assert res.status == "incomplete"
     assert "no progress" in res.message
