@@ -98,6 +98,9 @@ class System:
         }
         self.bt, self.singular = body_table(model)
         self.kkt = bool(self.singular)  # no exact Mt^-1: dense LU of the KKT matrix
+        # smallest pivot / diagonal of the Schur factor at the last accelerations() (1 for
+        # the KKT path): ~ (sigma_min / sigma)^2 of the active rows, small near a change point
+        self.pivot_ratio = 1.0
         self.ei, self.ef, self.py_forces = element_tables(model.forces)
         self.sidx, self.inc, self.pairs = schur_structure(self.fc.rb, self.rows, nb)
         # the model's struct (shared with self.fc) gets the dynamics tables and buffers
@@ -112,7 +115,7 @@ class System:
             loads=np.zeros((2, nb, 3)), par=np.zeros(3), Jg=np.zeros((model.m, 14)),
             rhs=np.zeros(ma))
         self._Q, self._qdd, self._lam, self._dq, self._out = c.set(
-            Q=np.zeros(nq), qdd=np.zeros(nq), lam=np.zeros(ma), dq=np.zeros(nq), out=np.zeros(1))
+            Q=np.zeros(nq), qdd=np.zeros(nq), lam=np.zeros(ma), dq=np.zeros(nq), out=np.ones(2))
         c.set(Qt=np.zeros(nq), g=np.zeros(ma), Mi=np.zeros((nb, 4, 4)), XG=np.zeros((ninc, 8)),
               JG=np.zeros((ninc, 8)), env=np.zeros(nenv), srhs=np.zeros(ma), z=np.zeros(ma),
               K=np.zeros(nk * nk), kr=np.zeros(nk), A=np.zeros((nb, 3, 3)),
@@ -200,6 +203,7 @@ class System:
         status = self._acc(self.c.ptr, self.kkt, jac is not None)
         if status != STATUS_OK:
             raise SolveError("singular KKT matrix" if status == STATUS_SINGULAR else _NOT_PD)
+        self.pivot_ratio = float(self._out[1])
         return self._qdd.copy(), self._lam.copy(), float(self._out[0])
 
     def _compact(self, jac):

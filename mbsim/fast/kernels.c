@@ -68,7 +68,8 @@ typedef struct {
     double *phi, *Jc, *gamma, *nu;
     /* outputs on the rows `rows` */
     double *phi_a, *gamma_a, *nu_a, *J, *data;
-    /* dynamics outputs: Q (nq), qdd (nq), lam (ma), dq (nq), out[0] = power */
+    /* dynamics outputs: Q (nq), qdd (nq), lam (ma), dq (nq), out[0] = power, out[1] = the
+     * smallest pivot ratio of the last Schur factorisation (schur_factor) */
     double *Q, *qdd, *lam, *dq, *out;
     /* work: Qt (nq), g (ma), Mi (nb*16), XG, JG (ninc*8), env (nenv), srhs, z (ma),
      * K ((nq+ma)^2), kr (nq+ma), Mb (nb*49), A (nb*9), F, n, w (nb*3) */
@@ -678,7 +679,9 @@ static void apply_minv(const mb_model *M, int unit, idx b, const double *x, doub
  * XG[g] = Mt_b^-1 JG[g] (padded to 8); S[u, v] = sum over shared bodies XG[g_u] . JG[g_v]
  * (pairs), assembled in the envelope of its RCM permutation and overwritten by its
  * Cholesky factor L (George and Liu 1981, Ch. 4: the fill stays in the envelope), the
- * diagonal stored as 1 / L_ii.  Returns 0 when S is not positive definite. */
+ * diagonal stored as 1 / L_ii.  out[1] = the smallest ratio pivot / diagonal before any
+ * raise (1: none below 1; ~ (sigma_min / sigma)^2 of the scaled rows near a change point).
+ * Returns 0 when S is not positive definite. */
 #define PIVOT_FLOOR 1e-8 /* relative: (sigma_min / sigma)^2 below which a pivot is raised */
 
 static int schur_factor(const mb_model *M, const double *Jc, int unit)
@@ -703,6 +706,7 @@ static int schur_factor(const mb_model *M, const double *Jc, int unit)
             s += x[c] * y[c];
         env[pairs[3 * k]] += s;
     }
+    double rmin = 1.0;
     for (idx i = 0; i < ma; i++) { /* envelope Cholesky, row by row (bordering) */
         idx fi = fc[i], oi = off[i] - fi;
         for (idx j = fi; j < i; j++) {
@@ -715,6 +719,8 @@ static int schur_factor(const mb_model *M, const double *Jc, int unit)
         double d0 = env[oi + i], s = d0;
         for (idx k = fi; k < i; k++)
             s -= env[oi + k] * env[oi + k];
+        if (d0 > 0.0 && s < rmin * d0)
+            rmin = s / d0;
         if (!(s > PIVOT_FLOOR * d0)) {
             /* A pivot below PIVOT_FLOOR of its diagonal: the kept rows are (nearly) dependent
              * here, as at a change point of a mechanism (the flat position of a parallelogram
@@ -728,6 +734,7 @@ static int schur_factor(const mb_model *M, const double *Jc, int unit)
         }
         env[oi + i] = 1.0 / sqrt(s);
     }
+    M->out[1] = rmin;
     return 1;
 }
 
@@ -893,6 +900,7 @@ int mb_accelerations(const mb_model *M, int kkt, int have_jac)
     mb_constraints(M, !have_jac, 1);
     const double *Jc = have_jac ? M->Jg : M->Jc;
     rhs_terms(M, Jc);
+    M->out[1] = 1.0;
     int status = kkt ? solve_kkt(M, Jc) : solve_schur(M, Jc);
     if (status != STATUS_OK)
         return status;

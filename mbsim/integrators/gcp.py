@@ -61,9 +61,9 @@ import logging
 
 import numpy as np
 import scipy.linalg as la
-import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from mbsim.integrators import tangent
 from mbsim.integrators.base import rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
@@ -205,42 +205,25 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         return float(d.min() / d.max()) if d.size and d.max() > 0 else 1.0
 
     def _tangent_partition(self, q, J, Jd, iv, iu):
-        """Tangent coordinates at q (module doc); None where the mass matrix is singular on the
-        tangent space (a massless motion: no M-orthogonal projection)."""
-        m, k = Jd.shape[0], iv.size
-        Qf, _ = la.qr(Jd.T, check_finite=False)
-        N = Qf[:, m:m + k]
-        MN = self._mass_times(q, N)
-        try:
-            cf = la.cho_factor(N.T @ MN, check_finite=False)
-        except la.LinAlgError:
+        """Tangent coordinates at q (module doc; :func:`tangent.tangent_map`); None where the
+        mass matrix is singular on the tangent space (a massless motion)."""
+        C = tangent.tangent_map(self.system, q, Jd)
+        if C is None:
             return None
-        C = la.cho_solve(cf, MN.T, check_finite=False)  # C N = I
         part = Partition(iv, iu, 0.0, C)
-        part.s0 = self._tangent_sensitivity(self._factor_tangent(J, C), k)
+        part.s0 = self._tangent_sensitivity(self._factor_tangent(J, C), iv.size)
         return part
 
     def _mass_times(self, q, X):
-        """M(q) X, M block diagonal (System.mass_blocks)."""
-        Mb = self.system.mass_blocks(q)
-        nb = Mb.shape[0]
-        return np.einsum("bij,bjk->bik", Mb, X.reshape(nb, 7, -1)).reshape(X.shape)
+        return tangent.mass_times(self.system, q, X)
 
     def _factor_tangent(self, J, C):
         """LU of A = [Phi_q; C] (n x n)."""
-        self.system.counters["factorizations"] += 1
-        if self.system.sparse:
-            try:
-                return spla.splu(sp.vstack([J, sp.csr_matrix(C)]).tocsc())
-            except RuntimeError as exc:
-                raise StageFailure(f"singular [Phi_q; C] ({exc})") from exc
-        return la.lu_factor(np.vstack([J, C]), check_finite=False)
+        return tangent.factor(self.system, J, C)
 
     def _tangent_basis(self, fac, k):
         """T = A^-1 [0; I] (n x k): the tangent space with C T = I."""
-        E = np.zeros((self.n, k))
-        E[self.n - k:] = np.eye(k)
-        return self._solve(fac, E)
+        return tangent.basis(self.system, fac, k)
 
     def _tangent_sensitivity(self, fac, k):
         """max |T|: as max |Phi_u^-1 Phi_v| for coordinates, how far q moves per unit of v."""
@@ -311,29 +294,9 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         return q, qd, fac
 
     def _tangent_accelerations(self, t, q, qd, fac, part):
-        """(qdd, power) in tangent coordinates from the reduced equations (module doc):
-        (T^T M T) v'' = T^T (Q - M p), the constraint forces dropping out (T^T Phi_q^T = 0);
-        power = Q.qd - lam.nu with lam from A^T [lam; mu] = Q - M qdd (mu = 0)."""
-        s, k = self.system, part.k
-        G = s.terms(q, t, qd=qd, phi=False, jac=False, gamma=True, nu=s.rheonomic)
-        Tb = self._tangent_basis(fac, k)
-        p = self._solve(fac, np.concatenate([G.gamma, np.zeros(k)]))
-        Q = s.generalized_forces(q, qd, t)
-        MTp = self._mass_times(q, np.column_stack([Tb, p]))
-        try:
-            a = la.solve(Tb.T @ MTp[:, :k], Tb.T @ (Q - MTp[:, k]), assume_a="sym",
-                         check_finite=False)
-        except la.LinAlgError as exc:
-            raise StageFailure(f"t = {t:.6g} s: singular reduced mass matrix ({exc})") from exc
-        s.counters["factorizations"] += 1
-        qdd = Tb @ a + p
-        power = float(Q @ qd)
-        if s.rheonomic:
-            r = Q - self._mass_times(q, qdd[:, None])[:, 0]
-            lam = (fac.solve(r, trans="T") if s.sparse
-                   else la.lu_solve(fac, r, trans=1, check_finite=False))[: s.m]
-            power -= float(lam @ G.nu)
-        return qdd, power
+        """(qdd, power) in tangent coordinates from the reduced equations (module doc;
+        :func:`tangent.accelerations`)."""
+        return tangent.accelerations(self.system, t, q, qd, fac, part.k)
 
     def _raise_newton_failure(self, T, t):
         s = self.system

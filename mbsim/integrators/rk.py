@@ -234,8 +234,7 @@ class RungeKuttaIntegrator(Integrator):
                 y_new, f_new = self._trial(h)
                 err = 0.0
                 if self.tableau.embedded and self.h_fixed is None:
-                    err = max(self.tableau.error_norm(self.K, h, self._scale(self.y, y_new)),
-                              self._extra_error(h))
+                    err = max(self._error_norm(h, y_new), self._extra_error(h))
                     if not np.isfinite(err):  # NaN/inf in a stage: reject hard
                         raise StageFailure(f"error norm {err} at step {h:.3g} s")
                 if err <= 1:
@@ -270,6 +269,10 @@ class RungeKuttaIntegrator(Integrator):
 
     def _accept(self, t, y, f):
         return y, f
+
+    def _error_norm(self, h, y_new) -> float:
+        """The embedded error norm of the trial step from (t, y) to y_new (stages in K)."""
+        return self.tableau.error_norm(self.K, h, self._scale(self.y, y_new))
 
     def _extra_error(self, h) -> float:
         """A family's own error norm of the trial step beside the embedded one (0: none)."""

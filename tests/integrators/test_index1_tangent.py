@@ -1,0 +1,68 @@
+"""Index-1 methods near a change point: tangent-coordinate steps (mbsim/integrators/index1.py,
+module doc) on the four parallel cranks of tests/integrators/test_singular_loops.py, against
+its exact one-DOF reduction.
+
+Before them, the Schur-complement accelerations next to a flat position made fixed-step RK4's
+error depend on where its steps landed (2.7e-7 m at h = 0.35 ms, 4.8e-8 m at 0.175 ms, against
+2.7e-11 m at 0.5 and 0.25 ms) and projection-dop853 at rtol 1e-12 slow (9.3 s) with an error
+estimate 1100x too large."""
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mbsim.analyses.dynamic import dynamic
+from mbsim.api import load_model
+from tests.integrators import models as M
+from tests.integrators import references as R
+from tests.integrators.test_singular_loops import run
+
+H_REF, ERR_REF = 1e-3, 9.7e-10  # rk4 at 1 ms (measured; the Schur path gave 9.4e-10 there)
+ROUNDOFF = 2e-12  # m: the smallest errors measured below 0.25 ms (2.5e-13 ... 1.3e-12)
+
+
+@pytest.mark.parametrize("h", [3.5e-4, 2.5e-4, 1.75e-4])
+def test_rk4_converges_through_flat_positions(h):
+    """rk4 at steps below 0.5 ms: error <= 3 x the h^4 law from 1 ms (9.7e-10 m) plus the
+    round-off floor, i.e. 1.4e-11, 3.6e-12 and 2.7e-12 m (measured 6.6e-12, 1.3e-12, 4.7e-13 m;
+    with the Schur path 2.7e-7, 2.7e-11, 4.8e-8 m)."""
+    pb = M.reference_problem("parallel_fourbar")
+    res = dynamic(pb.model, {"t_end": pb.t_end, "step": pb.step, "q0": pb.q0, "qd0": pb.qd0,
+                             "integrator": "rk4", "h": h, "error_estimate": False})
+    assert res.complete, res.message
+    assert res.counters["tangent_stages"] > 0
+    err = R.position_error(res, pb.reference(res.t)).max()
+    assert err <= 3 * ERR_REF * (h / H_REF) ** 4 + ROUNDOFF, f"h = {h:g}: {err:.3g} m"
+
+
+def test_default_at_tight_tolerances():
+    """projection-dop853 at rtol 1e-12: estimate / true error in [0.1, 10] (measured 1.0; it
+    was 1130) and CPU within 5x of its rtol 1e-10 run (measured 0.32 / 0.15 s; it was 9.3 /
+    0.22 s); the true error (1.6e-10 m: the accuracy the equations allow next to the flat
+    positions) within the issue's bound 10 rtol + 1e-9 m."""
+    c0 = time.process_time()
+    run("projection-dop853", 1e-10)
+    base = time.process_time() - c0
+    res, cpu, err = run("projection-dop853", 1e-12)
+    assert res.complete, res.message
+    assert err <= 1e-11 + 1e-9
+    est = res.summary["error_estimate"]["position"]
+    assert 0.1 <= est / err <= 10, f"estimate {est:.3g} m, true {err:.3g} m"
+    assert cpu <= 5 * max(base, 0.1), f"{cpu:.3g} s CPU against {base:.3g} s at rtol 1e-10"
+
+
+def test_seed_decks_never_switch():
+    """At their default settings the seed decks' Schur pivot ratios stay above the threshold
+    (smallest 5.9e-4, measured over compressor, four_bar, governor, slider_crank, vehicle):
+    no stage in tangent coordinates, the results those of the Schur path."""
+    root = Path(__file__).resolve().parents[2] / "models"
+    for deck, scene in (("governor.yaml", None), ("slider_crank.yaml", "free"),
+                        ("four_bar.yaml", None)):
+        _, model = load_model(root / deck, scene=scene)
+        res = dynamic(model, {"t_end": 0.2, "integrator": "projection-dop853",
+                              "error_estimate": False})
+        assert res.complete, (deck, res.message)
+        assert res.counters["tangent_stages"] == 0, deck
+        assert np.isfinite(res.channel("monitors/energy").data).all()
