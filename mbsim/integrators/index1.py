@@ -87,6 +87,7 @@ class Index1(RungeKuttaIntegrator):
         self.counters["tangent_stages"] = 0
         self._ratio = 1.0  # the Schur factor's pivot ratio at the latest stage
         self._C = None  # tangent map C (k, nq) of the latest tangent-coordinate step
+        self._step_start = (t0, self.q)  # (t, q) at the start of the current step
         self._tangent = False  # the steps' stages are in tangent coordinates
         self._step_tangent = False  # ... the last accepted step's were (dense output)
         self._tangent_wanted = False  # a stage of the failed trial was in the region
@@ -125,8 +126,9 @@ class Index1(RungeKuttaIntegrator):
         """(qd, qdd, power) at the stage state (q, qd) put on the constraints in tangent
         coordinates (:meth:`_tangent_complete`), the accelerations from the reduced equations
         (mbsim.integrators.tangent)."""
-        if self._C is None:  # dense output of a step that was not in tangent coordinates
-            self._C = self._tangent_map(self._dense_args[0], self._dense_args[2][:self.n])
+        if self._C is None:  # a stage outside the trial (end of step, dense output) of a
+            # step that was not in tangent coordinates: C at that step's start
+            self._C = self._tangent_map(*self._step_start)
         x, qdp, fac = self._tangent_complete(t, q, qd)
         qdd, power = tangent.accelerations(self.system, t, x, qdp, fac, self._C.shape[0])
         self.counters["tangent_stages"] += 1
@@ -198,6 +200,11 @@ class Index1(RungeKuttaIntegrator):
         return True
 
     def _step_impl(self):
+        if not self._tangent:
+            # a C kept from an earlier passage (or built for the last step's dense output)
+            # belongs to another configuration: a new one is taken where it is needed
+            self._C = None
+        self._step_start = (self.t, self.q)
         ok, msg = super()._step_impl()
         self._step_tangent = self._tangent
         if ok and self._tangent and self._ratio >= self.tangent_pivot:
