@@ -38,10 +38,9 @@ def test_rk4_converges_through_flat_positions(h):
 
 
 def test_default_at_tight_tolerances():
-    """projection-dop853 at rtol 1e-12: estimate / true error in [0.1, 10] (measured 1.0; it
-    was 1130) and CPU within 5x of its rtol 1e-10 run (measured 0.32 / 0.15 s; it was 9.3 /
-    0.22 s); the true error (1.6e-10 m: the accuracy the equations allow next to the flat
-    positions) within the issue's bound 10 rtol + 1e-9 m."""
+    """projection-dop853 at rtol 1e-12: estimate / true error in [0.1, 10] (measured 0.67; it
+    was 1130) and CPU within 5x of its rtol 1e-10 run (measured 0.39 / 0.19 s; it was 9.3 /
+    0.22 s); the true error (4.7e-13 m; it was 2.7e-10 m) within 10 rtol + 1e-9 m."""
     c0 = time.process_time()
     run("projection-dop853", 1e-10)
     base = time.process_time() - c0
@@ -66,3 +65,30 @@ def test_seed_decks_never_switch():
         assert res.complete, (deck, res.message)
         assert res.counters["tangent_stages"] == 0, deck
         assert np.isfinite(res.channel("monitors/energy").data).all()
+
+
+@pytest.mark.parametrize("name,setting,bound", [
+    ("projection-dop853", {"rtol": 1e-10, "atol": 1e-12}, 2e-9),
+    ("rk4", {"h": 5e-4}, 3 * ERR_REF * 0.5 ** 4 + ROUNDOFF),
+])
+def test_rheonomic_linkage(name, setting, bound):
+    """The shaken four-crank linkage of test_gcp_tangent_rheonomic.py (its base driven along
+    (1, 1, 0)/sqrt(2), nu != 0 on the driver's row) against its exact reduction.  Measured:
+    projection-dop853 at rtol 1e-10 4.1e-11 m (7.5e-9 m when the tangent steps' error test
+    saw (C q, C qd) alone; 4.1e-11 m on the Schur path), rk4 at 0.5 ms 3.7e-11 m (2.1e-8 m
+    on the Schur path); bound: the issue's 10 rtol + 1e-9 m, and for rk4 the h^4 law of
+    test_rk4_converges_through_flat_positions."""
+    from tests.integrators import test_gcp_tangent_rheonomic as S
+
+    model = S.shaken_fourbar()
+    q0, qd0, _ = S.exact_state(model, 0.0, S.THETA0, S.THETAD0)
+    res = dynamic(model, dict({"t_end": 1.0, "step": 0.01, "q0": q0, "qd0": qd0,
+                               "integrator": name, "error_estimate": False}, **setting))
+    assert res.complete, res.message
+    assert res.counters["tangent_stages"] > 0
+    th, thd = S.reduction(res.t)
+    err = max(float(np.linalg.norm(res.channel(f"bodies/{b}/r").data[k]
+                                   - S.exact_state(model, t, th[k], thd[k])[0][7 * i:7 * i + 3]))
+              for k, t in enumerate(res.t) for i, b in enumerate(model.body_names))
+    assert err <= bound, f"{name}: {err:.3g} m > {bound:.3g} m"
+
