@@ -51,10 +51,11 @@ def tangent_pivot(rtol, adaptive=True):
     four parallel cranks, theta from the flat position) below which a step is taken in
     tangent coordinates.  Fixed steps: TANGENT_PIVOT_FIXED.  Adaptive: (eps / rtol)^(2/3) up
     to TANGENT_PIVOT (7.8e-8, 3.6e-7, 7.8e-6 at rtol 1e-5, 1e-6, 1e-8; 1e-5 from 4e-9 on).
-    Measured on the four cranks: with 1e-5 at every tolerance, projection-dop853 at rtol 1e-5
-    ended 2.1e-4 m off (1.5e-5 m in the Schur accelerations): a loose step crosses ~0.4 rad,
-    and the tangent coordinates' error test sees C q, C qd only; at tight tolerances the Schur
-    accelerations' bias and noise near the flat position are what decide (Index1 doc)."""
+    Measured on the four cranks: with 1e-5 at every tolerance (and the error test of the
+    tangent steps on C q, C qd alone) projection-dop853 at rtol 1e-5 ended 2.1e-4 m off
+    (1.5e-5 m on the Schur path): a loose step crosses ~0.4 rad; at tight tolerances the
+    Schur accelerations' bias and noise near the flat position are what decide (Index1
+    doc)."""
     if not adaptive:
         return TANGENT_PIVOT_FIXED
     return min(TANGENT_PIVOT, (np.finfo(float).eps / rtol) ** (2.0 / 3.0))
@@ -113,9 +114,10 @@ class Index1(RungeKuttaIntegrator):
         q, qd = y[:n], y[n:2 * n]
         qdd, _, power = self.system.accelerations(q, qd, t, self.stab)
         self._ratio = r = self.system.pivot_ratio
-        if self._tangent or (not self._in_trial and (self._step_tangent or r < self.tangent_pivot)):
+        near = r < self.tangent_pivot
+        if self._tangent or (not self._in_trial and (self._step_tangent or near)):
             qd, qdd, power = self._tangent_stage(t, q, qd)
-        elif r < self.tangent_pivot:
+        elif near:  # a trial's stage: the step again in tangent coordinates (_recover)
             self._tangent_wanted = True
             raise StageFailure(f"t = {t:.6g} s: active rows near dependent (Schur pivot ratio "
                                f"{r:.3g}); tangent coordinates")
