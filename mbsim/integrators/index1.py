@@ -27,8 +27,8 @@ equations (no Schur complement), the error test on (C q, C qd), the step's end a
 outputs put on the constraints the same way; the next accepted state above the threshold
 ends it (counter ``tangent_stages``).  Measured: RK4's error falls as h^4 to 1e-12 (9.7e-10,
 4.1e-11, 6.6e-12, 1.3e-12, 4.7e-13 m at h = 1, 0.5, 0.35, 0.25, 0.175 ms), projection-dop853
-at rtol 1e-10, 1e-11, 1e-12 ends 2.0e-11, 2.5e-12, 7.9e-11 m off in 0.14, 0.17, 0.22 s with
-its estimate (estimate / error 0.98, 1.5, 1.0; before: 4.1e-11, 1.2e-10, 2.7e-10 m, and 0.22,
+at rtol 1e-10, 1e-11, 1e-12 ends 4.1e-11, 3.4e-12, 7.9e-11 m off in 0.14, 0.17, 0.23 s with
+its estimate (estimate / error 1.0, 1.7, 1.0; before: 4.1e-11, 1.2e-10, 2.7e-10 m, and 0.22,
 0.92, 9.3 s).  A model whose ratio
 is below the threshold at the start (its scaling, or a start at the change point) and one
 without an M-orthogonal tangent map keep the Schur path; so does ``drift_bound: false``.
@@ -50,16 +50,19 @@ TANGENT_PIVOT_FIXED = 1e-6  # fixed steps
 def tangent_pivot(rtol, adaptive=True):
     """The Schur pivot ratio (kernels.c: smallest pivot / diagonal, ~ 0.12 theta^2 on the
     four parallel cranks, theta from the flat position) below which a step is taken in
-    tangent coordinates.  Fixed steps: TANGENT_PIVOT_FIXED.  Adaptive: (eps / rtol)^(2/3) up
-    to TANGENT_PIVOT (7.8e-8, 3.6e-7, 7.8e-6 at rtol 1e-5, 1e-6, 1e-8; 1e-5 from 4e-9 on).
-    Measured on the four cranks: with 1e-5 at every tolerance (and the error test of the
-    tangent steps on C q, C qd alone) projection-dop853 at rtol 1e-5 ended 2.1e-4 m off
-    (1.5e-5 m on the Schur path): a loose step crosses ~0.4 rad; at tight tolerances the
-    Schur accelerations' bias and noise near the flat position are what decide (Index1
-    doc)."""
+    tangent coordinates.  Fixed steps: TANGENT_PIVOT_FIXED.  Adaptive: (eps / rtol)^(4/3) up
+    to TANGENT_PIVOT (1.3e-10, 2.8e-8, 6e-7, 1e-5 at rtol 1e-8, 1e-10, 1e-11, 1e-12): the
+    Schur path is accurate on the four cranks down to rtol 1e-10 (4.1e-11 m) and the tangent
+    steps cost more per stage, so they are kept to where the Schur accelerations' bias and
+    noise decide.  Measured on the four cranks, `accuracy` 1e-6 and 1e-8 (projection-dop853
+    at rtol 3e-9, 3e-11 and their companions): 0.065, 0.104 s CPU with this threshold, 0.091,
+    0.13 s with (eps / rtol)^(2/3) (same errors, rtol 1e-11 and 1e-12 alike: 2.5-3.4e-12 m,
+    7.9e-11 m); with 1e-5 at every tolerance (and the tangent steps' error test on C q, C qd
+    alone) projection-dop853 at rtol 1e-5 ended 2.1e-4 m off (1.5e-5 m on the Schur
+    path)."""
     if not adaptive:
         return TANGENT_PIVOT_FIXED
-    return min(TANGENT_PIVOT, (np.finfo(float).eps / rtol) ** (2.0 / 3.0))
+    return min(TANGENT_PIVOT, (np.finfo(float).eps / rtol) ** (4.0 / 3.0))
 
 
 class Index1(RungeKuttaIntegrator):
