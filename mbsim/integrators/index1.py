@@ -32,6 +32,15 @@ its estimate (estimate / error 1.0, 1.7, 1.0; before: 4.1e-11, 1.2e-10, 2.7e-10 
 0.92, 9.3 s).  A model whose ratio
 is below the threshold at the start (its scaling, or a start at the change point) and one
 without an M-orthogonal tangent map keep the Schur path; so does ``drift_bound: false``.
+
+Option ``tangent_steps`` (default: true for a fixed step, false for the adaptive methods).
+Adaptive runs keep the Schur path by default: on the 2 s run of models/parallel_fourbar.yaml
+at rtol 1e-11 the tangent steps' error estimate turned erratic at the flat passage at
+t = 1.98374 s (0.001 ... 1000, steps down to 1e-12 s) and the run stopped at h_min, where the
+Schur path completes (0.6 s).  ``tangent_steps: true`` gives the figures above at rtol
+1e-11 and 1e-12 on the four cranks and that deck's rtol 1e-12 run in 0.4 s (the Schur path:
+2.3 s, its companion stopping early); a fixed step cannot collapse, and there the tangent
+steps are what makes RK4 converge.
 """
 
 from __future__ import annotations
@@ -87,7 +96,9 @@ class Index1(RungeKuttaIntegrator):
             self.counters["output_steps"] = 0  # steps of outputs integrated to (dense output)
         # Schur pivot ratio (~ 0.12 theta^2 on the four cranks, theta from flat) below which
         # a step's stages are in tangent coordinates (Index1 doc)
-        self.tangent_pivot = tangent_pivot(self.rtol, self.h_fixed is None)
+        # on by default for fixed steps only (module doc: ``tangent_steps``)
+        on = self.options.get("tangent_steps", self.h_fixed is not None)
+        self.tangent_pivot = tangent_pivot(self.rtol, self.h_fixed is None) if on else 0.0
         self.newton_tol = float(self.options.get(
             "newton_tol", 1e-12 if self.h_fixed else min(1e-9, max(1e-12, 1e-2 * self.atol))))
         self.counters["tangent_stages"] = 0
@@ -118,7 +129,7 @@ class Index1(RungeKuttaIntegrator):
         q, qd = y[:n], y[n:2 * n]
         qdd, _, power = self.system.accelerations(q, qd, t, self.stab)
         self._ratio = r = self.system.pivot_ratio
-        near = r < self.tangent_pivot
+        near = r < self.tangent_pivot and self.tangent_pivot > 0.0  # (r can be <= 0: 0 is off)
         if self._tangent or (not self._in_trial and (self._step_tangent or near)):
             qd, qdd, power = self._tangent_stage(t, q, qd)
         elif near:  # a trial's stage: the step again in tangent coordinates (_recover)

@@ -17,7 +17,6 @@ from mbsim.analyses.dynamic import dynamic
 from mbsim.api import load_model
 from tests.integrators import models as M
 from tests.integrators import references as R
-from tests.integrators.test_singular_loops import run
 
 H_REF, ERR_REF = 1e-3, 9.7e-10  # rk4 at 1 ms (measured; the Schur path gave 9.4e-10 there)
 ROUNDOFF = 2e-12  # m: the smallest errors measured below 0.25 ms (2.5e-13 ... 1.3e-12)
@@ -37,24 +36,45 @@ def test_rk4_converges_through_flat_positions(h):
     assert err <= 3 * ERR_REF * (h / H_REF) ** 4 + ROUNDOFF, f"h = {h:g}: {err:.3g} m"
 
 
-def test_default_at_tight_tolerances():
-    """projection-dop853 at rtol 1e-12: estimate / true error in [0.1, 10] (measured 1.0; it
-    was 1130) and CPU within 5x of its rtol 1e-10 run (measured 0.22 / 0.14 s; it was 9.3 /
-    0.22 s); the true error (7.9e-11 m; it was 2.7e-10 m) within 10 rtol + 1e-9 m.  And
-    projection (DP5) at rtol 1e-12 completes (it stopped at h_min at the first flat position
-    with the tangent steps' q error test unfloored)."""
+def _four_cranks(**opt):
+    pb = M.reference_problem("parallel_fourbar")
     c0 = time.process_time()
-    run("projection-dop853", 1e-10)
-    base = time.process_time() - c0
-    res, cpu, err = run("projection-dop853", 1e-12)
+    res = dynamic(pb.model, dict({"t_end": pb.t_end, "step": pb.step, "q0": pb.q0,
+                                  "qd0": pb.qd0}, **opt))
+    cpu = time.process_time() - c0
+    err = R.position_error(res, pb.reference(res.t)).max() if len(res.t) else np.inf
+    return res, cpu, err
+
+
+def test_adaptive_tangent_steps_at_tight_tolerances():
+    """tangent_steps: true (off by default for adaptive runs: module doc) with
+    projection-dop853 at rtol 1e-12: estimate / true error in [0.1, 10] (measured 1.0; 1130
+    on the Schur path) and CPU within 5x of the rtol 1e-10 run (measured 0.23 / 0.14 s; 9.3 s
+    on the Schur path); the true error (7.9e-11 m) within 10 rtol + 1e-9 m.  And projection
+    (DP5) at rtol 1e-12 completes (it stopped at h_min at the first flat position with the
+    tangent steps' q error test unfloored)."""
+    on = {"integrator": "projection-dop853", "tangent_steps": True}
+    _, base, _ = _four_cranks(rtol=1e-10, atol=1e-12, **on)
+    res, cpu, err = _four_cranks(rtol=1e-12, atol=1e-14, **on)
     assert res.complete, res.message
+    assert res.counters["tangent_stages"] > 0
     assert err <= 1e-11 + 1e-9
     est = res.summary["error_estimate"]["position"]
     assert 0.1 <= est / err <= 10, f"estimate {est:.3g} m, true {err:.3g} m"
     assert cpu <= 5 * max(base, 0.1), f"{cpu:.3g} s CPU against {base:.3g} s at rtol 1e-10"
-    res, _, err = run("projection", 1e-12)
+    res, _, err = _four_cranks(rtol=1e-12, atol=1e-14, integrator="projection",
+                               tangent_steps=True)
     assert res.complete, res.message
     assert err <= 1e-11 + 1e-9
+
+
+def test_adaptive_default_keeps_the_schur_path():
+    """Adaptive index-1 runs take no tangent steps unless asked (module doc), even where the
+    pivot ratio goes negative at a flat position (a threshold of 0 is off, not r < 0)."""
+    res, _, err = _four_cranks(integrator="projection-dop853", rtol=1e-10, atol=1e-12,
+                               error_estimate=False)
+    assert res.complete and res.counters["tangent_stages"] == 0
+    assert err <= 2e-9
 
 
 def test_seed_decks_never_switch():
@@ -73,7 +93,7 @@ def test_seed_decks_never_switch():
 
 
 @pytest.mark.parametrize("name,setting,bound", [
-    ("projection-dop853", {"rtol": 1e-10, "atol": 1e-12}, 2e-9),
+    ("projection-dop853", {"rtol": 1e-10, "atol": 1e-12, "tangent_steps": True}, 2e-9),
     ("rk4", {"h": 5e-4}, 3 * ERR_REF * 0.5 ** 4 + ROUNDOFF),
 ])
 def test_rheonomic_linkage(name, setting, bound):
