@@ -263,18 +263,19 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             t0, q0, qd0, qdd0 = self._ref
             tau = t - t0
             q = q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
-        if C is None:
-            q[iv] = v
+        if C is not None:
+            q, qd, fac, T = tangent.complete(s, t, q, v, vd, C, self.newton_tol,
+                                             self.max_newton)
+            if qd is None:
+                self._raise_newton_failure(T, t)
+            self._jac = T.jac
+            return q, qd, fac
+        q[iv] = v
         for _ in range(self.max_newton):
             T = s.terms(q, t, jac=True, nu=s.rheonomic)
-            if C is None:
-                fac = self._factor(T.jac, iu)
-                dx = self._solve(fac, T.phi)
-                q[iu] -= dx
-            else:
-                fac = self._factor_tangent(T.jac, C)
-                dx = self._solve(fac, np.concatenate([T.phi, C @ q - v]))
-                q -= dx
+            fac = self._factor(T.jac, iu)
+            dx = self._solve(fac, T.phi)
+            q[iu] -= dx
             s.counters["newton_iterations"] += 1
             if np.abs(dx).max(initial=0.0) <= self.newton_tol:
                 break  # Phi_q of this iterate is within newton_tol of Phi_q(q): keep it
@@ -284,12 +285,9 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             if np.abs(T.phi).max(initial=0.0) > self.newton_tol:
                 self._raise_newton_failure(T, t)
         nu = T.nu if s.rheonomic else np.zeros(s.m)
-        if C is None:
-            qd = np.empty(self.n)
-            qd[iv] = vd
-            qd[iu] = self._solve(fac, nu - T.jac[:, iv] @ vd)
-        else:
-            qd = self._solve(fac, np.concatenate([nu, vd]))
+        qd = np.empty(self.n)
+        qd[iv] = vd
+        qd[iu] = self._solve(fac, nu - T.jac[:, iv] @ vd)
         self._jac = T.jac
         return q, qd, fac
 

@@ -153,26 +153,15 @@ class Index1(RungeKuttaIntegrator):
         return qdp, qdd, power
 
     def _tangent_complete(self, t, q, qd):
-        """(q, qd) on Phi = 0, Phi_q qd = nu with the same tangent coordinates v = C q,
-        vd = C qd (Newton on [Phi(q, t); C q - v] = 0, as gcp's _complete); the LU of
-        A = [Phi_q; C]."""
-        s, C = self.system, self._C
-        v, vd = C @ q, C @ qd
-        x = q.copy()
-        for _ in range(8):
-            T = s.terms(x, t, jac=True, nu=s.rheonomic)
-            fac = tangent.factor(s, T.jac, C)
-            dx = tangent.solve(s, fac, np.concatenate([T.phi, C @ x - v]))
-            x -= dx
-            s.counters["newton_iterations"] += 1
-            if np.abs(dx).max(initial=0.0) <= self.newton_tol:
-                break
-        else:
-            if np.abs(T.phi).max(initial=0.0) > self.newton_tol:
-                raise StageFailure(f"t = {t:.6g} s: Newton in tangent coordinates did not "
-                                   f"converge (max |Phi| = {np.abs(T.phi).max():.3g})")
-        nu = T.nu if s.rheonomic else np.zeros(s.m)
-        return x, tangent.solve(s, fac, np.concatenate([nu, vd])), fac
+        """(q, qd, fac) on Phi = 0, Phi_q qd = nu with the same tangent coordinates v = C q,
+        vd = C qd (:func:`tangent.complete`, as gcp's); fac the LU of A = [Phi_q; C]."""
+        C = self._C
+        x, qdp, fac, T = tangent.complete(self.system, t, q, C @ q, C @ qd, C,
+                                          self.newton_tol, 8)
+        if qdp is None:
+            raise StageFailure(f"t = {t:.6g} s: Newton in tangent coordinates did not "
+                               f"converge (max |Phi| = {np.abs(T.phi).max():.3g})")
+        return x, qdp, fac
 
     def _error_norm(self, h, y_new):
         """In tangent coordinates: the error of v = C q and vd = C qd (as gcp's), and the

@@ -69,6 +69,29 @@ def basis(system, fac, k):
     return solve(system, fac, E)
 
 
+def complete(system, t, q, v, vd, C, tol, max_iter):
+    """(q, qd, fac, T): q on Phi(q, t) = 0 with C q = v by Newton on [Phi(q, t); C q - v] = 0
+    from q, qd from A qd = [nu; vd], fac the LU of A = [Phi_q; C] at the last iterate, T its
+    constraint terms.  qd is None when Newton neither stopped moving (max |dx| <= tol) nor
+    left |Phi| <= tol within max_iter iterations (the caller says why)."""
+    s = system
+    x = np.array(q, dtype=float)
+    for _ in range(max_iter):
+        T = s.terms(x, t, jac=True, nu=s.rheonomic)
+        fac = factor(s, T.jac, C)
+        dx = solve(s, fac, np.concatenate([T.phi, C @ x - v]))
+        x -= dx
+        s.counters["newton_iterations"] += 1
+        if np.abs(dx).max(initial=0.0) <= tol:
+            break  # Phi_q of this iterate is within tol of Phi_q(x): keep it
+    else:
+        # the corrections may stagnate at round-off while the constraints themselves hold
+        if np.abs(T.phi).max(initial=0.0) > tol:
+            return x, None, fac, T
+    nu = T.nu if s.rheonomic else np.zeros(s.m)
+    return x, solve(s, fac, np.concatenate([nu, vd])), fac, T
+
+
 def accelerations(system, t, q, qd, fac, k):
     """(qdd, power) from the reduced equations (module doc): (T^T M T) v'' = T^T (Q - M p), the
     constraint forces dropping out (T^T Phi_q^T = 0); power = Q.qd - lam.nu with lam from
