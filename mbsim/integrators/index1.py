@@ -33,14 +33,19 @@ its estimate (estimate / error 1.0, 1.7, 1.0; before: 4.1e-11, 1.2e-10, 2.7e-10 
 is below the threshold at the start (its scaling, or a start at the change point) and one
 without an M-orthogonal tangent map keep the Schur path; so does ``drift_bound: false``.
 
-Option ``tangent_steps`` (default: true for a fixed step, false for the adaptive methods).
-Adaptive runs keep the Schur path by default: on the 2 s run of models/parallel_fourbar.yaml
-at rtol 1e-11 the tangent steps' error estimate turned erratic at the flat passage at
-t = 1.98374 s (0.001 ... 1000, steps down to 1e-12 s) and the run stopped at h_min, where the
-Schur path completes (0.6 s).  ``tangent_steps: true`` gives the figures above at rtol
-1e-11 and 1e-12 on the four cranks and that deck's rtol 1e-12 run in 0.4 s (the Schur path:
-2.3 s, its companion stopping early); a fixed step cannot collapse, and there the tangent
-steps are what makes RK4 converge.
+Option ``tangent_steps`` (default true; false keeps the Schur path everywhere).  In the
+region the completed stage velocities carry round-off that grows as the pivot ratio falls
+(on models/parallel_fourbar.yaml ~ 5e-16 ... 3e-15 / ratio per 1e-13 m of position
+perturbation, ratios 1e-9 ... 5e-6), and the full-q part of the error test sees it: that
+deck's 2 s run at rtol 1e-11 approached its 11th flat passage (t = 1.98374 s) with steps
+shrinking like the square of the distance and stopped there (no progress), so the q part
+is left out once the steps of a passage are cut below NOISE_STEP x its first tangent step
+(:meth:`_error_norm`).  Measured on the four cranks (python benchmarks/singular_loops.py)
+at rtol 1e-11 and 1e-12, estimate / true error: projection-dop853 1.7, 1.0 (Schur path
+0.25, 1130), projection 0.81, 0.79 (0.12, 0.10), baumgarte 0.79, 2.3 (0.016, 0.016);
+errors at rtol 1e-12 7.9e-11, 2.3e-12, 1.1e-12 m (Schur path 2.7e-10, 1.8e-10, 1.9e-10 m);
+the deck at rtol 1e-9 ... 1e-12 with all three completes within 10 rtol + 1e-9 m, estimate /
+error 0.8-3.2, in 0.1-0.6 s.
 """
 
 from __future__ import annotations
@@ -54,6 +59,7 @@ from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, Stage
 
 TANGENT_PIVOT = 1e-5  # adaptive runs at tight tolerances (tangent_pivot)
 TANGENT_PIVOT_FIXED = 1e-6  # fixed steps
+NOISE_STEP = 1e-2  # steps cut below this x a passage's first tangent step: the q part is noise
 
 
 def tangent_pivot(rtol, adaptive=True):
@@ -95,9 +101,8 @@ class Index1(RungeKuttaIntegrator):
         if self.project:
             self.counters["output_steps"] = 0  # steps of outputs integrated to (dense output)
         # Schur pivot ratio (~ 0.12 theta^2 on the four cranks, theta from flat) below which
-        # a step's stages are in tangent coordinates (Index1 doc)
-        # on by default for fixed steps only (module doc: ``tangent_steps``)
-        on = self.options.get("tangent_steps", self.h_fixed is not None)
+        # a step's stages are in tangent coordinates (module doc: ``tangent_steps``)
+        on = self.options.get("tangent_steps", True)
         self.tangent_pivot = tangent_pivot(self.rtol, self.h_fixed is None) if on else 0.0
         self.newton_tol = float(self.options.get(
             "newton_tol", 1e-12 if self.h_fixed else min(1e-9, max(1e-12, 1e-2 * self.atol))))
@@ -107,6 +112,7 @@ class Index1(RungeKuttaIntegrator):
         self._step_start = (t0, self.q)  # (t, q) at the start of the current step
         self._tangent = False  # the steps' stages are in tangent coordinates
         self._step_tangent = False  # ... the last accepted step's were (dense output)
+        self._tangent_h0 = None
         self._tangent_wanted = False  # a stage of the failed trial was in the region
         self._in_trial = False
         if self.tangent_pivot > 0.0:
@@ -173,7 +179,15 @@ class Index1(RungeKuttaIntegrator):
         of the completion's Newton tolerance, the noise of the completed q: without it
         projection (DP5) at rtol 1e-12 shrank its steps to h_min at the first flat position
         of the four cranks (4107 steps, 18 s), with 1e-2 its companion took 23 s, with 1e-1
-        the run and its estimate take 0.5 s (2.3e-12 m)."""
+        the run and its estimate take 0.5 s (2.3e-12 m).  Once a passage's steps have been
+        cut below NOISE_STEP x its first tangent step, the q part is left out: an embedded
+        estimate of truncation error falls like h^(p+1), so what still cuts the step there is
+        the stage velocities' round-off (module doc).  Measured on models/parallel_fourbar.yaml
+        at rtol 1e-11 (projection-dop853): with the q part always in, no progress at t =
+        1.98374 s (steps to 1e-11 s; rows re-selected, 16 s, 1.1e-9 m); with 1e-3 the same; with
+        1e-2 0.2 s, 3.4e-10 m.  A noise term h 10 eps max|qd| / ratio in its scale instead
+        also ended the stall but left the step across the flat position of
+        test_rheonomic_linkage 7.4e-9 m off (4.1e-11 m now)."""
         if not self._tangent:
             return super()._error_norm(h, y_new)
         n, C = self.n, self._C
@@ -182,6 +196,10 @@ class Index1(RungeKuttaIntegrator):
         y1 = np.concatenate([C @ y_new[:n], C @ y_new[n:2 * n]])
         scale = self.atol + self.rtol * np.maximum(np.abs(y0), np.abs(y1))
         err_v = self.tableau.error_norm(K, h, scale)
+        if self._tangent_h0 is None:
+            self._tangent_h0 = h
+        if h < NOISE_STEP * self._tangent_h0:
+            return err_v
         scale_q = (self.atol + 0.1 * self.newton_tol
                    + self.rtol * np.maximum(np.abs(self.y[:n]), np.abs(y_new[:n])))
         return max(err_v, self.tableau.error_norm(self.K[:, :n], h, scale_q))
@@ -213,6 +231,7 @@ class Index1(RungeKuttaIntegrator):
             self.tangent_pivot = 0.0
             return True
         self._tangent = True
+        self._tangent_h0 = None  # the passage's first tangent step (_error_norm)
         self.f = self._rhs(self.t, self.y)
         return True
 
