@@ -112,7 +112,7 @@ class Index1(RungeKuttaIntegrator):
         self._step_start = (t0, self.q)  # (t, q) at the start of the current step
         self._tangent = False  # the steps' stages are in tangent coordinates
         self._step_tangent = False  # ... the last accepted step's were (dense output)
-        self._tangent_h0 = None
+        self._tangent_h0 = None  # the first tangent step of the passage (_error_norm)
         self._tangent_wanted = False  # a stage of the failed trial was in the region
         self._in_trial = False
         if self.tangent_pivot > 0.0:

@@ -47,9 +47,9 @@ def _four_cranks(**opt):
 
 
 def test_adaptive_tangent_steps_at_tight_tolerances():
-    """The default (tangent steps) with projection-dop853 at rtol 1e-12: estimate / true error in [0.1, 10] (measured 1.0; 1130
-    on the Schur path) and CPU within 5x of the rtol 1e-10 run (measured 0.23 / 0.14 s; 9.3 s
-    on the Schur path); the true error (7.9e-11 m) within 10 rtol + 1e-9 m.  And projection
+    """The default (tangent steps) with projection-dop853 at rtol 1e-12: estimate / true
+    error in [0.1, 10] (measured 1.0; 1130 on the Schur path) and CPU within 5x of the rtol
+    1e-10 run (measured 0.23 / 0.14 s; 9.3 s on the Schur path); the true error (7.9e-11 m) within 10 rtol + 1e-9 m.  And projection
     (DP5) at rtol 1e-12 completes (it stopped at h_min at the first flat position with the
     tangent steps' q error test unfloored)."""
     on = {"integrator": "projection-dop853"}
@@ -78,11 +78,12 @@ def test_tangent_steps_off_keeps_the_schur_path():
 @pytest.mark.parametrize("integrator", ["projection-dop853", "baumgarte"])
 def test_deck_through_eleven_flat_passages(integrator):
     """models/parallel_fourbar.yaml (2 s, 11 flat passages) at rtol 1e-11 with the default
-    atol (rtol / 100) against the deck's exact reduction.  Without the velocity-noise term of
-    the tangent steps' error test (Index1._error_norm) projection-dop853's steps shrank like
-    the square of the distance to the 11th flat position and the run stopped there (no
-    progress at t = 1.98374 s; the rows were re-selected and it went on, 16 s, 1.1e-9 m).
-    Measured: 1.1e-11 m, estimate / error 0.88, 216 steps; baumgarte 2.3e-11 m, 0.86.
+    atol (rtol / 100) against the deck's exact reduction.  With the full-q part of the
+    tangent steps' error test kept in at every step size (Index1._error_norm, NOISE_STEP)
+    projection-dop853's steps shrank like the square of the distance to the 11th flat
+    position and the run stopped there (no progress at t = 1.98374 s; the rows were
+    re-selected and it went on, 16 s, 1.1e-9 m).  Measured: 3.4e-10 m, estimate / error 1.01,
+    237 steps; baumgarte 1.1e-11 m, 0.77.
     Bounds: the issue's 10 rtol + 1e-9 m and [0.1, 10]; no progress stop (row change)."""
     deck = Path(__file__).resolve().parents[2] / "models" / "parallel_fourbar.yaml"
     _, model = load_model(deck)
