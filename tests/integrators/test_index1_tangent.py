@@ -49,9 +49,9 @@ def _four_cranks(**opt):
 def test_adaptive_tangent_steps_at_tight_tolerances():
     """The default (tangent steps) with projection-dop853 at rtol 1e-12: estimate / true
     error in [0.1, 10] (measured 1.0; 1130 on the Schur path) and CPU within 5x of the rtol
-    1e-10 run (measured 0.23 / 0.14 s; 9.3 s on the Schur path); the true error (7.9e-11 m) within 10 rtol + 1e-9 m.  And projection
-    (DP5) at rtol 1e-12 completes (it stopped at h_min at the first flat position with the
-    tangent steps' q error test unfloored)."""
+    1e-10 run (measured 0.23 / 0.14 s; 9.3 s on the Schur path); the true error (7.9e-11 m)
+    within 10 rtol + 1e-9 m.  And projection (DP5) at rtol 1e-12 completes (it stopped at
+    h_min at the first flat position with the tangent steps' q error test unfloored)."""
     on = {"integrator": "projection-dop853"}
     _, base, _ = _four_cranks(rtol=1e-10, atol=1e-12, **on)
     res, cpu, err = _four_cranks(rtol=1e-12, atol=1e-14, **on)
