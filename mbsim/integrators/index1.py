@@ -58,6 +58,7 @@ from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, Stage
 
 
 TANGENT_PIVOT = 1e-5  # adaptive runs at tight tolerances (tangent_pivot)
+TANGENT_FLOOR = 1e-8  # adaptive runs at any tolerance: a motion that dwells near a change point
 TANGENT_PIVOT_FIXED = 1e-6  # fixed steps
 NOISE_STEP = 1e-2  # steps cut below this x a passage's first tangent step: the q part is noise
 
@@ -65,19 +66,34 @@ NOISE_STEP = 1e-2  # steps cut below this x a passage's first tangent step: the 
 def tangent_pivot(rtol, adaptive=True):
     """The Schur pivot ratio (kernels.c: smallest pivot / diagonal, ~ 0.12 theta^2 on the
     four parallel cranks, theta from the flat position) below which a step is taken in
-    tangent coordinates.  Fixed steps: TANGENT_PIVOT_FIXED.  Adaptive: (eps / rtol)^(4/3) up
-    to TANGENT_PIVOT (1.3e-10, 2.8e-8, 6e-7, 1e-5 at rtol 1e-8, 1e-10, 1e-11, 1e-12): the
-    Schur path is accurate on the four cranks down to rtol 1e-10 (4.1e-11 m) and the tangent
-    steps cost more per stage, so they are kept to where the Schur accelerations' bias and
-    noise decide.  Measured on the four cranks, `accuracy` 1e-6 and 1e-8 (projection-dop853
-    at rtol 3e-9, 3e-11 and their companions): 0.065, 0.104 s CPU with this threshold, 0.091,
-    0.13 s with (eps / rtol)^(2/3) (same errors, rtol 1e-11 and 1e-12 alike: 2.5-3.4e-12 m,
-    7.9e-11 m); with 1e-5 at every tolerance (and the tangent steps' error test on C q, C qd
-    alone) projection-dop853 at rtol 1e-5 ended 2.1e-4 m off (1.5e-5 m on the Schur
-    path)."""
+    tangent coordinates.  Fixed steps: TANGENT_PIVOT_FIXED.  Adaptive: (eps / rtol)^(4/3),
+    at least TANGENT_FLOOR and at most TANGENT_PIVOT (1e-8, 1e-8, 2.8e-8, 6e-7, 1e-5 at rtol
+    1e-6, 1e-8, 1e-10, 1e-11, 1e-12).
+
+    The power law: the Schur path is accurate on the four cranks' fast passages down to
+    rtol 1e-10 (4.1e-11 m) and the tangent steps cost more per stage, so they are kept to
+    where the Schur accelerations' bias and noise decide.  Measured on the four cranks,
+    `accuracy` 1e-6 and 1e-8 (projection-dop853 at rtol 3e-9, 3e-11 and their companions):
+    0.065, 0.104 s CPU with it, 0.091, 0.13 s with (eps / rtol)^(2/3) (same errors, rtol
+    1e-11 and 1e-12 alike: 2.5-3.4e-12 m, 7.9e-11 m); with 1e-5 at every tolerance
+    projection-dop853 at rtol 1e-5 ended 2.1e-4 m off (1.5e-5 m on the Schur path).
+
+    The floor is for a motion that dwells near the change point, where that bias acts for a
+    long time: models/parallel_fourbar.yaml with w0 = 10.505 rad/s swings up to 0.004 deg
+    short of its flat position and back (a linkage stopping at its dead centre).  Without
+    the floor (threshold 1.3e-13 at rtol 1e-6) projection-dop853 gained 2.4e-5 J at the turn
+    and ended 0.2 m off at rtol 1e-6 (projection and baumgarte alike), and with w0 = 10.51
+    (through the flat position at 0.32 rad/s) projection ended 2.2e-3 m off at rtol 1e-8
+    after 18 s.  With it every such run of the three methods at rtol 1e-5 ... 1e-9 is
+    within 10 rtol + 1e-9 m, estimate / error 0.8-1.3, in 0.1-0.3 s, and the four cranks'
+    fast passages are unchanged (their ratios seldom fall below 1e-8).  At rtol 1e-10 a run
+    through the flat position at 0.32 rad/s still crawls: tangent steps of 5e-10 s whose
+    error test sees round-off at a pivot ratio of 2e-13, where the kept rows themselves
+    lose rank (benchmarks/dead_centre.py)."""
     if not adaptive:
         return TANGENT_PIVOT_FIXED
-    return min(TANGENT_PIVOT, (np.finfo(float).eps / rtol) ** (4.0 / 3.0))
+    return min(TANGENT_PIVOT, max(TANGENT_FLOOR,
+                                  (np.finfo(float).eps / rtol) ** (4.0 / 3.0)))
 
 
 class Index1(RungeKuttaIntegrator):
