@@ -75,8 +75,9 @@ def tangent_pivot(rtol, adaptive=True):
     where the Schur accelerations' bias and noise decide.  Measured on the four cranks,
     `accuracy` 1e-6 and 1e-8 (projection-dop853 at rtol 3e-9, 3e-11 and their companions):
     0.065, 0.104 s CPU with it, 0.091, 0.13 s with (eps / rtol)^(2/3) (same errors, rtol
-    1e-11 and 1e-12 alike: 2.5-3.4e-12 m, 7.9e-11 m); with 1e-5 at every tolerance
-    projection-dop853 at rtol 1e-5 ended 2.1e-4 m off (1.5e-5 m on the Schur path).
+    1e-11 and 1e-12 alike: 2.5-3.4e-12 m, 7.9e-11 m); with 1e-5 at every tolerance (and
+    the tangent steps' error test on C q, C qd alone) projection-dop853 at rtol 1e-5 ended
+    2.1e-4 m off (1.5e-5 m on the Schur path; 2.2e-4 m again with today's error test).
 
     The floor is for a motion that dwells near the change point, where that bias acts for a
     long time: models/parallel_fourbar.yaml with w0 = 10.505 rad/s swings up to 0.004 deg

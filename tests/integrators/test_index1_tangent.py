@@ -142,7 +142,6 @@ def test_rheonomic_linkage(name, setting, bound):
     assert err <= bound, f"{name}: {err:.3g} m > {bound:.3g} m"
 
 
-
 @pytest.mark.parametrize("integrator", ["projection-dop853", "projection", "baumgarte"])
 @pytest.mark.parametrize("w0,rtol", [(10.505, 1e-6), (10.51, 1e-8)])
 def test_swing_to_the_dead_centre(integrator, w0, rtol):
