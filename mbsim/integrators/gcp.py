@@ -214,20 +214,13 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         part.s0 = self._tangent_sensitivity(self._factor_tangent(J, C), iv.size)
         return part
 
-    def _mass_times(self, q, X):
-        return tangent.mass_times(self.system, q, X)
-
     def _factor_tangent(self, J, C):
         """LU of A = [Phi_q; C] (n x n)."""
         return tangent.factor(self.system, J, C)
 
-    def _tangent_basis(self, fac, k):
-        """T = A^-1 [0; I] (n x k): the tangent space with C T = I."""
-        return tangent.basis(self.system, fac, k)
-
     def _tangent_sensitivity(self, fac, k):
         """max |T|: as max |Phi_u^-1 Phi_v| for coordinates, how far q moves per unit of v."""
-        return float(np.abs(self._tangent_basis(fac, k)).max(initial=0.0))
+        return float(np.abs(tangent.basis(self.system, fac, k)).max(initial=0.0))
 
     def _factor(self, J, iu):
         self.system.counters["factorizations"] += 1
@@ -245,9 +238,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         return float(np.abs(Z).max(initial=0.0))
 
     def _solve(self, fac, b):
-        if self.system.sparse:
-            return fac.solve(b)
-        return la.lu_solve(fac, b, check_finite=False)
+        return tangent.solve(self.system, fac, b)
 
     # -- the stage function ----------------------------------------------------------------
     def _complete(self, t, v, vd, part):

@@ -349,6 +349,18 @@ def parallel_fourbar_motion(model, th, thd, thdd, base=(0.0, 0.0, 0.0), directio
     return q, qd, qdd
 
 
+def parallel_fourbar_reference(t, thetad0=20.0, theta0=-np.pi / 2, N=4):
+    """The exact one-DOF reduction (references.parallel_fourbar) of the linkage of FOURBAR's
+    data, which is also models/parallel_fourbar.yaml's, from crank angle theta0 at rate
+    thetad0: {body: (r, A)} and ``theta`` at the times t."""
+    from tests.integrators import references as R
+
+    P = FOURBAR
+    return R.parallel_fourbar(t, theta0, thetad0, N, P["L"], P["m_crank"],
+                              fourbar_crank_inertia(P["L"], P["m_crank"])[2], P["M"], P["g"],
+                              [i * P["spacing"] for i in range(N)])
+
+
 def parallel_fourbar_state(model, thetad0):
     """Consistent state with every crank turning at thetad0 about +z."""
     return consistent_state(model, omega={"crank0": (0, 0, thetad0)})
@@ -430,13 +442,9 @@ def _reference_problem(name):
         ref = functools.partial(R.slider_crank, phi0=phi0, phid0=-2 * np.pi, A_rod0=A_rod0)
         return Problem(name, model, q, qd, 1.0, 0.01, ref)
     if name == "parallel_fourbar":
-        P, N, w0 = FOURBAR, 4, 20.0
-        model = parallel_fourbar(N)
-        q, qd = parallel_fourbar_state(model, w0)
-        xs = [i * P["spacing"] for i in range(N)]
-        ref = functools.partial(R.parallel_fourbar, theta0=-np.pi / 2, thetad0=w0, N=N,
-                                L=P["L"], m_crank=P["m_crank"],
-                                I_crank=fourbar_crank_inertia()[2], M=P["M"], g=P["g"], xs=xs)
+        model = parallel_fourbar(4)
+        q, qd = parallel_fourbar_state(model, 20.0)
+        ref = functools.partial(parallel_fourbar_reference, thetad0=20.0)
         return Problem(name, model, q, qd, 1.0, 0.01, ref)
     raise KeyError(name)
 

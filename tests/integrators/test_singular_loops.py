@@ -158,9 +158,7 @@ def test_deck_is_the_builder():
     assert res.summary["rank"] == 41 and res.summary["dof"] == 1
     assert set(res.summary["redundant"]) <= {f"{k}{i}" for k in "GC" for i in range(4)}
     P = M.FOURBAR
-    ref = R.parallel_fourbar(res.t, -np.pi / 2, 20.0, 4, P["L"], P["m_crank"],
-                             M.fourbar_crank_inertia()[2], P["M"], P["g"],
-                             [i * P["spacing"] for i in range(4)])
+    ref = M.parallel_fourbar_reference(res.t)
     assert R.position_error(res, ref).max() < 1e-6
     tip = res.channel("points/tip0/position").data
     assert np.abs(np.linalg.norm(tip, axis=1) - P["L"]).max() < 1e-6
@@ -183,9 +181,7 @@ def test_cli_accuracy_on_the_deck(tmp_path):
     P = M.FOURBAR
     with h5py.File(out) as f:
         t = f["time"][()]
-        ref = R.parallel_fourbar(t, -np.pi / 2, 20.0, 4, P["L"], P["m_crank"],
-                                 M.fourbar_crank_inertia()[2], P["M"], P["g"],
-                                 [i * P["spacing"] for i in range(4)])
+        ref = M.parallel_fourbar_reference(t)
         err = max(np.linalg.norm(f[f"bodies/{b}/r"][()] - rb, axis=1).max()
                   for b, (rb, _) in R.bodies_of(ref).items())
         th = ref["theta"]
