@@ -52,7 +52,11 @@ in tangent coordinates (a step may cross the singular position with no accepted 
 it).  The tangent partition is replaced when its sensitivity max |T| grows (as a coordinate
 one), or as soon as the coordinate choice's Phi_u is no longer near singular: RK4's error
 constant is larger in the position-like tangent coordinates (measured 7x on the four-bar)
-than in the Euler parameters the null-space choice picks.
+than in the Euler parameters the null-space choice picks.  A motion that approaches the
+change point slowly meets the round-off of the constraint equations themselves there; the
+step across the point is then chosen to keep its stages clear of it
+(:class:`mbsim.integrators.tangent.Approach`, followed by the LU pivot ratio of Phi_u;
+counter ``straddle_steps``).
 """
 
 from __future__ import annotations
@@ -76,6 +80,8 @@ BRANCH_JUMP = 1e3  # scaled deviation of the dependent coordinates that rejects 
 # (measured, a crank's Euler parameter 3e-3 rad from the four-bar's flat position), 1e-8 at
 # 2e-3, 1e-3 at 2e-5; above the threshold the coordinates keep the cheaper Schur solve.
 SINGULAR_PIVOT = 1e-3
+STRADDLE_NEAR = 3.0  # an approach to a change point (tangent.Approach): pivot ratio below this
+# x singular_pivot (0.2 x the angle from the four-bar's flat position: 1.5e-2 rad at rtol 1e-6)
 
 
 def singular_pivot(rtol, adaptive=True):
@@ -167,6 +173,13 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._tangent_wanted = False  # a stage of the failed step was near a change point
         self.part = self._partition(self.t, self.q)
         self.n_err = 2 * self.part.k  # (v, vd); the work integral is not controlled
+        # the approach to a change point and the step across it (tangent.Approach), followed
+        # by the pivot ratio of Phi_u at the accepted states (None: a new partition)
+        self.counters["straddle_steps"] = 0
+        self._approach = tangent.Approach(self.tableau, self.h_fixed,
+                                          STRADDLE_NEAR * self.singular_pivot)
+        self._pivot = None  # (_accept)
+        self._pivot_iu = None  # u of the last accepted step
         self._start()
 
     # -- partitioning ----------------------------------------------------------------------
@@ -463,13 +476,15 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         cur = self.part
         if cur.C is None:
             sens = self._sensitivity(fac, self._jac, cur.iv)
-            change = self._pivot_ratio(fac) < self.singular_pivot  # towards a change point
+            self._pivot = self._pivot_ratio(fac)
+            change = self._pivot < self.singular_pivot  # towards a change point
             limit = self.ratio * max(1.0, cur.s0)
         else:  # max |T| grows as 1 / cos of the tangent's rotation since the partition
             sens = self._tangent_sensitivity(fac, cur.k)
             limit = self.ratio * cur.s0
             # back to coordinates as soon as their Phi_u is no longer near singular
-            change = self._pivot_ratio(self._factor(self._jac, cur.iu)) >= self.singular_pivot
+            self._pivot = self._pivot_ratio(self._factor(self._jac, cur.iu))
+            change = self._pivot >= self.singular_pivot
         if change or sens > limit:
             part = self._partition(t, q)
             if part.same(cur):
@@ -484,6 +499,21 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
                 f = np.concatenate([v(qd), v(qdd), f[-1:]])
                 self._last = (t, y, q, qd, qdd, fac)
         return y, f
+
+    def _step_impl(self):
+        h = self._approach.step(self.h_abs) if self._tangent_ok else None
+        if h is not None:
+            self.h_abs = h  # a step across the change point ahead (tangent.Approach)
+        iu = self.part.iu
+        ok, msg = super()._step_impl()
+        if ok:
+            # the pivot ratio of the step's Phi_u; after a new choice of u, no measure that
+            # compares with the earlier ones
+            same = np.array_equal(iu, self.part.iu) and np.array_equal(iu, self._pivot_iu)
+            self._pivot_iu = iu
+            if self._approach.accepted(self.t, self.h_last, self._pivot if same else None):
+                self.counters["straddle_steps"] += 1
+        return ok, msg
 
     def _switch(self, part):
         """Make ``part`` the partition; counters ``repartitions`` (every change) and

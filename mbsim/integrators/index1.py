@@ -33,6 +33,11 @@ its estimate (estimate / error 1.0, 1.7, 1.0; before: 4.1e-11, 1.2e-10, 2.7e-10 
 is below the threshold at the start (its scaling, or a start at the change point) and one
 without an M-orthogonal tangent map keep the Schur path; so does ``drift_bound: false``.
 
+A motion that approaches the change point slowly meets the round-off of the constraint
+equations themselves there; the step across the point is then chosen to keep its stages
+clear of it (:class:`tangent.Approach`, followed by the square root of the pivot ratio;
+counter ``straddle_steps``).
+
 Option ``tangent_steps`` (default true; false keeps the Schur path everywhere).  In the
 region the completed stage velocities carry round-off that grows as the pivot ratio falls
 (on models/parallel_fourbar.yaml ~ 5e-16 ... 3e-15 / ratio per 1e-13 m of position
@@ -61,6 +66,7 @@ TANGENT_PIVOT = 1e-5  # adaptive runs at tight tolerances (tangent_pivot)
 TANGENT_FLOOR = 1e-8  # adaptive runs at any tolerance: a motion that dwells near a change point
 TANGENT_PIVOT_FIXED = 1e-6  # fixed steps
 NOISE_STEP = 1e-2  # steps cut below this x a passage's first tangent step: the q part is noise
+STRADDLE_NEAR = 1e3  # an approach to a change point: ratio below this x the tangent threshold
 
 
 def tangent_pivot(rtol, adaptive=True):
@@ -88,9 +94,9 @@ def tangent_pivot(rtol, adaptive=True):
     after 18 s.  With it every such run of the three methods at rtol 1e-5 ... 1e-9 is
     within 10 rtol + 1e-9 m, estimate / error 0.8-1.3, in 0.1-0.3 s, and the four cranks'
     fast passages are unchanged (their ratios seldom fall below 1e-8).  At rtol 1e-10 a run
-    through the flat position at 0.32 rad/s still crawls: tangent steps of 5e-10 s whose
-    error test sees round-off at a pivot ratio of 2e-13, where the kept rows themselves
-    lose rank (benchmarks/dead_centre.py)."""
+    through the flat position at 0.32 rad/s then still crawled (tangent steps of 5e-10 s
+    cut by round-off 4e-6 s short of the point): the steps across it of
+    :class:`tangent.Approach` end that (benchmarks/dead_centre.py)."""
     if not adaptive:
         return TANGENT_PIVOT_FIXED
     return min(TANGENT_PIVOT, max(TANGENT_FLOOR,
@@ -132,12 +138,18 @@ class Index1(RungeKuttaIntegrator):
         self._tangent_h0 = None  # the first tangent step of the passage (_error_norm)
         self._tangent_wanted = False  # a stage of the failed trial was in the region
         self._in_trial = False
+        # the approach to a change point and the step across it (tangent.Approach)
+        self.counters["straddle_steps"] = 0
+        self._approach = None
         if self.tangent_pivot > 0.0:
             # a ratio already below the threshold at the start is the model's scaling (or a
             # start at the change point, where no branch is known): no tangent coordinates
             system.accelerations(self.q, self.qd, self.t, self.stab)
             if system.pivot_ratio < self.tangent_pivot:
                 self.tangent_pivot = 0.0
+        if self.tangent_pivot > 0.0:
+            self._approach = tangent.Approach(self.tableau, self.h_fixed,
+                                              np.sqrt(STRADDLE_NEAR * self.tangent_pivot))
         self._start()
 
     def _y_from_state(self):
@@ -259,8 +271,15 @@ class Index1(RungeKuttaIntegrator):
             self._C = None
         self._step_start = (self.t, self.q)
         self._step_tangent = False  # (the last step's dense output has been taken)
+        approach = self._approach if self.tangent_pivot > 0.0 else None
+        h = approach.step(self.h_abs) if approach else None
+        if h is not None:
+            self.h_abs = h  # a step across the change point ahead (tangent.Approach)
         ok, msg = super()._step_impl()
         self._step_tangent = self._tangent
+        if ok and approach and approach.accepted(self.t, self.h_last,
+                                                 np.sqrt(max(self._ratio, 0.0))):
+            self.counters["straddle_steps"] += 1
         if ok and self._tangent and self._ratio >= self.tangent_pivot:
             self._tangent = False  # the accepted state is outside the region
             self.f = self._rhs(self.t, self.y)
