@@ -176,7 +176,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         # the approach to a change point and the step across it (tangent.Approach), followed
         # by the pivot ratio of Phi_u at the accepted states (None: a new partition)
         self.counters["straddle_steps"] = 0
-        self._approach = tangent.Approach(self.tableau, self.h_fixed,
+        self._approach = tangent.Approach(tangent.stage_times(self.tableau), self.h_fixed,
                                           STRADDLE_NEAR * self.singular_pivot)
         self._pivot = None  # (_accept)
         self._pivot_iu = None  # u of the last accepted step

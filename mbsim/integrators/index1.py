@@ -148,7 +148,8 @@ class Index1(RungeKuttaIntegrator):
             if system.pivot_ratio < self.tangent_pivot:
                 self.tangent_pivot = 0.0
         if self.tangent_pivot > 0.0:
-            self._approach = tangent.Approach(self.tableau, self.h_fixed,
+            self._approach = tangent.Approach(tangent.stage_times(self.tableau),
+                                              self.h_fixed,
                                               np.sqrt(STRADDLE_NEAR * self.tangent_pivot))
         self._start()
 

@@ -149,8 +149,8 @@ class Approach:
 
     CUT = 0.1
 
-    def __init__(self, tableau, h_fixed, near):
-        self.tableau, self.h_fixed, self.near = tableau, h_fixed, near
+    def __init__(self, stages, h_fixed, near):
+        self.stages, self.h_fixed, self.near = stages, h_fixed, near  # stages: stage_times
         self.h_far = None  # the last accepted step before the approach
         self.points = ()  # (t, s) of the last two accepted states of the approach
         self.d_tried = np.inf  # the predicted distance at the last step tried across
@@ -181,7 +181,7 @@ class Approach:
             h = self.h_fixed
             if d >= 1.5 * h:
                 return None
-            moved = clear_step(self.tableau, d, 0.5 * h, 1.5 * h)[0]
+            moved = clear_step(self.stages, d, 0.5 * h, 1.5 * h)[0]
             if moved == h:
                 return None
         else:
@@ -191,7 +191,7 @@ class Approach:
             if not (d < h_cap and d <= 0.5 * self.d_tried):
                 return None
             self.d_tried = d
-            moved = clear_step(self.tableau, d, d * (1 + 1e-9), h_cap)[0]
+            moved = clear_step(self.stages, d, d * (1 + 1e-9), h_cap)[0]
         self.tried = moved
         return moved
 
@@ -213,7 +213,7 @@ def stage_times(tableau):
     return np.unique(np.concatenate([tableau.C, getattr(tableau, "C_EXTRA", ()), [1.0]]))
 
 
-def clear_step(tableau, d, lo, hi):
+def clear_step(c, d, lo, hi):
     """The step h in [lo, hi] whose stages lie farthest from a point d ahead, and that
     distance (the step's start and end, states of the run, count as stages): d / c for c
     the middle of a gap between stage times, lo or hi (the farthest lies at one of them),
@@ -222,8 +222,8 @@ def clear_step(tableau, d, lo, hi):
     h sum |c h - d|^-3, chose steps that a 70 % error in d, as the four cranks' ratio gives
     one step before the point, put next to it: rk4 at 0.25 ms ended 7e-3 m off, where this
     choice leaves 4e-10 m; at 0.3 ... 0.1 ms 2e-10 ... 8e-9 m, without moving the steps
-    up to 1.2e-3 m.)"""
-    c = stage_times(tableau)
+    up to 1.2e-3 m.)  c: the stage times (:func:`stage_times`; an implicit one-step method's
+    are its start and end, 0 and 1)."""
     h = np.concatenate([d / (0.5 * (c[1:] + c[:-1])), [lo, hi]])
     h = np.sort(h[(h >= lo) & (h <= hi)])
     clear = np.abs(np.outer(h, c) - d).min(axis=1)

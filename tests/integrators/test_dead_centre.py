@@ -71,7 +71,7 @@ def test_crossing_time_extrapolates_a_linear_measure():
 def test_clear_step_puts_the_point_in_the_widest_gap(tableau, gap):
     """With room to choose, the point lies midway in the widest gap between the stage
     times (DOP853's dense output's extra stages included), half that gap from them."""
-    h, clear = tangent.clear_step(tableau, 0.45, 0.5, 1.5)
+    h, clear = tangent.clear_step(tangent.stage_times(tableau), 0.45, 0.5, 1.5)
     assert h == pytest.approx(0.45 / (0.5 * (gap[0] + gap[1])))
     assert clear == pytest.approx(0.5 * (gap[1] - gap[0]) * h)
 
@@ -85,7 +85,7 @@ def test_clear_step_is_the_farthest(tableau, d, lo, hi):
     equals (d = 0.01: every step that puts the point between the start and the first stage
     keeps it d from the start) the smallest."""
     c = tangent.stage_times(tableau)
-    h, clear = tangent.clear_step(tableau, d, lo, hi)
+    h, clear = tangent.clear_step(c, d, lo, hi)
     assert lo <= h <= hi
     assert clear == pytest.approx(np.abs(h * c - d).min())
     grid = np.linspace(lo, hi, 2001)
