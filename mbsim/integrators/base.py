@@ -235,3 +235,26 @@ def hermite(t0, t1, y0, y1, f0, f1):
         return h00 * y0 + h10 * h * f0 + h01 * y1 + h11 * h * f1
 
     return g
+
+
+def quintic_hermite(a, b):
+    """g(t, k) on [a[0], b[0]]: the quintic Hermite interpolant of q (k = 0) or its rate
+    (k = 1) from the states a, b = (t, q, qd, qdd) at the ends of a step (fifth order)."""
+    t0, q0, v0, a0 = a[:4]
+    t1, q1, v1, a1 = b[:4]
+    h = t1 - t0
+
+    def g(t, k=0):
+        x = (t - t0) / h
+        x2, x3, x4, x5 = x * x, x ** 3, x ** 4, x ** 5
+        if k == 0:
+            return ((1 - 10 * x3 + 15 * x4 - 6 * x5) * q0 + (10 * x3 - 15 * x4 + 6 * x5) * q1
+                    + h * ((x - 6 * x3 + 8 * x4 - 3 * x5) * v0 + (-4 * x3 + 7 * x4 - 3 * x5) * v1)
+                    + h * h * (0.5 * (x2 - 3 * x3 + 3 * x4 - x5) * a0
+                               + 0.5 * (x3 - 2 * x4 + x5) * a1))
+        return ((-30 * x2 + 60 * x3 - 30 * x4) * (q0 - q1) / h
+                + (1 - 18 * x2 + 32 * x3 - 15 * x4) * v0 + (-12 * x2 + 28 * x3 - 15 * x4) * v1
+                + h * (0.5 * (2 * x - 9 * x2 + 12 * x3 - 5 * x4) * a0
+                       + 0.5 * (3 * x2 - 8 * x3 + 5 * x4) * a1))
+
+    return g

@@ -68,13 +68,12 @@ import scipy.linalg as la
 import scipy.sparse.linalg as spla
 
 from mbsim.integrators import tangent
-from mbsim.integrators.base import rms_norm
+from mbsim.integrators.base import quintic_hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
 
 log = logging.getLogger(__name__)
 
-BRANCH_JUMP = 1e3  # scaled deviation of the dependent coordinates that rejects a step
 # Phi_u with LU pivots below this fraction of its largest: tangent coordinates (module doc).
 # The noise they avoid grows like (pivot ratio)^-2.5: 2e-7 of v'' at a pivot ratio of 6e-4
 # (measured, a crank's Euler parameter 3e-3 rad from the four-bar's flat position), 1e-8 at
@@ -98,29 +97,6 @@ def singular_pivot(rtol, adaptive=True):
     if not adaptive:
         return SINGULAR_PIVOT
     return max(SINGULAR_PIVOT, (np.finfo(float).eps / rtol) ** (1.0 / 3.0))
-
-
-def quintic_hermite(a, b):
-    """g(t, k) on [a[0], b[0]]: the quintic Hermite interpolant of q (k = 0) or its rate
-    (k = 1) from the states a, b = (t, q, qd, qdd) at the ends of a step (fifth order)."""
-    t0, q0, v0, a0 = a[:4]
-    t1, q1, v1, a1 = b[:4]
-    h = t1 - t0
-
-    def g(t, k=0):
-        x = (t - t0) / h
-        x2, x3, x4, x5 = x * x, x ** 3, x ** 4, x ** 5
-        if k == 0:
-            return ((1 - 10 * x3 + 15 * x4 - 6 * x5) * q0 + (10 * x3 - 15 * x4 + 6 * x5) * q1
-                    + h * ((x - 6 * x3 + 8 * x4 - 3 * x5) * v0 + (-4 * x3 + 7 * x4 - 3 * x5) * v1)
-                    + h * h * (0.5 * (x2 - 3 * x3 + 3 * x4 - x5) * a0
-                               + 0.5 * (x3 - 2 * x4 + x5) * a1))
-        return ((-30 * x2 + 60 * x3 - 30 * x4) * (q0 - q1) / h
-                + (1 - 18 * x2 + 32 * x3 - 15 * x4) * v0 + (-12 * x2 + 28 * x3 - 15 * x4) * v1
-                + h * (0.5 * (2 * x - 9 * x2 + 12 * x3 - 5 * x4) * a0
-                       + 0.5 * (3 * x2 - 8 * x3 + 5 * x4) * a1))
-
-    return g
 
 
 class Partition:
@@ -367,7 +343,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         if self.h_fixed is not None:
             return
         dev = rms_norm(q - pred, self.atol + self.rtol * np.abs(pred))
-        if dev > BRANCH_JUMP:
+        if dev > tangent.BRANCH_JUMP:
             raise StageFailure(f"t = {t:.6g} s: the dependent coordinates moved {dev:.3g} "
                                f"tolerances from the RK solution (another branch of the "
                                f"constraints)")

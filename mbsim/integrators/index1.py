@@ -58,13 +58,16 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim.integrators import tangent
-from mbsim.integrators.base import rms_norm
+from mbsim.integrators.base import NUMERICAL_ERRORS, quintic_hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
 
 TANGENT_PIVOT = 1e-5  # adaptive runs at tight tolerances (tangent_pivot)
 TANGENT_FLOOR = 1e-8  # adaptive runs at any tolerance: a motion that dwells near a change point
 TANGENT_PIVOT_FIXED = 1e-6  # fixed steps
+ROUNDOFF_ULPS = 4  # the round-off probe's perturbation of q (as generalized-alpha's)
+NOISE_ERR = 0.1  # tangent steps whose error norm exceeds this are probed for round-off
+NOISE_RATIO = 1e-10  # ... unless a stage's Schur pivot ratio was below this (_stage_noise)
 NOISE_STEP = 1e-2  # steps cut below this x a passage's first tangent step: the q part is noise
 STRADDLE_NEAR = 1e3  # an approach to a change point: ratio below this x the tangent threshold
 
@@ -130,6 +133,8 @@ class Index1(RungeKuttaIntegrator):
         self.newton_tol = float(self.options.get(
             "newton_tol", 1e-12 if self.h_fixed else min(1e-9, max(1e-12, 1e-2 * self.atol))))
         self.counters["tangent_stages"] = 0
+        self.counters["noise_limited_steps"] = 0
+        self._rng = np.random.default_rng(0)  # signs of the round-off probe (reproducible)
         self._ratio = 1.0  # the Schur factor's pivot ratio at the latest stage
         self._C = None  # tangent map C (k, nq) of the latest tangent-coordinate step
         self._step_start = (t0, self.q)  # (t, q) at the start of the current step
@@ -138,6 +143,7 @@ class Index1(RungeKuttaIntegrator):
         self._tangent_h0 = None  # the first tangent step of the passage (_error_norm)
         self._tangent_wanted = False  # a stage of the failed trial was in the region
         self._in_trial = False
+        self._trial_ratio = np.inf
         # the approach to a change point and the step across it (tangent.Approach)
         self.counters["straddle_steps"] = 0
         self._approach = None
@@ -148,10 +154,12 @@ class Index1(RungeKuttaIntegrator):
             if system.pivot_ratio < self.tangent_pivot:
                 self.tangent_pivot = 0.0
         if self.tangent_pivot > 0.0:
-            self._approach = tangent.Approach(tangent.stage_times(self.tableau),
-                                              self.h_fixed,
-                                              np.sqrt(STRADDLE_NEAR * self.tangent_pivot))
+            self._approach = self._new_approach()
         self._start()
+
+    def _new_approach(self):
+        return tangent.Approach(tangent.stage_times(self.tableau), self.h_fixed,
+                                np.sqrt(STRADDLE_NEAR * self.tangent_pivot))
 
     def _y_from_state(self):
         return np.concatenate([self.q, self.qd, [self.w]])
@@ -165,6 +173,7 @@ class Index1(RungeKuttaIntegrator):
         q, qd = y[:n], y[n:2 * n]
         qdd, _, power = self.system.accelerations(q, qd, t, self.stab)
         self._ratio = r = self.system.pivot_ratio
+        self._trial_ratio = min(self._trial_ratio, r)
         near = r < self.tangent_pivot and self.tangent_pivot > 0.0  # (r can be <= 0: 0 is off)
         if self._tangent or (not self._in_trial and (self._step_tangent or near)):
             qd, qdd, power = self._tangent_stage(t, q, qd)
@@ -226,6 +235,14 @@ class Index1(RungeKuttaIntegrator):
         y1 = np.concatenate([C @ y_new[:n], C @ y_new[n:2 * n]])
         scale = self.atol + self.rtol * np.maximum(np.abs(y0), np.abs(y1))
         err_v = self.tableau.error_norm(K, h, scale)
+        if err_v > NOISE_ERR and self._trial_ratio >= NOISE_RATIO:
+            # what the stages' round-off alone makes is not error (_stage_noise)
+            noise = self._stage_noise(self.t + h, y_new)
+            if noise is not None:
+                floored = self.tableau.error_norm(K, h, scale, noise)
+                if err_v > 1.0 >= floored:
+                    self.counters["noise_limited_steps"] += 1
+                err_v = floored
         if self._tangent_h0 is None:
             self._tangent_h0 = h
         if h < NOISE_STEP * self._tangent_h0:
@@ -233,6 +250,41 @@ class Index1(RungeKuttaIntegrator):
         scale_q = (self.atol + 0.1 * self.newton_tol
                    + self.rtol * np.maximum(np.abs(self.y[:n]), np.abs(y_new[:n])))
         return max(err_v, self.tableau.error_norm(self.K[:, :n], h, scale_q))
+
+    def _stage_noise(self, t, y):
+        """(2k,) the round-off of a tangent stage's derivative (C qd, C qdd) at y, per
+        component: the spread of C qdd between two completions from q perturbed by
+        ROUNDOFF_ULPS ulps (random signs), over sqrt 2 (C qd = vd holds to round-off); None
+        where a completion fails.
+
+        Next to a change point the completed state lies on a computed constraint set
+        u w = eps whose curvature grows as the point nears (tangent.Approach), so C qdd
+        carries noise ~ ratio^-1.5 (on the four cranks 2e-8 of 57 m/s^2 at a Schur pivot
+        ratio of 7e-9, 0.12 at 3e-13).  A motion that dwells there (turning just short of
+        the point) meets it at every stage for as long as it dwells: at rtol 1e-12 the
+        error test cut projection-dop853's steps to 1e-7 s for the whole turn (40 s had not
+        passed it).  The error norm therefore takes off what that noise alone makes
+        (Tableau.error_norm with ``noise``; counter ``noise_limited_steps`` when that
+        passes a step), as generalized-alpha's does with its Newton round-off: that run now
+        ends 1.4e-11 m off in 38 s, and at rtol 1e-11 2.3e-11 m in 2 s.  Not where a stage
+        of the trial came within a pivot ratio of NOISE_RATIO of the point: there the
+        noise is that of a crossing, unbounded, and taking it off accepted steps onto the
+        other branch (rtol 1e-12, w0 = 10.51 rad/s: 0.01-0.4 m off; such a run still
+        crawls, as it did before)."""
+        n, C = self.n, self._C
+        q, qd = y[:n], y[n:2 * n]
+        rng = self._rng
+        ulp = ROUNDOFF_ULPS * np.finfo(float).eps * max(1.0, np.abs(q).max(initial=0.0))
+        a = []
+        try:
+            for _ in range(2):
+                qp = q + ulp * rng.choice([-1.0, 1.0], n)
+                x, qdp, fac = self._tangent_complete(t, qp, qd)
+                a.append(C @ tangent.accelerations(self.system, t, x, qdp, fac, C.shape[0])[0])
+        except NUMERICAL_ERRORS:
+            return None
+        k = C.shape[0]
+        return np.concatenate([np.zeros(k), np.abs(a[0] - a[1]) / np.sqrt(2.0)])
 
     def _tangent_map(self, t, q):
         s = self.system
@@ -244,6 +296,7 @@ class Index1(RungeKuttaIntegrator):
 
     def _trial(self, h):
         self._in_trial = True
+        self._trial_ratio = np.inf  # the smallest pivot ratio of the trial's stages
         try:
             return super()._trial(h)
         finally:
@@ -331,7 +384,15 @@ class Index1(RungeKuttaIntegrator):
         interpolant 3e-2 m off the constraints, and 2.6e-4 m off along them after the
         projection).  There the output is integrated to instead (:meth:`_integrate_to`).
         The test costs nothing where the first Newton step already reaches the projection
-        tolerance, as on smooth motions; the step's own end is never affected."""
+        tolerance, as on smooth motions; the step's own end is never affected.  In a tangent
+        step the sample is completed at fixed v = C q as the step's stages are; where that
+        moves q by more than tangent.BRANCH_JUMP tolerances the interpolant is off the
+        constraints by that much (on the four cranks at rtol 2e-11, 2.5e-3 s from a flat
+        position: 5.9e-5 m off, an output 1.2e-4 m off with the step's ends right), and the
+        quintic Hermite interpolant of the step's ends (q, qd, qdd: fifth order; as gcp's
+        fallback) is completed instead (1.4e-11 m there); an integration to the output (a
+        new run of this class from the step's start, which next to the change point crawls
+        towards it) is the last resort."""
         out = super()._dense_output_impl()
         if not self.project:
             return out
@@ -341,22 +402,34 @@ class Index1(RungeKuttaIntegrator):
         last = {"t": t0, "y": y0, "h": None}  # last state known to the step's accuracy
 
         tangent_step = self._step_tangent
+        K0 = self._dense_args[4][0]  # y' at the step's start
+        hermite5 = quintic_hermite((t0, y0[:n], y0[n:2 * n], K0[n:2 * n]),
+                                   (self.t, self.y[:n], self.y[n:2 * n], self.f[n:2 * n]))
+
+        def completed(t, q, qd):  # None: no completion, or one onto the other branch
+            try:
+                qp, qdp, _ = self._tangent_complete(t, q, qd)
+            except StageFailure:
+                return None
+            return (qp, qdp) if rms_norm(qp - q, scale) <= tangent.BRANCH_JUMP else None
 
         def projected(t):
             q, qd, w = out(t)
             if tangent_step:  # as the step's stages and end (_tangent_accept)
-                qp, qdp, _ = self._tangent_complete(t, q, qd)
-                return qp, qdp, w
-            try:
-                qp, qdp = self._project(t, q, qd)
-            except StageFailure:
-                qp = None
-            if qp is not None and rms_norm(qp - q, scale) > 1.0:
-                q1 = s.project_positions(q, t, tol=self.proj_tol, max_iter=1)[0]
-                if rms_norm(qp - q1, scale) > 1.0:
+                done = completed(t, q, qd) or completed(t, hermite5(t), hermite5(t, 1))
+                if done is not None:
+                    return done[0], done[1], w
+            else:
+                try:
+                    qp, qdp = self._project(t, q, qd)
+                except StageFailure:
                     qp = None
-            if qp is not None:
-                return qp, qdp, w
+                if qp is not None and rms_norm(qp - q, scale) > 1.0:
+                    q1 = s.project_positions(q, t, tol=self.proj_tol, max_iter=1)[0]
+                    if rms_norm(qp - q1, scale) > 1.0:
+                        qp = None
+                if qp is not None:
+                    return qp, qdp, w
             y = self._integrate_to(t, last)
             return y[:n], y[n:2 * n], float(y[-1])
 
@@ -370,6 +443,11 @@ class Index1(RungeKuttaIntegrator):
         n = self.n
         opt = dict(self.options, h0=last["h"] or self.h_last or None)
         sub = type(self)(self.system, t_s, y_s[:n], y_s[n:2 * n], t, opt)
+        if sub.tangent_pivot == 0.0 < self.tangent_pivot:
+            # a start next to the change point, where a new run keeps the Schur path: this
+            # run's tangent steps (the start is on its branch)
+            sub.tangent_pivot = self.tangent_pivot
+            sub._approach = sub._new_approach()
         while sub.t < t:
             ok, msg = sub.step()
             if not ok:

@@ -35,8 +35,15 @@ class Tableau:
     embedded = True  # has an error estimate (False: fixed step only)
 
     @classmethod
-    def error_norm(cls, K, h, scale):
-        return rms_norm(h * (K.T @ cls.E)[: scale.size], scale)
+    def error_norm(cls, K, h, scale, noise=None):
+        """The scaled norm of the embedded error estimate h K^T E; with ``noise`` (per
+        component, the round-off of one stage derivative, independent between stages) the
+        part of the estimate that this noise alone can make, h |E|_2 noise, is taken off
+        each component first."""
+        est = h * (K.T @ cls.E)[: scale.size]
+        if noise is not None:
+            est = np.maximum(np.abs(est) - h * np.linalg.norm(cls.E) * noise, 0.0)
+        return rms_norm(est, scale)
 
     @classmethod
     def dense(cls, fun, t0, h, y0, y1, K):
@@ -90,10 +97,16 @@ class Dop853(Tableau):
     C_EXTRA = dop.C[dop.N_STAGES + 1:]
 
     @classmethod
-    def error_norm(cls, K, h, scale):
+    def error_norm(cls, K, h, scale, noise=None):
+        """Hairer's combination of the 5th- and 3rd-order estimates; ``noise`` as in
+        :meth:`Tableau.error_norm`, taken off each."""
         n = scale.size
-        err5 = (K.T @ cls.E5)[:n] / scale
-        err3 = (K.T @ cls.E3)[:n] / scale
+        err5 = (K.T @ cls.E5)[:n]
+        err3 = (K.T @ cls.E3)[:n]
+        if noise is not None:
+            err5 = np.maximum(np.abs(err5) - np.linalg.norm(cls.E5) * noise, 0.0)
+            err3 = np.maximum(np.abs(err3) - np.linalg.norm(cls.E3) * noise, 0.0)
+        err5, err3 = err5 / scale, err3 / scale
         e5, e3 = float(err5 @ err5), float(err3 @ err3)
         if e5 == 0 and e3 == 0:
             return 0.0
