@@ -229,8 +229,7 @@ def clear_step(c, d, lo, hi):
     h sum |c h - d|^-3, chose steps that a 70 % error in d, as the four cranks' ratio gives
     one step before the point, put next to it: rk4 at 0.25 ms ended 7e-3 m off, where this
     choice leaves 4e-10 m; at 0.3 ... 0.1 ms 2e-10 ... 8e-9 m, without moving the steps
-    up to 1.2e-3 m.)  c: the stage times (:func:`stage_times`; an implicit one-step method's
-    are its start and end, 0 and 1)."""
+    up to 1.2e-3 m.)  c: the stage times (:func:`stage_times`)."""
     h = np.concatenate([d / (0.5 * (c[1:] + c[:-1])), [lo, hi]])
     h = np.sort(h[(h >= lo) & (h <= hi)])
     clear = np.abs(np.outer(h, c) - d).min(axis=1)
