@@ -19,6 +19,9 @@ MIN_FACTOR = 0.2  # largest decrease of the step after a rejected step
 MAX_FACTOR = 5.0  # largest increase after an accepted step
 MAX_REJECTS = 100  # rejected trials in a row before a step loop gives up (no progress)
 STALL_FLOOR = 1e-11  # an accepted step below this x max(1, |t|) makes no real progress
+# round-off of q: |Phi| at a converged Newton iterate is 0.5-1 ulp of max(1, |q|) (measured);
+# generalized-alpha's Newton test and the round-off probes of genalpha and index-1 use it
+ROUNDOFF_ULPS = 4
 STALL_STEPS = 200  # ... and that many of them in a row is a stall
 
 

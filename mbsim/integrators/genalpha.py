@@ -33,10 +33,9 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from mbsim.integrators.base import MAX_REJECTS, Integrator, hermite, rms_norm
+from mbsim.integrators.base import MAX_REJECTS, ROUNDOFF_ULPS, Integrator, hermite, rms_norm
 
 
-ROUNDOFF_ULPS = 4  # |Phi| at a converged iterate is 0.5-1 ulp of max(1, |q|) (measured)
 KKT_REG = 1e-10  # relative regularisation of the Newton matrix's zero block (see below)
 
 

@@ -61,14 +61,14 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim.integrators import tangent
-from mbsim.integrators.base import NUMERICAL_ERRORS, quintic_hermite, rms_norm
+from mbsim.integrators.base import (NUMERICAL_ERRORS, ROUNDOFF_ULPS, quintic_hermite,
+                                   rms_norm)
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
 
 TANGENT_PIVOT = 1e-5  # adaptive runs at tight tolerances (tangent_pivot)
 TANGENT_FLOOR = 1e-8  # adaptive runs at any tolerance: a motion that dwells near a change point
 TANGENT_PIVOT_FIXED = 1e-6  # fixed steps
-ROUNDOFF_ULPS = 4  # the round-off probe's perturbation of q (as generalized-alpha's)
 NOISE_ERR = 0.1  # tangent steps whose error norm exceeds this are probed for round-off
 NOISE_RATIO = 1e-10  # ... unless a stage's Schur pivot ratio was below this (_stage_noise)
 NOISE_STEP = 1e-2  # steps cut below this x a passage's first tangent step: the q part is noise
@@ -405,9 +405,11 @@ class Index1(RungeKuttaIntegrator):
         last = {"t": t0, "y": y0, "h": None}  # last state known to the step's accuracy
 
         tangent_step = self._step_tangent
-        K0 = self._dense_args[4][0]  # y' at the step's start
-        hermite5 = quintic_hermite((t0, y0[:n], y0[n:2 * n], K0[n:2 * n]),
-                                   (self.t, self.y[:n], self.y[n:2 * n], self.f[n:2 * n]))
+        hermite5 = None
+        if tangent_step:  # the fallback interpolant of a tangent step's outputs (doc above)
+            K0 = self._dense_args[4][0]  # y' at the step's start
+            hermite5 = quintic_hermite((t0, y0[:n], y0[n:2 * n], K0[n:2 * n]),
+                                       (self.t, self.y[:n], self.y[n:2 * n], self.f[n:2 * n]))
 
         def completed(t, q, qd):  # None: no completion, or one onto the other branch
             try:
