@@ -289,6 +289,8 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         write_result(result, out)
     except MbsimError as exc:
         _fail(exc, deck)
+    if not quiet:
+        _warn(result.summary.get("warnings", ()))  # standard error, as cli.md says
     if make_plot:
         _default_plot(result, out.with_suffix(".png"), quiet)
     if not quiet:
@@ -346,6 +348,8 @@ def _summary(result, out) -> None:
         _linear_table(result)
         return
     for k, v in result.summary.items():
+        if k == "warnings":  # on standard error already
+            continue
         if k in ("error_estimate", "accuracy") and isinstance(v, dict):
             click.echo(f"  {k}: {_describe_estimate(k, v)}")
             continue

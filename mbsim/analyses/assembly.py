@@ -4,7 +4,8 @@ The minimum-norm Newton step dq = -Phi_q^+ Phi works for any DOF (Haug Sec. 4.5 
 square case); Euler parameters are renormalised after each step (the normalisation rows
 make that a no-op at convergence).  Redundant rows are found by a rank-revealing QR and
 reported by joint name: consistent redundancy is a warning (the rows are dropped by the
-analyses that need a full-rank Phi_q), a conflict is an error.
+analyses that need a full-rank Phi_q), a conflict is an error naming the drivers and joints
+involved (:mod:`mbsim.analyses.redundancy`).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mbsim import equations as eq
+from mbsim.analyses import redundancy
 from mbsim.analyses.common import rank_and_redundant, singular_rows
 from mbsim.errors import ConvergenceError, DeckError, ModelError, SingularJacobianError
 
@@ -222,29 +224,30 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembl
         q, its, res = newton(model, q0, t, tol, max_iter, hold=hold_idx)
     except (ConvergenceError, SingularJacobianError) as exc:
         # A rank-deficient Phi_q where Newton stalls means constraints that contradict
-        # each other: name them rather than only the residuals.
+        # each other: name them (drivers first) rather than only the residuals.
         qs = normalize_q(model, q0)
-        J = eq.phi_q(model, qs, t)
-        rank, red = rank_and_redundant(model, J)
+        T = eq.constraints(model, qs, t)
+        rank, red = rank_and_redundant(model, T.jac)
         if red.size:
-            names = culprits(model, red)
-            raise ModelError(f"{exc}; Phi_q is rank deficient (rank {rank} of {model.m} rows), "
-                             f"conflicting or redundant: {', '.join(names)}", tuple(names)) from exc
+            act = np.setdiff1d(np.arange(model.m), red)
+            C = redundancy.dependency(T.jac, red, act)
+            k = int(np.argmax(np.abs(T.phi[red])))
+            names = redundancy.conflict_items(model, C, red, act, k)
+            raise ModelError(
+                f"{redundancy.conflict_message(model, names, 'position', abs(T.phi[red][k]))} "
+                f"at the deck's estimates (Phi_q rank {rank} of {model.m} rows); {exc}",
+                tuple(names)) from exc
         raise _with_loop(model, exc) from None
     log.info("assembly at t = %g s: %d Newton iteration(s) from the estimates, max |Phi| = "
              "%.3g", t, its, res)
-    J = eq.phi_q(model, q, t)
-    rank, red = rank_and_redundant(model, J)
+    T = eq.constraints(model, q, t)
+    rank, red = rank_and_redundant(model, T.jac)
     warnings = []
     active = np.setdiff1d(np.arange(model.m), red)
     red_items = culprits(model, red) if red.size else []
     if red.size:
-        # Consistent redundancy: Phi still vanishes after solving with the independent rows.
-        qa, _, _ = newton(model, q, t, tol, max_iter, rows=active)
-        resid = np.abs(eq.phi(model, qa, t)[red]).max()
-        if resid > 1e3 * tol:
-            raise ModelError(f"conflicting constraints: {', '.join(red_items)} "
-                             f"(residual {resid:.3g} once the others hold)", tuple(red_items))
+        redundancy.check(model, T.jac, red, active, t, phi=T.phi, tol=tol, start=True)
         warnings.append(f"redundant constraints removed: {', '.join(red_items)} "
-                        f"({red.size} equation(s): {', '.join(model.row_label[r] for r in red)})")
+                        f"({red.size} equation(s): {', '.join(model.row_label[r] for r in red)})"
+                        f"; checked consistent at t = {t:g} s")
     return Assembly(q, its, res, rank, red, red_items, active, model.nq - rank, warnings)

@@ -275,13 +275,41 @@ def _single_run(model, opt, progress=None):
 
 
 def _output_row(model, system, t, q, qd):
-    """(qdd, lam over all rows, max |Phi|, max |Phi_q qd - nu|) at one output."""
+    """(qdd, lam over all rows, Phi (m,), Phi_q qd - nu (m,)) at one output."""
     try:
         qdd, lam, _ = system.accelerations(q, qd, t)
     except NUMERICAL_ERRORS:  # exactly at a singular position: least squares
         qdd, lam = _accelerations_lstsq(model, system, q, qd, t)
-    pv, vv = system.violations(q, qd, t)
-    return qdd, system.full_lam(lam), pv, vv
+    ph, v = system.residuals(q, qd, t)
+    return qdd, system.full_lam(lam), ph, v
+
+
+def _dropped_rows_conflict(model, system, t, q, ph, tol, cache):
+    """The message of a conflict when the rows this system dropped as redundant do not hold
+    where its active rows do (mbsim.analyses.redundancy: |Phi[red]| within (1 + |C|) x
+    POSITION_FACTOR x the larger of the active rows' violation and the Newton tolerance),
+    else None.  ``cache``: {id(system): (red, C row norms)}, C found once per row set."""
+    from mbsim.analyses import redundancy
+
+    rows = system.rows
+    if rows.size == model.m:
+        return None
+    key = id(system)
+    if key not in cache:
+        red = np.setdiff1d(np.arange(model.m), rows)
+        C = redundancy.dependency(_jac(model, q, t), red, rows)
+        cache[key] = (red, C, np.abs(C).sum(axis=1))
+    red, C, cnorm = cache[key]
+    level = max(float(np.abs(ph[rows]).max(initial=0.0)), tol)
+    bound = (1.0 + cnorm) * redundancy.POSITION_FACTOR * level
+    r = np.abs(ph[red])
+    if np.all(r <= bound):
+        return None
+    k = int(np.argmax(r / bound))
+    items = redundancy.conflict_items(model, C, red, rows, k)
+    return (f"t = {t:.6g} s: " + redundancy.conflict_message(model, items, "position", r[k])
+            + f" (the other rows hold to {level:.3g}): the redundant constraints conflict "
+            f"here, the motion cannot go on consistently")
 
 
 def _build_result(model, prep, opt, tr, est):
@@ -294,10 +322,12 @@ def _build_result(model, prep, opt, tr, est):
     rec = Recorder(model)
     lam, pos, vel = [], [], []
     n = len(tr)
+    dropped: dict = {}
+    conflict = None
     try:
         for k in range(n):
             try:
-                qdd, la, pv, vv = _output_row(model, tr.systems[k], tr.t[k], tr.q[k], tr.qd[k])
+                qdd, la, ph, v = _output_row(model, tr.systems[k], tr.t[k], tr.q[k], tr.qd[k])
             except NUMERICAL_ERRORS as exc:
                 if k == 0:
                     raise DeckError(f"the equations of motion cannot be solved at t_start = "
@@ -305,9 +335,14 @@ def _build_result(model, prep, opt, tr, est):
                 status, message = STATUS_INCOMPLETE, (f"t = {tr.t[k]:.6g} s: evaluating the "
                                                       f"outputs failed: {exc}")
                 break
+            conflict = _dropped_rows_conflict(model, tr.systems[k], tr.t[k], tr.q[k], ph,
+                                              float(opt["tol"]), dropped)
+            if conflict is not None:  # the outputs before it are right; this one is not
+                status, message = STATUS_INCOMPLETE, conflict
+                break
             lam.append(la)
-            pos.append(pv)
-            vel.append(vv)
+            pos.append(float(np.abs(ph).max(initial=0.0)))
+            vel.append(float(np.abs(v).max(initial=0.0)))
             rec.add(tr.t[k], tr.q[k], tr.qd[k], qdd)
     except KeyboardInterrupt:  # Ctrl-C while the outputs are evaluated: keep those done
         status = STATUS_INCOMPLETE
@@ -315,7 +350,7 @@ def _build_result(model, prep, opt, tr, est):
     n = len(rec)
     if n < len(tr):
         tr.trim(n)
-    if not tr.complete and not tr.interrupted:
+    if not tr.complete and not tr.interrupted and conflict is None:
         message = _explain(model, run.system, run.solver, message)
     res = rec.result("dynamic")
     if n:

@@ -29,6 +29,7 @@ import numpy as np
 import scipy.linalg as la
 
 from mbsim import equations as eq
+from mbsim.analyses import redundancy
 from mbsim.analyses.assembly import assemble
 from mbsim.rotations import A as rot_A
 from mbsim.rotations import E as rot_E
@@ -172,6 +173,11 @@ def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10):
         qdd, lam_a = _accelerations_on(model, q, qd, t0, active)
         lam = np.zeros(model.m)
         lam[active] = lam_a
+        # the dropped rows must hold at velocity and acceleration level too (a driver that
+        # over-determines the mechanism holds at the assembled position only)
+        T = eq.constraints(model, q, t0, qd=qd, phi=False, gamma=True, nu=True)
+        redundancy.check(model, T.jac, asm.redundant_rows, active, t0, qd=qd, nu=T.nu,
+                         qdd=qdd, gamma=T.gamma, start=True)
     return q, qd, qdd, lam, info
 
 

@@ -134,10 +134,10 @@ def inverse(model, options=None) -> Result:
             c = res.channel("constraints/condition").data
             summary["condition_max"] = float(np.max(c))
             summary["condition_max_time"] = float(res.t[int(np.argmax(c))])
-    if asm.redundant_items:
-        summary["warnings"] = asm.warnings + [
-            "reactions of redundant constraints are not unique: their rows carry lam = 0 ("
-            + ", ".join(asm.redundant_items) + ")"]
+    if asm.redundant_items:  # one line: the rows removed, and what that means for lam
+        summary["warnings"] = [
+            "; ".join(asm.warnings) + "; their reactions are not unique (their rows carry "
+            "lam = 0, the others carry the load)"]
     res.summary = summary
     res.status, res.message = status, message
     res.settings = {k: (float(v) if isinstance(v, (int, float)) else v) for k, v in opt.items()}

@@ -285,10 +285,15 @@ class System:
         self._jac_times(self.c.ptr, fc._qd.ctypes.data, self._v.ctypes.data)
         return self._v - fc.nu_all
 
+    def residuals(self, q, qd, t):
+        """(Phi, Phi_q qd - nu): (m,) each, over all rows (copies)."""
+        v = self._velocity_residual(q, qd, t)
+        return self.fc.phi_all.copy(), v.copy()
+
     def violations(self, q, qd, t):
         """(max |Phi|, max |Phi_q qd - nu|) over all rows."""
-        v = self._velocity_residual(q, qd, t)
-        return float(np.abs(self.fc.phi_all).max(initial=0.0)), float(np.abs(v).max(initial=0.0))
+        ph, v = self.residuals(q, qd, t)
+        return float(np.abs(ph).max(initial=0.0)), float(np.abs(v).max(initial=0.0))
 
     def energy(self, q, qd):
         """(T, V): kinetic and potential energy (Haug eq. 11.x)."""
