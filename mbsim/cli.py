@@ -328,12 +328,16 @@ class _sigterm_as_interrupt:  # noqa: N801 - used as a statement: `with _sigterm
 def _describe_estimate(key, v) -> str:
     """One line for the dynamic analysis' error estimate or accuracy choice."""
     if key == "accuracy":
-        met = "met" if v.get("met") else "NOT met"
         step = f", h = {v['h']:.3g} s" if v.get("h") else f", rtol = atol = {v['rtol']:.3g}"
-        return (f"requested {v['requested']:.3g} (m, rad): {v['integrator']}{step}; estimated "
-                f"{v['estimate']:.3g}, {met}; {v['runs']} run(s), {v['cpu']:.3g} CPU s in all")
+        if v.get("estimate") is None or not np.isfinite(v["estimate"]):
+            verdict = f"no estimate covers the run ({v.get('reason', 'not computed')}), NOT met"
+        else:
+            verdict = f"estimated {v['estimate']:.3g}, {'met' if v.get('met') else 'NOT met'}"
+        fallback = f"; {v['fallback']}" if v.get("fallback") else ""
+        return (f"requested {v['requested']:.3g} (m, rad): {v['integrator']}{step}; {verdict}; "
+                f"{v['runs']} run(s), {v['cpu']:.3g} CPU s in all{fallback}")
     if v.get("position") is None:
-        return str(v.get("method", "not available"))
+        return f"none: {v.get('reason') or v.get('method', 'not available')}"
     note = f"; {v['note']}" if v.get("note") else ""
     return (f"position {v['position']:.3g} m, orientation {v['orientation']:.3g} rad, "
             f"velocity {v['velocity']:.3g} m/s ({v['method']}; +{100 * v['relative_cost']:.0f} % "

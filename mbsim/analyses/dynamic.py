@@ -158,8 +158,7 @@ def dynamic(model, options=None):
     # states), so numpy's RuntimeWarning lines would only be noise on stderr
     with np.errstate(all="ignore"):
         if opt.get("accuracy") is not None:
-            explicit = {k for k in ("integrator", "h") if k in given or k in deck_opt}
-            res = _accuracy_run(model, opt, progress, explicit)
+            res = _accuracy_with_fallback(model, opt, progress, given, deck_opt)
         else:
             res = _single_run(model, opt, progress)
     res.wall_time = _time.perf_counter() - wall0
@@ -394,7 +393,10 @@ def _build_result(model, prep, opt, tr, est):
                                      if k != "channels" and not k.startswith("_")}
         for name, data, unit, desc in _error_channels(est, len(prep.times), n):
             res.add(name, data, unit, desc)
-        if est.get("position") is not None:
+        if est.get("position") is None:  # no estimate: NaN, and why, in the file
+            res.attrs["error_estimate"] = math.nan
+            res.attrs["error_estimate_reason"] = str(est.get("reason") or est.get("method"))
+        else:
             res.attrs["error_estimate"] = float(est["position"])
             Qa = np.array(tr.q).reshape(n, model.nb, 7)[:, :, :3]
             span = float(np.max(np.ptp(Qa, axis=0), initial=0.0))
@@ -546,41 +548,118 @@ def _companion_options(cls, opt):
 def _estimate(model, prep, opt, tr, companion=None):
     """The global error estimate of the run ``tr`` (module doc): a companion integration
     (or the given one, a Trajectory at the companion's options) and the differences at the
-    output times.  Returns a dict for the summary, with the companion as ``_companion``."""
+    output times.  Returns a dict for the summary, with the companion as ``_companion``.
+
+    An estimate covers every output of the run or it is none: a companion that stops
+    before the run's last output (where the run went on) is integrated again with another
+    method (:func:`_fallback_companion`); if that stops too, the dict has ``position`` None
+    and the ``reason``, and no partial figures."""
     cpu0 = _time.process_time()
     copt, factor, method = _companion_options(prep.cls, opt)
     times = np.asarray(tr.t, float)
     spent = 0.0  # CPU of a companion computed before (a promoted run's: its own)
     if companion is None:
-        limit = min(int(opt["max_steps"]),
-                    ESTIMATE_STEPS * int(tr.run.all_counters().get("steps", 0)) + 100)
+        limit = _companion_step_limit(opt, tr)
         try:
             run = Stepper(model, prep.cls, copt, float(times[0]), prep.q0.copy(),
                           prep.qd0.copy(), float(times[-1]), prep.rows)
+            companion = _trajectory(run, times, prep.q0, prep.qd0, limit)
         except NUMERICAL_ERRORS as exc:
-            return {"method": f"{method}: could not start ({exc})",
-                    "cpu": _time.process_time() - cpu0}
-        companion = _trajectory(run, times, prep.q0, prep.qd0, limit)
+            companion = _failed_trajectory(times, f"could not start ({exc})")
         if companion.interrupted:
-            return {"method": "interrupted (Ctrl-C) before it finished",
-                    "cpu": _time.process_time() - cpu0}
+            return {"method": method, "position": None, "cpu": _time.process_time() - cpu0,
+                    "reason": "the companion run was interrupted (Ctrl-C) before it finished"}
     else:
         spent = companion.cpu
+    first = None
+    if len(companion) < len(tr):  # stopped where the run did not: another method
+        first = companion.message or "it stopped early"
+        alt = _fallback_companion(model, prep, opt, tr)
+        if alt is not None:
+            companion, copt, factor, method = alt
+            method += f" (the companion at the run's method stopped: {first})"
     n = min(len(companion), len(tr))
+    out = {"method": method, "cpu": spent + _time.process_time() - cpu0,
+           "steps": int(companion.run.all_counters()["steps"]) if companion.run else 0,
+           "_companion": companion, "_copt": copt}
+    if n < len(tr):
+        out["position"] = None
+        out["reason"] = (f"the companion run stopped at t = "
+                         f"{times[n - 1] if n else times[0]:.6g} s before the run's last "
+                         f"output t = {times[len(tr) - 1]:.6g} s ({companion.message or first})"
+                         "; an estimate that does not cover the run is not given")
+        log.info("error estimate: none (%s)", out["reason"])
+        return out
     err = state_differences(model, np.array(tr.q[:n]), np.array(tr.qd[:n]),
                             np.array(companion.q[:n]), np.array(companion.qd[:n]))
-    out = {"method": method, "cpu": spent + _time.process_time() - cpu0,
-           "steps": int(companion.run.all_counters()["steps"]), "_companion": companion,
-           "_copt": copt}
-    if not companion.complete or n < len(tr):
-        out["note"] = (f"companion run stopped early ({companion.message}); estimate up to "
-                       f"t = {times[n - 1]:.6g} s")
     out["channels"] = {key: factor * err[key] for key in ERROR_UNITS}
     for key in ERROR_UNITS:
         out[key] = float(np.max(out["channels"][key]))
     log.info("error estimate: position %.3g m, orientation %.3g rad (%s)", out["position"],
              out["orientation"], method)
     return out
+
+
+def _companion_step_limit(opt, tr):
+    return min(int(opt["max_steps"]),
+               ESTIMATE_STEPS * int(tr.run.all_counters().get("steps", 0)) + 100)
+
+
+def _failed_trajectory(times, message):
+    tr = Trajectory()
+    tr.status, tr.message = STATUS_INCOMPLETE, f"t = {times[0]:.6g} s: {message}"
+    return tr
+
+
+FALLBACK_COMPANIONS = ("projection-dop853", "gcp-dop853", "projection", "gcp-rk45")
+"""Other methods tried, in this order, for a companion whose run's own method stopped early
+(after the run's method at rtol/2): the default first (index-1 with projection: no partition
+to lose near a singular position), then the other formulation of the same order, then the
+lower-order pairs, each at FALLBACK_TIGHTER x the companion's tolerance."""
+FALLBACK_TIGHTER = 1e-2
+"""Another method's error at the same tolerance is not the run's method's: on the governor
+at rtol 1e-6 projection-dop853 is 1.1e-11 m off, gcp-dop853 7.3e-9 m and Dormand-Prince 5(4)
+2.9e-9 m.  At 100x the companion's tolerance (error ~ rtol for these tolerance-proportional
+methods) their own error is at most about the run's, so the difference bounds the run's
+error within a factor of about 2 rather than measuring the companion."""
+FALLBACK_RATIO = 2.0
+"""The run's own method is tried again at rtol/2 first: a companion that failed for being
+too tight (h_min near round-off) often passes there.  Its difference is (1 - 2^-kappa) of
+the run's error, so it is multiplied by 1/(1 - 2^-kappa) (2 for kappa = 1)."""
+
+
+def _fallback_companion(model, prep, opt, tr):
+    """(trajectory, options, factor, description) of a companion that reaches every output
+    of ``tr`` when the first one stopped: the run's method at rtol/FALLBACK_RATIO, then the
+    FALLBACK_COMPANIONS at FALLBACK_TIGHTER x the companion's tolerance; None when none
+    does.  Only for error-controlled runs: a fixed-step run's companion is its own method at
+    h/2 (Richardson), which another method cannot replace."""
+    if opt.get("h") is not None or not prep.cls.adaptive:
+        return None
+    copt, _, _ = _companion_options(prep.cls, opt)
+    kappa = prep.cls.tolerance_exponent
+    tries = [(prep.cls, dict(copt, rtol=float(opt["rtol"]) / FALLBACK_RATIO,
+                             atol=float(opt["atol"]) / FALLBACK_RATIO),
+              1.0 / (1.0 - FALLBACK_RATIO ** -kappa))]
+    tighter = dict(copt, rtol=max(copt["rtol"] * FALLBACK_TIGHTER, 2.5e-14),
+                   atol=max(copt["atol"] * FALLBACK_TIGHTER, 1e-300))
+    tries += [(INTEGRATORS[n], tighter, 1.0) for n in FALLBACK_COMPANIONS
+              if INTEGRATORS[n] is not prep.cls]
+    times = np.asarray(tr.t, float)
+    for cls, o, factor in tries:
+        try:
+            run = Stepper(model, cls, o, float(times[0]), prep.q0.copy(), prep.qd0.copy(),
+                          float(times[-1]), prep.rows)
+            comp = _trajectory(run, times, prep.q0, prep.qd0, _companion_step_limit(opt, tr))
+        except NUMERICAL_ERRORS:
+            continue
+        if comp.interrupted:
+            return None
+        if len(comp) >= len(tr):
+            how = f", times {factor:.3g}" if factor != 1.0 else ""
+            return comp, o, factor, (f"companion run with {cls.name} at rtol {o['rtol']:.3g}, "
+                                     f"atol {o['atol']:.3g}{how}")
+    return None
 
 
 def _error_channels(est, nt, n):
@@ -634,6 +713,36 @@ def state_differences(model, Q, QD, Qc, QDc):
     return {"position": pos, "orientation": ori, "velocity": vel, "angular_velocity": angv}
 
 
+def _accuracy_with_fallback(model, opt, progress, given, deck_opt):
+    """``accuracy``: the deck's integrator is a preference, one asked for by the caller
+    (``--integrator``, the API's options) a requirement.  When the preferred method cannot
+    deliver (the run stops, or no estimate covers it, or the request is missed), the
+    default method is tried and the better of the two kept, saying so."""
+    explicit = {k for k in ("integrator", "h") if k in given or (k == "h" and k in deck_opt)}
+    res = _accuracy_run(model, opt, progress, explicit)
+    acc = res.summary["accuracy"]
+    name = str(opt["integrator"])
+    if ("integrator" in explicit or acc["met"] or acc.get("interrupted")
+            or INTEGRATORS.get(ALIASES.get(name, name)) is INTEGRATORS[DEFAULT]):
+        return res
+    why = (res.message if not res.complete else acc.get("reason")
+           or f"estimated {acc['estimate']:.3g} after {acc['runs']} run(s)")
+    log.info("accuracy: the deck's integrator %s did not deliver (%s); trying %s", name, why,
+             DEFAULT)
+    alt = _accuracy_run(model, dict(opt, integrator=DEFAULT, h=None), progress, set())
+    alt_acc = alt.summary["accuracy"]
+    better = alt_acc["met"] or (alt.complete and not res.complete) or (
+        alt.complete and math.isfinite(alt_acc["estimate"])
+        and not alt_acc["estimate"] >= acc["estimate"])
+    if not better:
+        return res
+    alt_acc["fallback"] = (f"the deck's integrator {name} could not deliver it ({why}); "
+                           f"{DEFAULT} used instead")
+    alt_acc["cpu"] += acc["cpu"]
+    alt.summary.setdefault("warnings", []).append(f"--accuracy: {alt_acc['fallback']}")
+    return alt
+
+
 def _accuracy_run(model, opt, progress, explicit):
     """``accuracy`` = TOL: the run whose estimated position (m) and orientation (rad) errors
     are at most TOL.
@@ -660,7 +769,8 @@ def _accuracy_run(model, opt, progress, explicit):
     history, cpu, est, companion = [], prep.cpu, None, None
     while len(tr) >= 2 and not tr.interrupted:
         est = _estimate(model, prep, opt, tr, companion)
-        e = max(est.get("position") or 0.0, est.get("orientation") or 0.0)
+        e = (math.nan if est.get("position") is None
+             else max(est["position"], est["orientation"]))
         cpu += tr.cpu + est.get("cpu", 0.0)
         history.append({"rtol": float(opt["rtol"]), "atol": float(opt["atol"]),
                         "h": opt.get("h"), "estimate": e, "status": tr.status,
@@ -689,14 +799,23 @@ def _accuracy_run(model, opt, progress, explicit):
     if est is not None:
         est = {k: v for k, v in est.items() if not k.startswith("_")}
     res = _build_result(model, prep, opt, tr, est)
-    e = history[-1]["estimate"] if history else math.inf
+    e = history[-1]["estimate"] if history else math.nan
+    # met: the run reached t_end and an estimate covering all of it is within the request
+    met = bool(res.complete and e <= tol)
     res.summary["accuracy"] = {
         "requested": tol, "integrator": cls.name, "rtol": float(opt["rtol"]),
         "atol": float(opt["atol"]), "h": opt.get("h"), "runs": len(history),
-        "estimate": e, "met": bool(e <= tol), "cpu": cpu, "history": history}
-    if res.complete and e > tol:
+        "estimate": e, "met": met, "cpu": cpu, "history": history,
+        "interrupted": bool(tr.interrupted)}
+    if not math.isfinite(e):
+        why = (est or {}).get("reason") or (est or {}).get("method") or "no run to compare"
+        res.summary["accuracy"]["reason"] = str(why)
+    if res.complete and not met:
         res.summary.setdefault("warnings", []).append(
-            f"accuracy {tol:g} not reached: estimated error {e:.3g} after {len(history)} runs")
+            f"accuracy {tol:g} not reached: estimated error {e:.3g} after {len(history)} runs"
+            if math.isfinite(e) else
+            f"accuracy {tol:g} not checked: no error estimate covers the run "
+            f"({res.summary['accuracy']['reason']})")
     res.settings["accuracy"] = tol
     return res
 

@@ -1,0 +1,157 @@
+"""The error estimate covers the whole run or it is none; --accuracy says `met` only then.
+
+The companion run is made to stop (Ctrl-C, or a step failure at its first step) by wrapping
+Stepper.step for the runs at the companion's tolerance only: the main run is untouched, so
+every figure here is compared with an undisturbed run of the same deck.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from mbsim.analyses import dynamic as dyn
+from mbsim.analyses.inverse import states_from_result
+from mbsim.api import load_model, run_model
+from mbsim.output import write_result
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+RTOL = 1e-6
+OPTIONS = {"t_end": 0.2, "step": 0.01, "rtol": RTOL}
+
+
+@pytest.fixture(scope="module")
+def governor():
+    return load_model(MODELS / "governor.yaml")[1]
+
+
+def stop_companions(monkeypatch, how, methods=None):
+    """Companion runs of ``methods`` (class names; None: all) stop at their first step:
+    ``how`` 'interrupt' raises KeyboardInterrupt (Ctrl-C), 'fail' returns a step failure as
+    an integrator does.  Companions are told apart by a mark on their options."""
+    options, step = dyn._companion_options, dyn.Stepper.step
+
+    def marked(cls, opt):
+        copt, factor, method = options(cls, opt)
+        return dict(copt, test_companion=True), factor, method
+
+    def stopping(self):
+        if self.opt.get("test_companion") and (methods is None or self.cls.name in methods):
+            if how == "interrupt":
+                raise KeyboardInterrupt
+            return False, f"t = {self.solver.t:.6g} s: step size fell below h_min (test)"
+        return step(self)
+
+    monkeypatch.setattr(dyn, "_companion_options", marked)
+    monkeypatch.setattr(dyn.Stepper, "step", stopping)
+
+
+def test_interrupted_companion_gives_no_estimate(governor, monkeypatch, tmp_path):
+    stop_companions(monkeypatch, "interrupt")
+    res = run_model(governor, "dynamic", dict(OPTIONS))
+    assert res.complete  # the run itself reached t_end
+    est = res.summary["error_estimate"]
+    assert est["position"] is None and "interrupted" in est["reason"]
+    assert not any(k.startswith("error/") for k in res.channels)
+    out = tmp_path / "g.h5"
+    write_result(res, out)
+    with h5py.File(out) as f:
+        assert math.isnan(f.attrs["error_estimate"])
+        assert "interrupted" in str(f.attrs["error_estimate_reason"])
+
+
+def test_interrupted_companion_never_says_met(governor, monkeypatch):
+    stop_companions(monkeypatch, "interrupt")
+    res = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6))
+    acc = res.summary["accuracy"]
+    assert acc["met"] is False and math.isnan(acc["estimate"])
+    assert "interrupted" in acc["reason"]
+
+
+@pytest.fixture(scope="module")
+def governor_reference(governor):
+    """The governor over OPTIONS' span at rtol 1e-12 (the run's error is 1.1e-11 m at
+    1e-6: the reference is 1e5 times closer to the truth than that)."""
+    ref = run_model(governor, "dynamic", dict(OPTIONS, rtol=1e-12, atol=1e-14,
+                                              error_estimate=False))
+    return states_from_result(governor, ref)
+
+
+def true_error(model, res, ref):
+    q, qd, _ = states_from_result(model, res)
+    return float(dyn.state_differences(model, q, qd, ref[0], ref[1])["position"].max())
+
+
+@pytest.mark.parametrize("failing, used", [
+    ({"projection-dop853"}, "gcp-dop853"),  # the run's method fails at rtol/5 and rtol/2
+    ({"projection-dop853@5"}, "projection-dop853"),  # fails at rtol/5 only
+])
+def test_companion_failing_at_t0_is_replaced(governor, governor_reference, monkeypatch,
+                                              failing, used):
+    """The run's own companion fails at its first step; another companion reaches every
+    output, and its estimate is honest: within [0.1, 10] of the true error."""
+    step = dyn.Stepper.step
+
+    def stopping(self):  # companions run below the run's rtol; the first at exactly rtol/5
+        name, rtol = self.cls.name, float(self.opt["rtol"])
+        if (name in failing and rtol < RTOL) or (f"{name}@5" in failing
+                                                  and rtol == pytest.approx(RTOL / 5)):
+            return False, f"t = {self.solver.t:.6g} s: step size fell below h_min (test)"
+        return step(self)
+
+    monkeypatch.setattr(dyn.Stepper, "step", stopping)
+    res = run_model(governor, "dynamic", dict(OPTIONS))
+    est = res.summary["error_estimate"]
+    assert est["position"] is not None
+    assert f"with {used} at rtol" in est["method"] and "stopped" in est["method"]
+    err = true_error(governor, res, governor_reference)
+    assert 0.1 <= est["position"] / err <= 10, (est["position"], err)
+    assert any(k.startswith("error/") for k in res.channels)
+
+
+def test_no_companion_reaching_the_end_gives_nan_not_a_partial_figure(governor, monkeypatch,
+                                                                      tmp_path):
+    stop_companions(monkeypatch, "fail")  # every method's companion
+    res = run_model(governor, "dynamic", dict(OPTIONS))
+    est = res.summary["error_estimate"]
+    assert est["position"] is None and "does not cover the run" in est["reason"]
+    assert "orientation" not in est and not any(k.startswith("error/") for k in res.channels)
+    out = tmp_path / "g.h5"
+    write_result(res, out)
+    with h5py.File(out) as f:
+        assert math.isnan(f.attrs["error_estimate"])
+    acc = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6)).summary["accuracy"]
+    assert acc["met"] is False and "does not cover the run" in acc["reason"]
+
+
+def test_accuracy_falls_back_from_the_decks_integrator(governor, monkeypatch):
+    """A deck's integrator is a preference: when it cannot deliver (here every run of it
+    fails at its first step, as gcp-dop853 did at rtol 3e-11 on a seven-body loop), the
+    default does and the summary says so; an integrator asked for by the caller is a
+    requirement: its failure is the result."""
+    original = dyn.Stepper.step
+
+    def step(self):
+        if self.cls.name == "projection":
+            return False, f"t = {self.solver.t:.6g} s: step size fell below h_min (test)"
+        return original(self)
+
+    monkeypatch.setattr(dyn.Stepper, "step", step)
+    spec = governor.spec
+    monkeypatch.setitem(spec.analysis, "dynamic",
+                        dict(spec.analysis.get("dynamic", {}), integrator="projection"))
+    res = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6))
+    acc = res.summary["accuracy"]
+    assert res.complete and acc["integrator"] == dyn.DEFAULT and acc["met"]
+    assert acc["estimate"] <= 1e-6
+    assert "the deck's integrator projection could not deliver" in acc["fallback"]
+    assert any("--accuracy" in w for w in res.summary["warnings"])
+    required = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6,
+                                                   integrator="projection"))
+    assert not required.complete
+    assert required.summary["accuracy"]["integrator"] == "projection"
+    assert required.summary["accuracy"]["met"] is False
