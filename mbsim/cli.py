@@ -376,13 +376,14 @@ def _linear_table(result) -> None:
         click.echo(f"  neutral: {name}")
     lam = result.arrays["linear/eigenvalues"][0]
     neutral = result.arrays["linear/neutral"][0]
+    growing = result.arrays["linear/growing"][0] if "linear/growing" in result.arrays else \
+        np.zeros(len(lam), bool)  # a file written before the mask was stored
     zeta = result.arrays["linear/damping_ratio"][0]
     click.echo("  mode  Re(lambda) 1/s  Im(lambda) rad/s  f_n Hz      omega_n rad/s  zeta")
     for k, lk in enumerate(lam):
         if lk.imag < 0 and not neutral[k]:
             continue  # the conjugate of the line above
-        note = "  neutral" if neutral[k] else ("  growing" if lk.real > 0 and
-                                              s["stability"] == "unstable" else "")
+        note = "  neutral" if neutral[k] else ("  growing" if growing[k] else "")
         wn = 0.0 if neutral[k] else abs(lk)
         click.echo(f"  {k + 1:4d}  {lk.real:14.6g}  {abs(lk.imag):16.6g}  {wn / 2 / np.pi:10.6g}"
                    f"  {wn:13.6g}  {(zeta[k] if abs(zeta[k]) > 1e-9 else 0.0):6.4g}{note}")

@@ -42,7 +42,10 @@ the spin speed a state, so feedback through the speed (the governor's T_s = C dl
 
 Verdict.  Eigenvalues with |lambda| <= ``zero_tol`` * max(1, max |lambda|) are *neutral*
 modes (rigid-body motions, free spins, cyclic coordinates); each is named by the bodies and
-directions it moves.  ``unstable``: some other eigenvalue has Re lambda > ``re_tol`` *
+directions it moves.  Free spins are also recognised from the model's structure
+(:func:`free_spins`: a body's turn about a principal axis that the constraints allow and no
+load depends on) and their eigenvalues set to exactly 0, whatever the finite differences'
+noise divided by a slender body's axial inertia would make of them.  ``unstable``: some other eigenvalue has Re lambda > ``re_tol`` *
 max(1, max |lambda|); else ``neutral`` if there are neutral modes, else ``stable``
 (undamped oscillations, Re = 0, count as stable: bounded).  ``stable`` = not unstable.
 Frequencies: omega_n = |lambda| (rad/s), f = omega_n / 2 pi (Hz), omega_d = |Im lambda|;
@@ -172,6 +175,99 @@ class Chart:
             A[n:, k] = (self.vdd((z0 + e)[:n], (z0 + e)[n:])
                         - self.vdd((z0 - e)[:n], (z0 - e)[n:])) / (2 * dz)
         return A, self.F(z0)
+
+
+FREE_SPIN_ANGLE = 0.5
+"""rad: the finite turn of a body about one of its principal axes by which a free spin is
+recognised (below): a law that depends on the turn changes by O(1) of its size over half a
+radian, a symmetry by round-off; a small test angle would blur the two with the finite
+differences' own error."""
+FREE_SPIN_RATE = 1.0
+"""rad/s: the spin rate at which velocity-dependent loads (dampers, tires) are compared."""
+FREE_SPIN_REL = 1e-9
+"""The loads (forces and torques on every body, global) of a free spin differ from those of
+the reference by at most this fraction of their size plus the weight scale m g: round-off
+is 1e-15 of it; any law coupled to the spin changes by far more than 1e-9 over 0.5 rad."""
+
+
+def _loads(model, q, qd, t):
+    """(nb, 6): applied force (global) and torque (global) on each body, gravity included."""
+    _, F, n_local = eq.applied_forces(model, q, qd, t)
+    A = eq.State(model, q).A
+    return np.concatenate([F, np.einsum("bij,bj->bi", A, n_local)], axis=1)
+
+
+def free_spins(model, chart, qd0):
+    """Directions of the chart (v space) that are free spins by structure, and their names.
+
+    A body's turn about one of its principal axes through its centroid (a rod about its own
+    axis between ball joints, a wheel on its axle) is a neutral mode exactly when the
+    constraints allow it (a finite turn keeps Phi = 0) and no load depends on it (the
+    forces and torques on every body are the same after a turn of FREE_SPIN_ANGLE and at a
+    spin of FREE_SPIN_RATE): then no stiffness or damping acts along it, and the mode has
+    lambda = 0 twice.  The finite differences alone cannot say so: the noise of dF/dv along
+    the spin, divided by a slender rod's axial inertia (1e-9 kg m^2), gives a spurious real
+    pair of 1e-3 1/s.  Only about a state at rest (qd0 = 0) and without a spin frame.
+
+    Returns (D (n, k) orthonormal, names (k,)).
+    """
+    n = chart.n
+    if chart.spin is not None or np.any(qd0) or n == 0:
+        return np.zeros((n, 0)), []
+    q0, t, rows = chart.q0, chart.t, chart.rows
+    base = _loads(model, q0, np.zeros(model.nq), t)
+    scale = float(np.abs(base).max(initial=0.0)) + float(
+        np.max(model.mass, initial=0.0) * max(np.linalg.norm(model.gravity), 1.0))
+    phi_tol = max(1e3 * chart.tol, 1e-10)
+    st = eq.State(model, q0)
+    dirs, names = [], []
+    for b in range(model.nb):
+        if model.is_ground[b]:
+            continue
+        _, axes = np.linalg.eigh(model.J_local[b])
+        p = q0[7 * b + 3: 7 * b + 7]
+        for k in range(3):
+            u = axes[:, k]
+            turn = np.concatenate([[np.cos(FREE_SPIN_ANGLE / 2)],
+                                   np.sin(FREE_SPIN_ANGLE / 2) * u])
+            q1 = q0.copy()
+            q1[7 * b + 3: 7 * b + 7] = _qmul(p, turn)  # body-frame turn: A(p) A(turn)
+            if np.abs(eq.phi(model, q1, t)[rows]).max(initial=0.0) > phi_tol:
+                continue
+            dq = np.zeros(model.nq)
+            dq[7 * b + 3: 7 * b + 7] = 0.5 * rot_G(p).T @ u  # omega' = 2 G pd = u
+            spin = FREE_SPIN_RATE * dq
+            if (np.abs(_loads(model, q1, np.zeros(model.nq), t) - base).max() > FREE_SPIN_REL
+                    * scale or np.abs(_loads(model, q0, spin, t) - base).max()
+                    > FREE_SPIN_REL * scale):
+                continue
+            d = chart.N.T @ dq
+            if np.linalg.norm(chart.N @ d - dq) > 1e-8 * np.linalg.norm(dq):
+                continue  # not a motion of the chart (should not happen once Phi holds)
+            dirs.append(d / np.linalg.norm(d))
+            g = st.A[b] @ u
+            names.append(f"{model.body_names[b]}: free spin about its principal axis "
+                         f"{_fmt(u)} (global {_fmt(g)})")
+    if not dirs:
+        return np.zeros((n, 0)), []
+    Q, R = np.linalg.qr(np.column_stack(dirs))
+    keep = np.abs(np.diag(R)) > 1e-8
+    return Q[:, keep], [nm for nm, kk in zip(names, keep) if kk]
+
+
+def without_free_spins(A, D):
+    """The state matrix with the free spins' columns set to their exact values: no load
+    depends on the turn or the rate along D (free_spins), so dvdd/dv D = dvdd/dvd D = 0.
+    Block-triangular then: the spins' eigenvalues are exactly 0, the others those of the
+    complement, free of the finite differences' noise along D."""
+    if D.shape[1] == 0:
+        return A
+    n = D.shape[0]
+    P = np.eye(n) - D @ D.T
+    A = A.copy()
+    A[n:, :n] = A[n:, :n] @ P
+    A[n:, n:] = A[n:, n:] @ P
+    return A
 
 
 def sort_eigen(lam, X):
@@ -309,14 +405,17 @@ def _fmt(a, keep_sign=False) -> str:
     return "(" + ", ".join(f"{x:.3g}" for x in np.where(np.abs(a) < 1e-6, 0.0, a) + 0.0) + ")"
 
 
-def classify(lam, zero_tol=1e-5, re_tol=1e-6):
-    """(verdict, neutral mask): see the module doc."""
+def classify(lam, zero_tol=1e-5, re_tol=1e-6, structural=None):
+    """(verdict, neutral mask, growing mask): see the module doc.  ``structural``: a mask
+    of eigenvalues known neutral from the model's structure (free spins)."""
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)))
     neutral = np.abs(lam) <= zero_tol * scale
+    if structural is not None:
+        neutral |= structural
     growing = (lam.real > re_tol * scale) & ~neutral
     if growing.any():
-        return "unstable", neutral
-    return ("neutral" if neutral.any() else "stable"), neutral
+        return "unstable", neutral, growing
+    return ("neutral" if neutral.any() else "stable"), neutral, growing
 
 
 def modal_quantities(lam):
@@ -407,16 +506,23 @@ def linear(model, options=None) -> Result:
     vd0 = chart.N.T @ qd_rel0
     A, F0 = chart.state_matrix(vd0, h)
     A4, _ = chart.state_matrix(vd0, 4 * h)
+    D, spin_names = free_spins(model, chart, qd_rel0)
+    A, A4 = without_free_spins(A, D), without_free_spins(A4, D)
     lam, X = la.eig(A) if n else (np.zeros(0, complex), np.zeros((0, 0), complex))
     lam, X = sort_eigen(lam, X)
     lam4 = la.eigvals(A4)
+    # the free spins' 2k eigenvalues are exactly 0 (a Jordan block each: computed as
+    # +-sqrt(eps)-sized values at most), the smallest in modulus
+    structural = np.zeros(lam.size, bool)
+    structural[np.argsort(np.abs(lam))[: 2 * D.shape[1]]] = True
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)))
     from scipy.optimize import linear_sum_assignment  # pair each eigenvalue with its twin
 
     dist = np.abs(lam[:, None] - lam4[None, :])
     rows_, cols_ = linear_sum_assignment(dist)
     fd_check = float(dist[rows_, cols_].max(initial=0.0)) / scale
-    verdict, neutral = classify(lam, float(opt["zero_tol"]), float(opt["re_tol"]))
+    verdict, neutral, growing = classify(lam, float(opt["zero_tol"]), float(opt["re_tol"]),
+                                         structural)
     wn, fhz, wd, zeta = modal_quantities(lam)
     wn[neutral], fhz[neutral], wd[neutral], zeta[neutral] = 0.0, 0.0, 0.0, 0.0
     # mode shapes: position part of each eigenvector, in q and in body coordinates, scaled
@@ -449,6 +555,8 @@ def linear(model, options=None) -> Result:
         "linear/damping_ratio": (zeta, {"unit": "", "description": "-Re lambda / |lambda|"}),
         "linear/neutral": (neutral.astype(np.int8), {
             "unit": "", "description": "1: neutral mode (rigid-body, free spin, cyclic)"}),
+        "linear/growing": (growing.astype(np.int8), {
+            "unit": "", "description": "1: growing mode (Re lambda > re_tol max(1, |lambda|))"}),
         "linear/modes/q": (dq.T.astype(np.complex128), {
             "unit": "", "description": "mode shapes (nmodes, nq) in q = [r, p] per body",
             "components": np.array(labels_q, dtype=object)}),
@@ -469,6 +577,7 @@ def linear(model, options=None) -> Result:
         "stability": verdict,
         "stable": verdict != "unstable",
         "neutral_modes": neutral_names,
+        "free_spins": spin_names,
         "eigenvalues": [complex(x) for x in lam],
         "frequencies_hz": [float(fhz[k]) for k in pairs],
         "damping_ratios": [float(zeta[k]) for k in pairs],

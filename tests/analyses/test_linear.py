@@ -340,3 +340,75 @@ def test_cli_linear_table_plot_and_errors(tmp_path):
     slider = Path(GOVERNOR).parent / "slider_crank.yaml"
     res = CliRunner().invoke(main, ["run", str(slider), "--mode", "linear", "-o", str(out)])
     assert res.exit_code == 2 and "DOF = 0" in res.output
+
+
+SLENDER = f"""
+title: damped double pendulum of slender rods (axial inertia 1e-9 kg m^2), rod axis = x'
+gravity: [0, 0, -{G}]
+bodies:
+  ground: {{ground: true}}
+  link1: {{mass: 2.0, inertia: [1e-9, {2 / 12}, {2 / 12}], r: [0, 0, -0.5],
+          p: [0.7071067811865476, 0, 0.7071067811865476, 0]}}
+  link2: {{mass: 2.0, inertia: [1e-9, {2 / 12}, {2 / 12}], r: [0, 0, -1.5],
+          p: [0.7071067811865476, 0, 0.7071067811865476, 0]}}
+joints:
+  top: {{type: spherical, bodies: [ground, link1],
+         points: {{ground: [0, 0, 0], link1: [-0.5, 0, 0]}}}}
+  mid: {{type: spherical, bodies: [link1, link2],
+         points: {{link1: [0.5, 0, 0], link2: [-0.5, 0, 0]}}}}
+forces:
+  dx: {{type: tsda, bodies: [ground, link2], points: {{ground: [3, 0, -1.5], link2: [0, 0, 0]}},
+        c: 5, L0: 3}}
+  dy: {{type: tsda, bodies: [ground, link1], points: {{ground: [0, 3, -0.5], link1: [0, 0, 0]}},
+        c: 5, L0: 3}}
+"""
+
+
+def damped_double_rod_eigenvalues(m=2.0, l=1.0, c=5.0):
+    """Small-angle Lagrangian of two uniform rods hanging from ball joints, each plane on its
+    own: x-z with a horizontal damper c at link2's centre (x2 = l th1 + l/2 th2), y-z with
+    one at link1's centre (y1 = l/2 th1).  Eigenvalues of lambda^2 M + lambda C + K."""
+    M = m * l**2 * np.array([[4 / 3, 1 / 2], [1 / 2, 1 / 3]])
+    K = m * G * l * np.diag([3 / 2, 1 / 2])
+    out = []
+    for C in (c * l**2 * np.array([[1.0, 0.5], [0.5, 0.25]]),
+              c * l**2 * np.array([[0.25, 0.0], [0.0, 0.0]])):
+        Minv = np.linalg.inv(M)
+        A = np.block([[np.zeros((2, 2)), np.eye(2)], [-Minv @ K, -Minv @ C]])
+        out.extend(np.linalg.eigvals(A))
+    return np.array(out)
+
+
+def test_slender_rods_spin_is_neutral_by_structure(tmp_path):
+    """Two slender rods on ball joints, damped: each rod's spin about its own axis is a free
+    spin (no load depends on it), so its eigenvalues are exactly neutral, not the spurious
+    real pair +-1.3e-3 1/s that the finite differences' noise divided by the 1e-9 kg m^2
+    axial inertia made of them ('unstable').  The other eight eigenvalues match the
+    small-angle Lagrangian of the two planes to 1e-6 (the finite differences' truncation,
+    fd_check, is below 1e-8 here)."""
+    model = deck(tmp_path, SLENDER)
+    res = linear(model, {})
+    s = res.summary
+    assert s["stability"] == "neutral" and s["stable"] is True
+    assert len(s["free_spins"]) == 2
+    assert all("(global (0, 0, 1))" in name for name in s["free_spins"])
+    lam = np.asarray(s["eigenvalues"])
+    neutral = res.arrays["linear/neutral"][0].astype(bool)
+    assert neutral.sum() == 4 and np.abs(lam[neutral]).max() < 1e-6
+    assert not res.arrays["linear/growing"][0].any()
+    ref = damped_double_rod_eigenvalues()
+    got = lam[~neutral]
+    for r in ref:
+        assert np.min(np.abs(got - r)) < 1e-6 * abs(r), (r, got)
+
+
+def test_growing_label_only_above_the_threshold(tmp_path):
+    """The table's `growing` marks exactly the eigenvalues above re_tol max(1, |lambda|) (the
+    threshold cli.md states), never a round-off real part of an undamped mode."""
+    from mbsim.analyses.linear import classify
+
+    lam = np.array([-1.0 + 5j, -1.0 - 5j, 6e-11 + 2j, 6e-11 - 2j, 1.6e-9, 0.1 + 3j, 0.1 - 3j])
+    verdict, neutral, growing = classify(lam, zero_tol=1e-5, re_tol=1e-6)
+    assert verdict == "unstable"
+    assert growing.tolist() == [False, False, False, False, False, True, True]
+    assert neutral.tolist() == [False, False, False, False, True, False, False]
