@@ -7,6 +7,8 @@ does not fail the install: it warns, and mbsim compiles the kernels at first use
 """
 
 import hashlib
+import os
+import shlex
 from pathlib import Path
 
 from setuptools import Extension, setup
@@ -41,7 +43,9 @@ kernels = Extension(
     "mbsim.fast._kernels",
     sources=[str(SOURCE)],
     define_macros=[("MB_SOURCE_HASH", f'"{digest}"')],
-    extra_compile_args=["-O2", "-std=c99"],
+    # MBSIM_CFLAGS (e.g. "-O0" or "-O3 -march=native") after -O2 wins: the same variable as
+    # a first-use compile reads (mbsim/fast/_lib.py)
+    extra_compile_args=["-O2", "-std=c99", *shlex.split(os.environ.get("MBSIM_CFLAGS", ""))],
     libraries=["m"],
     optional=True,
 )

@@ -41,6 +41,14 @@ log = logging.getLogger(__name__)
 HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "kernels.c"
 CFLAGS = ["-O2", "-std=c99", "-fPIC", "-shared"]  # -O3: no faster (benchmarks/kernels.py)
+FLAGS_ENV = "MBSIM_CFLAGS"
+"""Extra compiler flags, appended after CFLAGS (so ``-O0`` or ``-O3 -march=native`` wins
+over -O2), read by setup.py at install and here at a first-use compile; part of the cache
+key, so builds with other flags never mix."""
+
+
+def cflags() -> list[str]:
+    return CFLAGS + shlex.split(os.environ.get(FLAGS_ENV, ""))
 MESSAGE = "compiling kernels (first run only) ..."
 
 
@@ -72,7 +80,7 @@ def compiler() -> list[str]:
 
 
 def compile_command(cc, src, out, digest):
-    return [*cc, *CFLAGS, f"-DMB_SOURCE_HASH=\"{digest}\"", "-o", str(out), str(src), "-lm"]
+    return [*cc, *cflags(), f"-DMB_SOURCE_HASH=\"{digest}\"", "-o", str(out), str(src), "-lm"]
 
 
 def cache_dir() -> Path:
@@ -112,7 +120,7 @@ def build(dest: Path | None = None) -> Path:
     digest = source_hash(src)
     cc = compiler()
     key = hashlib.sha256(
-        "\0".join([digest, " ".join(cc), " ".join(CFLAGS), platform.platform(),
+        "\0".join([digest, " ".join(cc), " ".join(cflags()), platform.platform(),
                    platform.machine(), sys.implementation.cache_tag or ""]).encode()
     ).hexdigest()[:16]
     if dest is None:
