@@ -12,6 +12,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+import yaml
 from click.testing import CliRunner
 
 from mbsim.cli import main
@@ -238,7 +239,21 @@ def test_interrupt_keeps_finished_cases_and_writes_index(tmp_path):
     assert outcome.ok and sum(r.skipped for r in outcome.records) == 1
 
 
-KILL_ELLS = ("0.3", "0.29", "0.28", "0.27", "0.26", "0.25")
+# output steps of the killed sweep's cases: the first finishes in about 0.4 s, each of the
+# others takes about 2.5 s (500 kinematic outputs), so when the first file appears at least
+# 2 s of work remain whatever the load: the signal lands while cases run (with six equal
+# cases of 0.9 s a busy machine let the sweep finish between the file and the signal)
+KILL_STEPS = ("0.01", "0.002", "0.00201", "0.00202", "0.00203", "0.00204")
+
+
+def stepped_slider_crank(tmp_path):
+    """models/slider_crank.yaml with its kinematic output step as a parameter ``dt``."""
+    deck = yaml.safe_load(SLIDER.read_text())
+    deck["parameters"]["dt"] = 0.005
+    deck["analysis"]["kinematic"] = {"t_end": 1.0, "step": "dt"}
+    path = tmp_path / "slider_dt.yaml"
+    path.write_text(yaml.safe_dump(deck, sort_keys=False))
+    return path
 
 
 def wait_for(predicate, timeout):
@@ -272,13 +287,14 @@ def test_killed_sweep_reruns_only_the_missing_cases(tmp_path, sig, group):
     exactly the cases without a file; the finished files are kept untouched (same inode,
     same mtime)."""
     out = tmp_path / "killed"
-    args = ["sweep", str(SLIDER), "--mode", "kinematic", "--param", "ell=" + ",".join(KILL_ELLS),
-            "--t-end", "1", "-j", "2", "-o", str(out), "--summary", "bodies.slider.r.x:final"]
+    args = ["sweep", str(stepped_slider_crank(tmp_path)), "--mode", "kinematic", "--param",
+            "dt=" + ",".join(KILL_STEPS), "-j", "2", "-o", str(out),
+            "--summary", "bodies.slider.r.x:final"]
     proc = subprocess.Popen([sys.executable, "-m", "mbsim", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True,
                             cwd=MODELS.parent)  # the mbsim of this tree
     try:
-        assert wait_for(lambda: any(out.glob("ell=*.h5")), 120), proc.communicate()
+        assert wait_for(lambda: any(out.glob("dt=*.h5")), 120), proc.communicate()
         (os.killpg if group else os.kill)(proc.pid, sig)  # group: the sweep and its workers
         # workers hold stdout/stderr too: the pipes close when every process has ended, the
         # orphaned workers of a killed sweep included (they exit within about a second)
@@ -293,25 +309,25 @@ def test_killed_sweep_reruns_only_the_missing_cases(tmp_path, sig, group):
         assert "Traceback" not in stderr and "Exception ignored" not in stderr, stderr
         rows = read_index(out / "index.h5")  # written on the way out: consistent with the files
         assert {r["file"] for r in rows if r["status"] == "complete"} == {
-            p.name for p in out.glob("ell=*.h5")}
+            p.name for p in out.glob("dt=*.h5")}
         assert {r["status"] for r in rows} == {"complete", "cancelled"}
         assert [p.name for p in out.iterdir() if p.name.startswith(".")] == []  # no leftovers
     else:
         assert proc.returncode == -signal.SIGKILL
-    finished = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.glob("ell=*.h5")}
-    assert 1 <= len(finished) < len(KILL_ELLS), finished  # killed part-way
+    finished = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.glob("dt=*.h5")}
+    assert 1 <= len(finished) < len(KILL_STEPS), finished  # killed part-way
     r = invoke(*args)
     assert r.exit_code == 0, r.output
     assert r.output.count("(kept: up to date)") == len(finished)
     rows = read_index(out / "index.csv")
-    assert [row["case"] for row in rows] == [f"ell={e}" for e in KILL_ELLS]
+    assert [row["case"] for row in rows] == [f"dt={e}" for e in KILL_STEPS]
     for row in rows:
         assert row["status"] == "complete" and row["bodies.slider.r.x:final"] != ""
         assert row["skipped"] == ("yes" if row["file"] in finished else "no")  # ran: the rest
     for name, stamp in finished.items():
         st = (out / name).stat()
         assert (st.st_ino, st.st_mtime_ns) == stamp, name  # not rewritten
-    assert len(list(out.glob("ell=*.h5"))) == len(KILL_ELLS)
+    assert len(list(out.glob("dt=*.h5"))) == len(KILL_STEPS)
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX pipes")
