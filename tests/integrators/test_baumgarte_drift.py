@@ -20,7 +20,6 @@ def run(drift_bound):
     res = dynamic(pb.model, {"t_end": 0.5, "step": pb.step, "q0": pb.q0, "qd0": pb.qd0,
                              "integrator": "baumgarte", "rtol": RTOL, "atol": 1e-2 * RTOL,
                              "drift_bound": drift_bound, "error_estimate": False})
-    assert res.complete, res.message
     return pb, res
 
 
@@ -31,6 +30,7 @@ def test_drift_bound_keeps_every_row_through_flat_positions():
     (measured 3e-10 m/s); the position error against the exact reduction is within the
     bound of issue 11, 10 rtol + 1e-9 m."""
     pb, res = run(True)
+    assert res.complete, res.message
     speed = 0.2 * 20.0  # m/s, crank tip: L thetad0 (the speed at the bottom, the largest)
     assert res.channel("monitors/position_violation").data.max() <= 10 * RTOL
     assert res.channel("monitors/velocity_violation").data.max() <= 10 * RTOL * speed
@@ -38,12 +38,17 @@ def test_drift_bound_keeps_every_row_through_flat_positions():
     assert res.counters["drift_projections"] > 0  # the passages did need it
 
 
-def test_without_the_bound_the_run_leaves_the_mechanism():
-    """The same run without the bound (Baumgarte 1972 alone) follows the drifted constraint
-    set onto the other branch at a flat position: the redundant rows open by more than
-    1 mm (measured 0.14 m) and the motion is wrong by as much.  This is what the test above
-    guards against, not a property of the problem alone."""
+def test_without_the_bound_the_run_leaves_the_mechanism_and_says_so():
+    """The same run without the bound (Baumgarte 1972 alone) drifts at the flat position of
+    t = 0.297 s (the rows open to 1e-5, 1e5 times the tolerance) and follows the drifted
+    constraint set onto the other branch (the motion 7 mm off at 0.32 s).  That is never a
+    silent result: the run ends at the first output past the drift limit (1000 x the
+    tolerance), naming it, and the outputs before it are the mechanism's motion (within 1e-8
+    m of the exact reduction: the first passage at 0.083 s costs 2.6e-9 m without the
+    bound)."""
     pb, res = run(False)
-    assert res.channel("monitors/position_violation").data.max() > 1e-3
-    assert R.position_error(res, pb.reference(res.t)).max() > 1e-3
-    assert res.counters["drift_projections"] == 0
+    assert not res.complete
+    assert "constraint drift" in res.message
+    assert 0.28 < res.t[-1] < 0.31  # the output of t = 0.30 s is past the limit
+    assert res.channel("monitors/position_violation").data.max() <= 1e3 * (RTOL + 1e-2 * RTOL)
+    assert R.position_error(res, pb.reference(res.t)).max() <= 1e-8
