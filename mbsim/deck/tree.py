@@ -37,7 +37,9 @@ class Node:
     """One YAML value.
 
     kind: 'map' (value: dict[str, Node]), 'seq' (value: list[Node]) or 'scalar'
-    (value: None, bool, int, float, str, as YAML's safe loader reads it).
+    (value: None, bool, int, float, str, or a datetime.date/datetime for an unquoted date,
+    as YAML's safe loader reads it; `!!binary` is refused).  A date is a name or a text
+    where one is expected (``name()``), and an error where a number is.
     """
 
     kind: str
@@ -169,6 +171,8 @@ class _Converter:
                 value = self.constructor.construct_object(ynode)
             except (yaml.YAMLError, ValueError, OverflowError):  # ValueError: a bad !!timestamp
                 raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}") from None
+            if isinstance(value, bytes):  # `!!binary`: no field of a deck holds bytes
+                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}")
             node = Node("scalar", value, self.line(ynode), text=ynode.value)
         node.origin = self.origin
         self.active.discard(key)

@@ -47,6 +47,9 @@ def describe(node: Node | None, limit: int = 80) -> str:
         text = node.text
     elif isinstance(node.value, (int, float)):
         text = repr(float(node.value))
+    elif not isinstance(node.value, str):  # a YAML timestamp: `2001-12-14` unquoted
+        text = f"a date {node.text or node.value} (YAML reads an unquoted date as a date)"
+        return text if len(text) <= 2 * limit else text[: 2 * limit - 4] + " ..."
     else:
         text = quote(node.value, limit)
     return text if len(text) <= limit else text[: limit - 4] + " ...]"
@@ -152,7 +155,7 @@ class Reader:
     def number_info(self, node: Node, where: Where, dim: str | None) -> tuple[float, bool]:
         """(SI value, whether it was written with a unit)."""
         value = node.value if node.kind == "scalar" else None
-        if value is None or isinstance(value, bool):
+        if value is None or isinstance(value, bool) or not isinstance(value, (int, float, str)):
             raise self.error(where, f"expected {_a(dim)}, got {describe(node)}", node)
         if isinstance(value, (int, float)):
             return self._finite(float(value), node, where), False
@@ -243,6 +246,9 @@ class Reader:
         value = node.value
         if isinstance(value, bool) or value is None:
             return value
+        if not isinstance(value, (int, float, str)):  # a date
+            raise self.error(where, f"expected a number, a name or true/false, got "
+                             f"{describe(node)}", node)
         if isinstance(value, float) or isinstance(value, int) and dim is not None:
             return self.number(node, where, dim)
         if isinstance(value, str) and self._numeric_text(value.strip()):
