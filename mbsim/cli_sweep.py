@@ -113,7 +113,12 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
     ncases = len(plan.cases)
     done = 0
     from mbsim.output.hdf5 import remove_stale_temporaries
+    from mbsim.sweep import prepare_out_dir
 
+    try:
+        prepare_out_dir(plan.out_dir)  # a folder that cannot be written: nothing has run
+    except MbsimError as exc:
+        _fail(exc, deck)
     remove_stale_temporaries(plan.out_dir)  # .X.h5.tmp-PID of a sweep killed (kill -9) mid-write
 
     def on_case(rec) -> None:
@@ -141,6 +146,12 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
         sys.exit(EXIT_FAILED)
     except MbsimError as exc:
         _fail(exc, deck)
+    except OSError as exc:  # the disk filled or went read-only under the sweep
+        from mbsim.errors import AnalysisError
+
+        _fail(AnalysisError(f"sweep into {plan.out_dir} stopped after {done} of {ncases} "
+                            f"case(s): {exc.strerror or exc}; the files written are kept "
+                            "(re-run the same command to continue)"), deck)
     counts = {s: outcome.count(s) for s in ("complete", "incomplete", "failed", "cancelled")}
     skipped = sum(r.skipped for r in outcome.records)
     if not quiet:

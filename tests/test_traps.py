@@ -1,0 +1,127 @@
+"""Input and output traps (issue 23, item 7): each one the exact command a user typed, ending
+in one ``error:`` line with the documented exit code (0 ok, 1 failed part-way with what was
+done kept, 2 deck or usage error), no traceback."""
+
+from __future__ import annotations
+
+import errno
+import os
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from mbsim.cli import main
+from mbsim.sweep import read_index
+
+ROOT = Path(__file__).resolve().parents[1]
+SLIDER = ROOT / "models" / "slider_crank.yaml"
+
+
+def cli(*args):
+    res = CliRunner().invoke(main, [str(a) for a in args])
+    assert res.exception is None or isinstance(res.exception, SystemExit), repr(res.exception)
+    return res
+
+
+def one_error(res, code: int, *needles: str) -> str:
+    """Exit ``code``, exactly one ``error:`` line on stderr (other lines only warnings),
+    holding every needle; returns it."""
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    errors = [ln for ln in lines if ln.startswith("error: ")]
+    assert res.exit_code == code, (res.exit_code, res.stderr, res.stdout)
+    assert len(errors) == 1, res.stderr
+    assert all(ln.startswith(("error: ", "warning: ")) for ln in lines), res.stderr
+    assert "Traceback" not in res.output
+    for n in needles:
+        assert n in errors[0], (n, errors[0])
+    return errors[0]
+
+
+def slider_with(tmp_path, old: str, new: str, name: str = "deck.yaml") -> Path:
+    text = SLIDER.read_text()
+    assert old in text
+    p = tmp_path / name
+    p.write_text(text.replace(old, new, 1))
+    return p
+
+
+# -- YAML types in numeric fields ----------------------------------------------------------------
+@pytest.mark.parametrize("value, says", [
+    ("2001-12-14", "got a date 2001-12-14"),
+    ("2001-12-14 21:59:43", "got a date 2001-12-14 21:59:43"),
+    ("!!timestamp 2001-01-01", "got a date"),
+    ("null", "got nothing"),
+    ("true", "got true"),
+    ("!!set {a, b}", "unsupported YAML tag"),
+    ("!!binary aGVsbG8=", "unsupported YAML tag"),
+])  # fmt: skip
+def test_non_numeric_yaml_types_in_a_numeric_field_are_deck_errors(tmp_path, value, says):
+    deck = slider_with(tmp_path, "    mass: 0.12", f"    mass: {value}")
+    res = cli("check", deck)
+    one_error(res, 2, str(deck), ":32", says)
+    if "tag" not in says:
+        assert "bodies.crank.mass" in res.stderr
+
+
+def test_a_date_given_with_set_is_a_deck_error():
+    res = cli("check", SLIDER, "--set", "bodies.crank.mass=2001-12-14")
+    one_error(res, 2, "bodies.crank.mass", "got a date 2001-12-14", "(value from --set)")
+
+
+@pytest.mark.parametrize("path", ["analysis.dynamic.t_end", "bodies.crank.r[0]",
+                                  "drivers.crank.function"])
+def test_a_date_in_a_setting_vector_or_function_is_a_deck_error(path):
+    res = cli("check", SLIDER, "--set", f"{path}=2001-12-14")
+    one_error(res, 2, path, "got a date 2001-12-14")
+
+
+def test_a_date_given_with_sweep_param_fails_its_case_only(tmp_path):
+    out = tmp_path / "sw"
+    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "bodies.crank.mass=0.12,2001-12-14",
+              "--t-end", "0.02", "-j", "1", "-o", out)
+    one_error(res, 1, "1 of 2 case(s) not complete")
+    rows = {r["bodies.crank.mass"]: r for r in read_index(out / "index.csv")}
+    assert rows["0.12"]["status"] == "complete"
+    assert rows["2001-12-14"]["status"] == "failed"
+    assert "got a date 2001-12-14" in rows["2001-12-14"]["message"]
+
+
+def test_binary_in_a_text_field_is_refused():
+    res = cli("check", SLIDER, "--set", "title=!!binary aGVsbG8=")
+    one_error(res, 2, "unsupported YAML tag", "binary")
+
+
+# -- sweeps on a full or read-only disk ----------------------------------------------------------
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EROFS])
+def test_sweep_whose_index_cannot_be_written_keeps_the_case_files(tmp_path, monkeypatch, code):
+    import mbsim.sweep
+
+    def full(path, write):
+        raise OSError(code, os.strerror(code), str(path))
+
+    monkeypatch.setattr(mbsim.sweep, "_atomic", full)
+    out = tmp_path / "sw"
+    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27",
+              "--t-end", "0.02", "-j", "1", "-o", out)
+    one_error(res, 1, "cannot write the index", os.strerror(code), "2 case file(s) written")
+    assert sorted(p.name for p in out.glob("*.h5")) == ["ell=0.27.h5", "ell=0.3.h5"]
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EROFS])
+def test_sweep_into_a_folder_that_takes_no_file_runs_nothing(tmp_path, monkeypatch, code):
+    import builtins
+
+    real_open = builtins.open
+
+    def refuse(file, *a, **k):
+        if ".write-probe-" in str(file):
+            raise OSError(code, os.strerror(code), str(file))
+        return real_open(file, *a, **k)
+
+    monkeypatch.setattr(builtins, "open", refuse)
+    out = tmp_path / "sw"
+    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27",
+              "--t-end", "0.02", "-j", "1", "-o", out)
+    one_error(res, 2, f"output folder {out}", os.strerror(code))
+    assert not list(out.glob("*.h5"))
