@@ -125,3 +125,30 @@ def test_sweep_into_a_folder_that_takes_no_file_runs_nothing(tmp_path, monkeypat
               "--t-end", "0.02", "-j", "1", "-o", out)
     one_error(res, 2, f"output folder {out}", os.strerror(code))
     assert not list(out.glob("*.h5"))
+
+
+# -- the -o template -----------------------------------------------------------------------------
+@pytest.mark.parametrize("template, says", [
+    ("{mode.__class__.__init__.__globals__}", "only plain names"),
+    ("{mode.__class__}.h5", "only plain names"),
+    ("{ell[0]}.h5", "only plain names"),
+    ("{mode!r}.h5", "no conversions"),
+    ("{mode:>2000000000}.h5", "format '>2000000000' not allowed"),
+    ("{ell:{mode}}.h5", "not allowed"),
+    ("{xyz}.h5", "unknown field 'xyz'; available: deck, ell, mode, omega, scene, w0, xC"),
+    ("{}.h5", "unknown field"),
+    ("a{.h5", "write {{ and }} for braces"),
+    ("{mode:.3f}.h5", "Unknown format code"),
+])  # fmt: skip
+def test_output_template_takes_only_plain_documented_fields(tmp_path, template, says):
+    res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.01", "-o",
+              tmp_path / template)
+    one_error(res, 2, "output name template", says)
+    assert not list(tmp_path.iterdir())
+
+
+def test_output_template_fields_and_short_formats(tmp_path):
+    res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.01", "--set",
+              "parameters.ell=0.27", "-o", tmp_path / "{deck}_{mode}_{ell:.3f}{scene}.h5")
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "slider_crank_kinematic_0.270.h5").is_file()
