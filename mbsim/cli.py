@@ -55,6 +55,24 @@ def _check_settings(deck, mode: str, spec, opts: dict, names: dict[str, str]) ->
               DeckError(message, Where(str(deck), f"analysis.{mode}.{key}")), deck)
 
 
+def check_output(path, option: str, figure: bool = False) -> Path:
+    """Before a command's work: ``path`` (given with ``option``) is not a folder, its folder
+    exists and takes a new file, and (``figure``) its suffix is a figure format; otherwise
+    one ``error:`` line naming the option and the path, exit 2."""
+    from mbsim.output.hdf5 import prepare_output
+
+    try:
+        if figure:
+            from mbsim.output.plots import figure_suffix_problem
+
+            why = figure_suffix_problem(path)
+            if why:
+                raise UsageError(why)
+        return prepare_output(path)
+    except UsageError as exc:
+        _fail(UsageError(f"{option}: {exc}"))
+
+
 def _warn(lines) -> None:
     for w in lines:
         click.echo(f"warning: {w}", err=True)
@@ -549,6 +567,10 @@ def plot(args, ys, x, output, labels, title, list_only, units, data_file):
     bad = [f for f in files if problems[f]]
     if bad:
         _fail(UsageError(f"{bad[0]}: {problems[bad[0]]}"))
+    if not list_only:  # before reading anything: a bad -o or --data costs nothing
+        check_output(output, "-o", figure=True)
+        if data_file:
+            check_output(data_file, "--data")
     try:
         if list_only:
             for f in files:
@@ -686,10 +708,13 @@ def export(file, csv_path, channels):
     from mbsim.output import export_csv, read_result
 
     _results_file(file)
+    target = Path(csv_path or Path(file).with_suffix(".csv"))
+    if not target.is_dir():  # a folder takes <deck stem>.csv (export_csv)
+        check_output(target, "--csv")
     try:
         res = read_result(file)
         chans = [c.strip() for c in channels.split(",")] if channels else None
-        paths = export_csv(res, csv_path or str(Path(file).with_suffix(".csv")), channels=chans)
+        paths = export_csv(res, target, channels=chans)
     except (MbsimError, KeyError, IndexError, ValueError, OSError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else UsageError(_key_message(exc)))
     for p in paths:

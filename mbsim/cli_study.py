@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from mbsim.cli import EXIT_FAILED, _fail, _warn
+from mbsim.cli import EXIT_FAILED, _fail, _warn, check_output
 from mbsim.errors import MbsimError, UsageError
 
 VIEWS = ("iso", "xy", "xz", "yz")
@@ -142,6 +142,7 @@ def animate_command(file, output, fps, view, every, dpi, size, mode_shape, label
     out = Path(output) if output else Path(file).with_suffix(".gif")
     if every < 1 or fps <= 0:
         _fail(UsageError("--every must be >= 1 and --fps > 0"))
+    check_output(out, "-o")  # before rendering: a bad -o costs nothing
     try:
         path, nframes = animate_file(file, out, fps=fps, view=view, every=every, dpi=dpi,
                                      size=size, mode_shape=mode_shape, labels=labels)

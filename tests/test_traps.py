@@ -152,3 +152,42 @@ def test_output_template_fields_and_short_formats(tmp_path):
               "parameters.ell=0.27", "-o", tmp_path / "{deck}_{mode}_{ell:.3f}{scene}.h5")
     assert res.exit_code == 0, res.output
     assert (tmp_path / "slider_crank_kinematic_0.270.h5").is_file()
+
+
+# -- every command checks its output path before its work ----------------------------------------
+@pytest.fixture(scope="module")
+def slider_h5(tmp_path_factory):
+    out = tmp_path_factory.mktemp("res") / "s.h5"
+    res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.05", "-o", out, "-q")
+    assert res.exit_code == 0, res.output
+    return out
+
+
+def _never(*a, **k):
+    raise AssertionError("the work ran although the output path is bad")
+
+
+@pytest.mark.parametrize("args, module, fn, says", [
+    (["bench", SLIDER, "--integrators", "rk4", "-o", "{d}/nofolder/wp.png"],
+     "mbsim.analyses.bench", "work_precision", "-o: output {d}/nofolder/wp.png: the folder"),
+    (["bench", SLIDER, "-o", "{d}/wp.txt"], "mbsim.analyses.bench", "work_precision",
+     "-o: cannot save a figure as '.txt'"),
+    (["export", "{h5}", "--csv", "{d}/nofolder/x.csv"], "mbsim.output", "read_result",
+     "--csv: output {d}/nofolder/x.csv: the folder {d}/nofolder does not exist"),
+    (["plot", "{h5}", "bodies.crank.r", "-o", "{d}/nofolder/p.png"], "mbsim.output",
+     "read_result", "-o: output {d}/nofolder/p.png: the folder {d}/nofolder does not exist"),
+    (["plot", "{h5}", "bodies.crank.r", "--data", "{d}/nofolder/p.csv"], "mbsim.output",
+     "read_result", "--data: output {d}/nofolder/p.csv: the folder"),
+    (["animate", "{h5}", "-o", "{d}/nofolder/a.gif"], "mbsim.animate", "animate_file",
+     "-o: output {d}/nofolder/a.gif: the folder {d}/nofolder does not exist"),
+    (["run", SLIDER, "--mode", "kinematic", "-o", "{d}/nofolder/r.h5"], "mbsim.api",
+     "run_model", "output {d}/nofolder/r.h5: the folder"),
+])  # fmt: skip
+def test_every_command_checks_its_output_path_first(tmp_path, slider_h5, monkeypatch, args,
+                                                    module, fn, says):
+    import importlib
+
+    monkeypatch.setattr(importlib.import_module(module), fn, _never)
+    fill = {"d": tmp_path, "h5": slider_h5}
+    res = cli(*[str(a).format(**fill) for a in args])
+    one_error(res, 2, says.format(**fill))
