@@ -191,3 +191,65 @@ def test_every_command_checks_its_output_path_first(tmp_path, slider_h5, monkeyp
     fill = {"d": tmp_path, "h5": slider_h5}
     res = cli(*[str(a).format(**fill) for a in args])
     one_error(res, 2, says.format(**fill))
+
+
+# -- limits enforced while parsing ---------------------------------------------------------------
+def _deck_with(text: str, tmp_path, name="deck.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(SLIDER.read_text() + text)
+    return p
+
+
+def test_a_compact_million_point_table_is_refused_while_parsing(tmp_path, monkeypatch):
+    """The 8.9 MB deck of the issue (a driver table of 10^6 points, flow style) ends in the
+    item limit's error at the table's line; composing it took 17 s and 730 MB before
+    (benchmarks/deck_limits.py measures the refusal: about 0.2 s of parsing)."""
+    import yaml
+
+    def never(*a, **k):
+        raise AssertionError("the deck was composed although it is over a limit")
+
+    monkeypatch.setattr(yaml, "compose", never)
+    n = 10**6
+    text = SLIDER.read_text().replace(
+        "function: pi/2 + omega*t",
+        "function: {table: {t: [" + ",".join(map(str, range(n))) + "], value: ["
+        + ",".join("1" for _ in range(n)) + "]}}")
+    p = tmp_path / "table.yaml"
+    p.write_text(text)
+    line = text[: text.index("{table")].count("\n") + 1
+    one_error(cli("check", p), 2, f"table.yaml:{line}:", "number of entries of one list",
+              "MBSIM_MAX_ITEMS")
+
+
+@pytest.mark.parametrize("nesting", [
+    "".join(f"\n{'  ' * i}- " for i in range(1, 3000)),  # block lists, 3000 deep
+    "{a: " * 3000 + "1" + "}" * 3000,  # flow mappings (PyYAML 6.0.4's scanner refuses them)
+])  # fmt: skip
+def test_nesting_limit_is_mbsims_own_in_block_and_flow_style(tmp_path, nesting):
+    p = _deck_with(f"\nzz: {nesting}\n", tmp_path)
+    one_error(cli("check", p), 2, "deck.yaml:", "nesting depth", "MBSIM_MAX_DEPTH")
+
+
+def test_brackets_inside_quotes_and_comments_do_not_count_as_nesting(tmp_path):
+    from mbsim.deck.tree import _flow_too_deep
+
+    deep = "[" * 100
+    text = f"zz: ['{deep}', \"\\\"{deep}\", don't, 'it''s{deep}']  # {deep}\n"
+    assert _flow_too_deep(text, 64) is None
+    assert _flow_too_deep(text + "yy: " + deep, 64) == 2
+    p = _deck_with("\n" + text, tmp_path)
+    one_error(cli("check", p), 2, "unknown key 'zz'")
+
+
+def test_values_in_all_are_limited(tmp_path, monkeypatch):
+    monkeypatch.setenv("MBSIM_MAX_NODES", "1000")
+    p = _deck_with("\nzz: [" + ",".join(["1"] * 1000) + "]\n", tmp_path)
+    one_error(cli("check", p), 2, "number of values in the deck", "MBSIM_MAX_NODES")
+    monkeypatch.setenv("MBSIM_MAX_NODES", "100000")
+    one_error(cli("check", p), 2, "unknown key 'zz'")
+
+
+def test_a_set_value_is_limited_too():
+    res = cli("check", SLIDER, "--set", "bodies.crank.r=" + "[" * 100 + "]" * 100)
+    one_error(res, 2, "bodies.crank.r", "nesting depth")

@@ -59,12 +59,14 @@ class Node:
 def compose(text: str, file: str, origin: str | None = None) -> Node | None:
     """Parse YAML ``text`` into a Node tree (None for an empty document)."""
     try:
-        # The composer recurses once per nesting level (libyaml's in C: a segfault past some
-        # 10^5 levels), so the depth is checked first on the parser's events, which do not.
-        line = _too_deep_line(text)
-        if line is not None:
-            raise DeckError(limits.DEPTH.exceeded(), Where(file, "", line if origin is None
-                                                           else None))  # fmt: skip
+        # The limits are checked on the parser's event stream first (:func:`_over_limit`):
+        # it stops at the first event past a limit, before anything is composed, so a 10^6-
+        # point table or a 10^5-deep list costs a fraction of a second, and the message is
+        # mbsim's own whatever the YAML library's version.
+        over = _over_limit(text, origin)
+        if over is not None:
+            message, line = over
+            raise DeckError(message, Where(file, "", line if origin is None else None))
         root = yaml.compose(text, Loader=LOADER)
     except RecursionError:  # pragma: no cover - the depth check comes first
         raise DeckError(limits.DEPTH.exceeded(), Where(file)) from None
@@ -113,21 +115,109 @@ def _indent_hint(text: str, row: int) -> str:
             f"{indent(row)} spaces): keys of one mapping start in the same column")
 
 
-def _too_deep_line(text: str) -> int | None:
-    """Line of the first list/mapping nested deeper than the limit, else None (a YAML error
-    is left for the composer to report).  Walking the parser's events does not recurse."""
-    depth, limit = 0, limits.DEPTH.value
+def _over_limit(text: str, origin: str | None = None) -> tuple[str, int | None] | None:
+    """(message, line) of the first place ``text`` goes past a limit of
+    :mod:`mbsim.deck.limits` (bytes, nesting depth, entries of one list or mapping, values
+    in all), else None.
+
+    Walks the parser's events, one at a time, and stops at the first one past a limit: no
+    node is built and nothing recurses, so the cost is that of the events up to there
+    (about 1 us each with libyaml) and the memory that of the text.  A YAML syntax error
+    is left for the composer to report with its line and column.
+    """
+    if len(text) > limits.DECK_BYTES.value:  # deck text not read from a file, --set values
+        return limits.DECK_BYTES.exceeded(len(text)), None
+    max_depth, max_items, max_nodes = limits.DEPTH.value, limits.ITEMS.value, limits.NODES.value
+    start = (yaml.SequenceStartEvent, yaml.MappingStartEvent)
+    end = (yaml.SequenceEndEvent, yaml.MappingEndEvent)
+    value = (yaml.ScalarEvent, yaml.AliasEvent)
+    # open containers: [entries so far (a mapping counts keys and values), events per
+    # entry (2 for a mapping), line of the container]
+    open_: list[list[int]] = []
+    nodes = 0
+    parser = LOADER(text)
     try:
-        for event in yaml.parse(text, Loader=LOADER):
-            if isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
-                depth += 1
-                if depth > limit:
-                    return event.start_mark.line + 1
-            elif isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
-                depth -= 1
+        while parser.check_event():
+            event = parser.get_event()
+            if isinstance(event, end):
+                open_.pop()
+                continue
+            is_start = isinstance(event, start)
+            if not (is_start or isinstance(event, value)):
+                continue  # stream and document events
+            nodes += 1
+            if nodes > max_nodes:
+                return limits.NODES.exceeded(), event.start_mark.line + 1
+            if open_:
+                top = open_[-1]
+                top[0] += 1
+                if top[0] > max_items * top[1]:
+                    return limits.ITEMS.exceeded(), top[2]
+            if is_start:
+                if len(open_) >= max_depth:
+                    return limits.DEPTH.exceeded(), event.start_mark.line + 1
+                per = 2 if isinstance(event, yaml.MappingStartEvent) else 1
+                open_.append([0, per, event.start_mark.line + 1])
     except yaml.YAMLError:
-        return None
+        # PyYAML >= 6.0.4 refuses deep flow nesting (`[[[...`) in its scanner, which reads a
+        # flow collection ahead before it yields the events above: count the brackets.
+        line = _flow_too_deep(text, max_depth)
+        return None if line is None else (limits.DEPTH.exceeded(), line)
+    finally:
+        parser.dispose()
     return None
+
+
+_FLOW_CHARS = re.compile(r"[\[\]{}\"'#]")
+
+
+def _flow_too_deep(text: str, limit: int) -> int | None:
+    """Line where flow brackets ``[ {`` open deeper than ``limit``, else None.
+
+    A scan of the text, not of YAML's events (only called when the parser refused the text):
+    quoted scalars and comments are skipped; a quote counts as one only where a scalar can
+    start (after ``[ { , : -`` or at the start of a line), so ``[don't]`` is a plain word.
+    """
+    depth, pos, n = 0, 0, len(text)
+    while True:
+        m = _FLOW_CHARS.search(text, pos)
+        if m is None:
+            return None
+        c, k = m.group(), m.start()
+        pos = k + 1
+        if c in "[{":
+            depth += 1
+            if depth > limit:
+                return text.count("\n", 0, k) + 1
+        elif c in "]}":
+            depth = max(0, depth - 1)
+        elif c == "#":
+            if k == 0 or text[k - 1] in " \t\n":
+                pos = text.find("\n", k)
+                if pos < 0:
+                    return None
+        else:  # a quote
+            j = k - 1
+            while j >= 0 and text[j] in " \t":
+                j -= 1
+            if j >= 0 and text[j] not in "[{,:-\n":
+                continue  # inside a plain scalar
+            end = k
+            while True:
+                end = text.find(c, end + 1)
+                if end < 0:
+                    return None
+                if c == "'" and end + 1 < n and text[end + 1] == "'":
+                    end += 1  # '' inside single quotes
+                    continue
+                if c == '"':
+                    b = end - 1
+                    while text[b] == "\\":
+                        b -= 1
+                    if (end - 1 - b) % 2:  # an odd number of backslashes escapes it
+                        continue
+                break
+            pos = end + 1
 
 
 class _Converter:
