@@ -253,3 +253,18 @@ def test_values_in_all_are_limited(tmp_path, monkeypatch):
 def test_a_set_value_is_limited_too():
     res = cli("check", SLIDER, "--set", "bodies.crank.r=" + "[" * 100 + "]" * 100)
     one_error(res, 2, "bodies.crank.r", "nesting depth")
+
+
+# -- formulas: long sums and products are flat, nesting has a clean limit ------------------------
+def test_a_sum_of_4999_terms_under_the_length_limit_is_read(tmp_path):
+    formula = "0.3" + "+0" * 4998  # 9 999 characters, 4 999 terms
+    assert len(formula) < 10_000
+    res = cli("check", SLIDER, "--set", f"parameters.ell={formula}")
+    assert res.exit_code == 0, res.output
+
+
+@pytest.mark.parametrize("formula", ["-" * 3000 + "1", "2**" * 1000 + "1",
+                                     "1 if t else " * 500 + "0"])
+def test_deep_formula_nesting_is_a_clean_limit(formula):
+    res = cli("check", SLIDER, "--set", f"parameters.ell={formula}")
+    one_error(res, 2, "parameters.ell", "nested deeper than 100 levels")
