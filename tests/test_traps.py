@@ -268,3 +268,30 @@ def test_a_sum_of_4999_terms_under_the_length_limit_is_read(tmp_path):
 def test_deep_formula_nesting_is_a_clean_limit(formula):
     res = cli("check", SLIDER, "--set", f"parameters.ell={formula}")
     one_error(res, 2, "parameters.ell", "nested deeper than 100 levels")
+
+
+# -- parameters ----------------------------------------------------------------------------------
+def test_9990_chained_parameters_are_each_evaluated_once(tmp_path, monkeypatch):
+    """q_i: q_(i-1) + 1 for i < 9990 (the issue's 172 kB deck took 22 s in `check`; its CPU
+    time: python benchmarks/deck_limits.py): the values are right and each formula is
+    parsed once."""
+    import mbsim.deck.values
+    from mbsim.deck import load_deck
+
+    n = 9990
+    head, rest = SLIDER.read_text().split("parameters:\n", 1)
+    lines = ["  q_0: 1"] + [f"  q_{i}: q_{i - 1} + 1" for i in range(1, n)]
+    p = tmp_path / "chain.yaml"
+    p.write_text(head + "parameters:\n" + "\n".join(lines) + "\n" + rest)
+    calls = []
+    real = mbsim.deck.values.parse_expression
+
+    def counted(text, *a, **k):
+        calls.append(text)
+        return real(text, *a, **k)
+
+    monkeypatch.setattr(mbsim.deck.values, "parse_expression", counted)
+    spec = load_deck(p)
+    assert spec.parameters["q_9989"] == n
+    chained = [c for c in calls if c.startswith("q_")]
+    assert len(chained) == len(set(chained)) == n - 1
