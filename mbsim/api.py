@@ -59,11 +59,16 @@ def run_model(model, mode: str, options: dict | None = None) -> Result:
     """Run one analysis. An MbsimError during the run becomes an incomplete Result only if the
     analysis itself did not already return one (analyses keep partial data themselves).
 
-    Settings are checked first (tolerances in (0, 1), steps > 0, the number of output times:
-    mbsim.deck.limits), so a sweep or study case with ``step: 0`` is a UsageError too."""
+    Settings are checked first: their names (mbsim.deck.schema.ANALYSIS_SETTINGS: a typo
+    such as ``t_ennd`` is a UsageError with a suggestion), tolerances in (0, 1), steps > 0,
+    the number of output times (mbsim.deck.limits), so a sweep or study case with
+    ``step: 0`` is a UsageError too."""
     from mbsim.deck.limits import setting_problems
+    from mbsim.deck.schema import setting_name_problems
 
     fn = analysis_function(mode)
+    for key, message in setting_name_problems(mode, dict(options or {}), internal=True):
+        raise UsageError(message)
     for key, message in setting_problems(dict(options or {}), analysis_defaults(mode)):
         raise UsageError(f"analysis setting {key}: {message}")
     t0 = time.perf_counter()

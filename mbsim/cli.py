@@ -47,7 +47,11 @@ def _check_settings(deck, mode: str, spec, opts: dict, names: dict[str, str]) ->
     option), else the deck key (exit 2)."""
     from mbsim.api import analysis_defaults
     from mbsim.deck.limits import setting_problems
+    from mbsim.deck.schema import setting_name_problems
 
+    for key, _ in setting_name_problems(mode, opts):
+        option = names.get(key, f"--{key.replace('_', '-')}")
+        _fail(UsageError(f"{option} does not apply to --mode {mode}"), deck)
     given = {**spec.analysis.get(mode, {}), **opts}
     for key, message in setting_problems(given, analysis_defaults(mode)):
         where = names[key] if key in opts and key in names else f"analysis.{mode}.{key}"
@@ -276,10 +280,12 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
     Example: mbsim run models/governor.yaml --mode dynamic --t-end 2 -o gov.h5
     """
     from mbsim.api import output_path, run_model
+    from mbsim.lock import OutputLock, lock_path
     from mbsim.output import write_result
     from mbsim.output.hdf5 import prepare_output
     from mbsim.progress import terminal_progress
 
+    lock = None
     try:
         spec, model = _load(deck, sets, scene)
         out = output_path(output, deck, mode, spec.parameters, scene)
@@ -290,6 +296,10 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         _check_settings(deck, mode, spec, opts, {"t_end": "--t-end", "step": "--step",
                         "rtol": "--rtol", "atol": "--atol", "accuracy": "--accuracy"})
         prepare_output(out)  # before the analysis: a bad -o costs nothing
+        # one writer per file: a second run to the same -o is refused (exit 2) while this
+        # one holds OUT.lock (released below, also on errors and Ctrl-C)
+        lock = OutputLock(lock_path(out), f"output {out}").acquire()
+        _warn(lock.warnings)
         prog = terminal_progress(sys.stderr, False if quiet and progress is None else progress,
                                  label=mode)
         if prog is not None:
@@ -307,6 +317,9 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         write_result(result, out)
     except MbsimError as exc:
         _fail(exc, deck)
+    finally:
+        if lock is not None:
+            lock.release()
     if make_plot:
         _default_plot(result, out.with_suffix(".png"), quiet)
     if not quiet:

@@ -344,6 +344,8 @@ def _check_paths(deck, scene: str | None, params: Sequence[Param]) -> None:
     from mbsim.deck.schema import can_add
     from mbsim.deck.tree import Node, PathError, set_path
 
+    from mbsim.deck.schema import setting_name_problems
+
     root, file = deck.variant(scene), deck.file  # a copy-on-write view: deck stays as parsed
     for p in params:
         try:
@@ -351,6 +353,10 @@ def _check_paths(deck, scene: str | None, params: Sequence[Param]) -> None:
         except PathError as exc:
             raise DeckError(f"cannot --param {p.label}: {exc.message}", Where(file, p.path)) \
                 from None
+        segs = p.path.split(".")
+        if len(segs) == 3 and segs[0] == "analysis":  # analysis.<mode>.<setting>
+            for _, message in setting_name_problems(segs[1], [segs[2]]):
+                raise DeckError(f"cannot --param {p.label}: {message}", Where(file, p.path))
 
 
 def plan_sweep(deck: str | Path, mode: str, params: Sequence[Param], out_dir: str | Path,
@@ -386,6 +392,11 @@ def plan_sweep(deck: str | Path, mode: str, params: Sequence[Param], out_dir: st
         raise SweepError(f"--param {clash[0]}: the index has a column of that name; "
                          f"write the key path, parameters.{clash[0]}")
     summaries = tuple(dict.fromkeys(summaries))  # one column per distinct --summary
+    from mbsim.deck.schema import setting_name_problems
+
+    given = [k for k, v in (options or {}).items() if v is not None]
+    for key, _ in setting_name_problems(mode, given):
+        raise SweepError(f"--{key.replace('_', '-')} does not apply to --mode {mode}")
     parsed = parse_deck(deck, scene)
     spec = parsed.spec(scene, overrides)
     _check_paths(parsed, scene, params)

@@ -295,3 +295,137 @@ def test_9990_chained_parameters_are_each_evaluated_once(tmp_path, monkeypatch):
     assert spec.parameters["q_9989"] == n
     chained = [c for c in calls if c.startswith("q_")]
     assert len(chained) == len(set(chained)) == n - 1
+
+
+# -- unknown analysis settings -------------------------------------------------------------------
+def test_a_misspelt_setting_in_the_deck_is_an_error_with_a_suggestion(tmp_path):
+    deck = slider_with(tmp_path, "analysis:\n", "analysis:\n  dynamic: {t_ned: 0.5}\n")
+    line = deck.read_text().split("\n").index("  dynamic: {t_ned: 0.5}") + 1
+    one_error(cli("check", deck), 2, f"deck.yaml:{line}:", "analysis.dynamic.t_ned",
+              "unknown setting 't_ned' of the dynamic analysis; did you mean t_end?")
+
+
+def test_a_misspelt_setting_given_with_set_or_sweep_param_is_an_error(tmp_path):
+    one_error(cli("run", SLIDER, "--mode", "kinematic", "--set", "analysis.kinematic.stepp=0.1",
+                  "-o", tmp_path / "x.h5"), 2, "analysis.kinematic.stepp", "did you mean step?")
+    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param",
+              "analysis.kinematic.t_ennd=0.1,0.2", "-o", tmp_path / "sw")
+    one_error(res, 2, "cannot --param analysis.kinematic.t_ennd", "did you mean t_end?")
+    assert not (tmp_path / "sw").exists()
+
+
+def test_a_misspelt_setting_of_run_model_is_a_usage_error():
+    from mbsim.api import load_model, run_model
+    from mbsim.errors import UsageError
+
+    _, model = load_model(SLIDER)
+    with pytest.raises(UsageError, match="unknown setting 't_ennd' of the inverse analysis; "
+                                         "did you mean t_end"):
+        run_model(model, "inverse", {"t_ennd": 1})
+
+
+def test_an_option_of_another_mode_is_a_usage_error(tmp_path):
+    one_error(cli("run", SLIDER, "--mode", "kinematic", "--integrator", "rk4", "-o",
+                  tmp_path / "x.h5"), 2, "--integrator does not apply to --mode kinematic")
+    one_error(cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3", "--rtol",
+                  "1e-6", "-o", tmp_path / "sw"), 2, "--rtol does not apply to --mode kinematic")
+
+
+def test_a_misspelt_setting_of_a_study_case_is_an_error(tmp_path):
+    deck = slider_with(tmp_path, "\nstudies:\n", "\nstudies:\n  s: {cases: [{label: a, mode: "
+                       "kinematic, options: {t_edn: 0.1}}]}\n")
+    one_error(cli("check", deck), 2, "options.t_edn", "did you mean t_end?")
+
+
+# -- one writer per output: locks ----------------------------------------------------------------
+def _plant_lock(path: Path, pid: int) -> None:
+    import json
+    import socket
+
+    path.write_text(json.dumps({"pid": pid, "host": socket.gethostname(), "command": "mbsim run",
+                                "started": "2026-11-27T21:00:00+00:00"}))
+
+
+def _dead_pid() -> int:
+    import subprocess
+    import sys
+
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+def test_a_second_run_to_an_output_in_use_is_refused(tmp_path):
+    out = tmp_path / "r.h5"
+    _plant_lock(tmp_path / "r.h5.lock", os.getpid())  # a live holder
+    res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.01", "-o", out)
+    one_error(res, 2, f"output {out} is in use", f"process {os.getpid()}", "mbsim run",
+              f"delete {out}.lock")
+    assert not out.exists() and (tmp_path / "r.h5.lock").exists()
+
+
+def test_a_stale_lock_of_a_dead_process_is_taken_over_with_a_warning(tmp_path):
+    out = tmp_path / "r.h5"
+    dead = _dead_pid()
+    _plant_lock(tmp_path / "r.h5.lock", dead)
+    res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.01", "-o", out)
+    assert res.exit_code == 0, res.output
+    warnings = [ln for ln in res.stderr.splitlines() if ln.startswith("warning:")]
+    assert len(warnings) == 1 and f"process {dead}" in warnings[0] and "no longer runs" \
+        in warnings[0]
+    assert out.is_file() and not (tmp_path / "r.h5.lock").exists()
+
+
+def test_the_lock_is_released_after_an_error(tmp_path):
+    out = tmp_path / "r.h5"
+    res = cli("run", SLIDER, "--mode", "kinematic", "--set", "parameters.ell=0.2362",
+              "--t-end", "0.15", "-o", out)  # locks up near t = 0.11 s: exit 1, data kept
+    assert res.exit_code == 1, res.output
+    assert out.is_file() and not (tmp_path / "r.h5.lock").exists()
+
+
+def test_two_processes_writing_one_output(tmp_path):
+    """A long run holds its -o; a second run to it is refused naming the first one's pid;
+    SIGTERM ends the first (its outputs kept) and releases the lock."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out, lock = tmp_path / "r.h5", tmp_path / "r.h5.lock"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    first = subprocess.Popen([sys.executable, "-m", "mbsim", "run", str(SLIDER), "-m",
+                              "kinematic", "--t-end", "500", "--step", "0.001", "-o", str(out),
+                              "--no-progress"], env=env, stderr=subprocess.PIPE, text=True)
+    try:
+        end = time.monotonic() + 60
+        while not lock.exists() and first.poll() is None and time.monotonic() < end:
+            time.sleep(0.05)
+        assert lock.exists(), "the first run did not take the lock"
+        second = subprocess.run([sys.executable, "-m", "mbsim", "run", str(SLIDER), "-m",
+                                 "kinematic", "--t-end", "0.01", "-o", str(out)], env=env,
+                                capture_output=True, text=True, timeout=120)
+        assert second.returncode == 2, second.stderr
+        assert f"process {first.pid} on host" in second.stderr and "Traceback" not in \
+            second.stderr
+    finally:
+        first.send_signal(signal.SIGTERM)
+        first.communicate(timeout=120)
+    assert first.returncode == 1  # interrupted, outputs kept
+    assert out.is_file() and not lock.exists()
+
+
+def test_a_second_sweep_into_a_folder_in_use_is_refused(tmp_path):
+    out = tmp_path / "sw"
+    out.mkdir()
+    _plant_lock(out / "sweep.lock", os.getpid())
+    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27", "--t-end",
+              "0.02", "-j", "1", "-o", out)
+    one_error(res, 2, f"sweep folder {out} is in use", f"process {os.getpid()}")
+    assert not list(out.glob("*.h5"))
+    _plant_lock(out / "sweep.lock", _dead_pid())
+    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27", "--t-end",
+              "0.02", "-j", "1", "-o", out)
+    assert res.exit_code == 0, res.output
+    assert "no longer runs" in res.stderr
+    assert len(list(out.glob("ell=*.h5"))) == 2 and not (out / "sweep.lock").exists()
