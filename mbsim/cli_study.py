@@ -66,6 +66,12 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
         _fail(exc, deck)
     _warn(spec.warnings)
     folder = Path(out_dir) if out_dir else Path(f"{Path(deck).stem}_studies")
+    from mbsim.sweep import prepare_out_dir
+
+    try:
+        prepare_out_dir(folder)  # before any case: a folder that cannot be written is exit 2
+    except MbsimError as exc:
+        _fail(exc, deck)
     failed = False
     seen_warnings: set[str] = set(spec.warnings)
 

@@ -182,6 +182,8 @@ def _never(*a, **k):
      "-o: output {d}/nofolder/a.gif: the folder {d}/nofolder does not exist"),
     (["run", SLIDER, "--mode", "kinematic", "-o", "{d}/nofolder/r.h5"], "mbsim.api",
      "run_model", "output {d}/nofolder/r.h5: the folder"),
+    (["study", SLIDER, "inverse_rod_length", "-o", "{h5}/x"], "mbsim.study", "run_study",
+     "output folder {h5}/x: cannot write there"),
 ])  # fmt: skip
 def test_every_command_checks_its_output_path_first(tmp_path, slider_h5, monkeypatch, args,
                                                     module, fn, says):
