@@ -234,8 +234,8 @@ class _Converter:
     def line(self, ynode: yaml.Node) -> int | None:
         return None if self.origin else ynode.start_mark.line + 1
 
-    def fail(self, ynode: yaml.Node, message: str) -> DeckError:
-        return DeckError(message, Where(self.file, "", self.line(ynode)))
+    def fail(self, ynode: yaml.Node, message: str, path: str = "") -> DeckError:
+        return DeckError(message, Where(self.file, path, self.line(ynode)))
 
     def convert(self, ynode: yaml.Node, path: str, depth: int = 0) -> Node:
         key = id(ynode)
@@ -247,7 +247,7 @@ class _Converter:
             raise self.fail(ynode, limits.DEPTH.exceeded(depth))
         if not isinstance(ynode, yaml.ScalarNode):
             if ynode.tag not in CONTAINER_TAGS:
-                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}")
+                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}", path)
             if len(ynode.value) > self.max_items:
                 raise self.fail(ynode, limits.ITEMS.exceeded(len(ynode.value)))
         self.active.add(key)
@@ -260,9 +260,10 @@ class _Converter:
             try:
                 value = self.constructor.construct_object(ynode)
             except (yaml.YAMLError, ValueError, OverflowError):  # ValueError: a bad !!timestamp
-                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}") from None
+                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}", path) \
+                    from None
             if isinstance(value, bytes):  # `!!binary`: no field of a deck holds bytes
-                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}")
+                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}", path)
             node = Node("scalar", value, self.line(ynode), text=ynode.value)
         node.origin = self.origin
         self.active.discard(key)
