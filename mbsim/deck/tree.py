@@ -65,8 +65,8 @@ def compose(text: str, file: str, origin: str | None = None) -> Node | None:
         # mbsim's own whatever the YAML library's version.
         over = _over_limit(text, origin)
         if over is not None:
-            message, line = over
-            raise DeckError(message, Where(file, "", line if origin is None else None))
+            message, path, line = over
+            raise DeckError(message, Where(file, path, line if origin is None else None))
         root = yaml.compose(text, Loader=LOADER)
     except RecursionError:  # pragma: no cover - the depth check comes first
         raise DeckError(limits.DEPTH.exceeded(), Where(file)) from None
@@ -115,8 +115,8 @@ def _indent_hint(text: str, row: int) -> str:
             f"{indent(row)} spaces): keys of one mapping start in the same column")
 
 
-def _over_limit(text: str, origin: str | None = None) -> tuple[str, int | None] | None:
-    """(message, line) of the first place ``text`` goes past a limit of
+def _over_limit(text: str, origin: str | None = None) -> tuple[str, str, int | None] | None:
+    """(message, key path, line) of the first place ``text`` goes past a limit of
     :mod:`mbsim.deck.limits` (bytes, nesting depth, entries of one list or mapping, values
     in all), else None.
 
@@ -126,14 +126,14 @@ def _over_limit(text: str, origin: str | None = None) -> tuple[str, int | None] 
     is left for the composer to report with its line and column.
     """
     if len(text) > limits.DECK_BYTES.value:  # deck text not read from a file, --set values
-        return limits.DECK_BYTES.exceeded(len(text)), None
+        return limits.DECK_BYTES.exceeded(len(text)), "", None
     max_depth, max_items, max_nodes = limits.DEPTH.value, limits.ITEMS.value, limits.NODES.value
     start = (yaml.SequenceStartEvent, yaml.MappingStartEvent)
     end = (yaml.SequenceEndEvent, yaml.MappingEndEvent)
     value = (yaml.ScalarEvent, yaml.AliasEvent)
-    # open containers: [entries so far (a mapping counts keys and values), events per
-    # entry (2 for a mapping), line of the container]
-    open_: list[list[int]] = []
+    # the open containers, innermost last: [events so far, events per entry (2 for a
+    # mapping: key and value), line, key path, the mapping's last key]
+    open_: list[list] = []
     nodes = 0
     parser = LOADER(text)
     try:
@@ -146,26 +146,37 @@ def _over_limit(text: str, origin: str | None = None) -> tuple[str, int | None] 
             if not (is_start or isinstance(event, value)):
                 continue  # stream and document events
             nodes += 1
-            if nodes > max_nodes:
-                return limits.NODES.exceeded(), event.start_mark.line + 1
+            path = ""
             if open_:
                 top = open_[-1]
+                if top[1] == 2 and top[0] % 2 == 0:  # a key of a mapping
+                    top[4] = event.value if isinstance(event, yaml.ScalarEvent) else "?"
+                if is_start or nodes > max_nodes:
+                    path = (_join_key(top[3], top[4]) if top[1] == 2
+                            else f"{top[3]}[{top[0]}]")  # fmt: skip
                 top[0] += 1
                 if top[0] > max_items * top[1]:
-                    return limits.ITEMS.exceeded(), top[2]
+                    return limits.ITEMS.exceeded(), top[3], top[2]
+            if nodes > max_nodes:
+                return limits.NODES.exceeded(), path, event.start_mark.line + 1
             if is_start:
                 if len(open_) >= max_depth:
-                    return limits.DEPTH.exceeded(), event.start_mark.line + 1
+                    return limits.DEPTH.exceeded(), path, event.start_mark.line + 1
                 per = 2 if isinstance(event, yaml.MappingStartEvent) else 1
-                open_.append([0, per, event.start_mark.line + 1])
+                open_.append([0, per, event.start_mark.line + 1, path, ""])
     except yaml.YAMLError:
         # PyYAML >= 6.0.4 refuses deep flow nesting (`[[[...`) in its scanner, which reads a
         # flow collection ahead before it yields the events above: count the brackets.
         line = _flow_too_deep(text, max_depth)
-        return None if line is None else (limits.DEPTH.exceeded(), line)
+        return None if line is None else (limits.DEPTH.exceeded(), "", line)
     finally:
         parser.dispose()
     return None
+
+
+def _join_key(path: str, key: str) -> str:
+    key = key if len(key) <= 40 else key[:40] + "..."
+    return f"{path}.{key}" if path else key
 
 
 _FLOW_CHARS = re.compile(r"[\[\]{}\"'#]")
@@ -338,7 +349,8 @@ def from_value(value: Any, file: str, path: str, origin: str = "--set") -> Node:
     try:
         node = compose(value, file, origin=origin)
     except DeckError as exc:
-        raise DeckError(f"{origin} {path}={value}: {exc.message}", Where(file, path)) from None
+        shown = value if len(value) <= 80 else value[:80] + f"... (+{len(value) - 80} characters)"
+        raise DeckError(f"{origin} {path}={shown}: {exc.message}", Where(file, path)) from None
     return node if node is not None else Node("scalar", None, None, "", origin=origin)
 
 
