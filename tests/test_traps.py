@@ -430,3 +430,38 @@ def test_a_second_sweep_into_a_folder_in_use_is_refused(tmp_path):
     assert res.exit_code == 0, res.output
     assert "no longer runs" in res.stderr
     assert len(list(out.glob("ell=*.h5"))) == 2 and not (out / "sweep.lock").exists()
+
+
+def test_sweep_whose_folder_fills_before_the_cases_run_ends_in_one_line(tmp_path, monkeypatch):
+    """The spool folder of the workers' results cannot be made (ENOSPC): one error line,
+    exit 1, nothing half-written left as a result."""
+    import tempfile
+
+    import mbsim.sweep
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "spool")
+
+    monkeypatch.setattr(mbsim.sweep.tempfile, "TemporaryDirectory", full)
+    out = tmp_path / "sw"
+    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27",
+              "--t-end", "0.02", "-j", "1", "-o", out)
+    one_error(res, 1, f"sweep into {out} stopped after 0 of 2 case(s)",
+              os.strerror(errno.ENOSPC))
+    assert not list(out.glob("ell=*.h5")) and not (out / "sweep.lock").exists()
+    assert [r["status"] for r in read_index(out / "index.csv")] == ["cancelled"] * 2
+
+
+def test_sweep_into_a_folder_that_cannot_be_made_runs_nothing(tmp_path, monkeypatch):
+    real_mkdir = Path.mkdir
+
+    def read_only(self, *a, **k):
+        if self.name == "sw":
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
+        return real_mkdir(self, *a, **k)
+
+    monkeypatch.setattr(Path, "mkdir", read_only)
+    out = tmp_path / "sw"
+    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27",
+              "--t-end", "0.02", "-j", "1", "-o", out)
+    one_error(res, 2, f"output folder {out}", os.strerror(errno.EROFS))
