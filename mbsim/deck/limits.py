@@ -5,6 +5,11 @@ Decks come from other people: a limit turns a deck that would take minutes or gi
 names the limit and the environment variable that raises it (docs/deck.md, "Limits").
 The defaults are far above the seed's decks (largest: 25 kB, nesting 7, lists of 12 items,
 38 parameters, 2001 output times) and bound the load time to about a second.
+
+Where each is checked: DECK_BYTES on the file's size before it is read (and on deck text
+given otherwise); DEPTH, ITEMS and NODES on YAML's parser events as they come, before
+anything is composed (mbsim.deck.tree._over_limit); NAME_CHARS, TABLE_POINTS,
+POLYNOMIAL_TERMS and PARAMETERS on the composed tree; OUTPUTS with the analysis settings.
 """
 
 from __future__ import annotations
