@@ -51,7 +51,7 @@ class Limit:
 DECK_BYTES = Limit("DECK_BYTES", 16 * 2**20, "deck file size (bytes)")
 DEPTH = Limit("DEPTH", 64, "nesting depth of lists and mappings")
 ITEMS = Limit("ITEMS", 100_000, "number of entries of one list or mapping")
-NODES = Limit("NODES", 1_000_000, "number of values in the deck (every number, text, list and "
+NODES = Limit("NODES", 500_000, "number of values in the deck (every number, text, list and "
               "mapping)")
 NAME_CHARS = Limit("NAME_CHARS", 200, "length of a key (characters)")
 TABLE_POINTS = Limit("TABLE_POINTS", 100_000, "number of points of a table or polynomial")

@@ -32,7 +32,7 @@ CONTAINER_TAGS = ("tag:yaml.org,2002:seq", "tag:yaml.org,2002:map")
 LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, slots=True)
 class Node:
     """One YAML value.
 
@@ -231,6 +231,13 @@ def _flow_too_deep(text: str, limit: int) -> int | None:
             pos = end + 1
 
 
+_STR_TAG, _INT_TAG, _FLOAT_TAG = ("tag:yaml.org,2002:str", "tag:yaml.org,2002:int",
+                                  "tag:yaml.org,2002:float")
+# numbers that int()/float() read exactly as YAML 1.1 does (no 0x, 0o17, 1_000, 1:30, .inf)
+_PLAIN_INT = re.compile(r"-?(?:0|[1-9][0-9]*)")
+_PLAIN_FLOAT = re.compile(r"-?(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+][0-9]+)?")
+
+
 class _Converter:
     def __init__(self, file: str, origin: str | None):
         self.file = file
@@ -248,7 +255,31 @@ class _Converter:
     def fail(self, ynode: yaml.Node, message: str, path: str = "") -> DeckError:
         return DeckError(message, Where(self.file, path, self.line(ynode)))
 
+    def scalar(self, ynode: yaml.ScalarNode, path: str, index: int | None = None) -> Node:
+        """A scalar as YAML's safe loader reads it; plain strings and decimal numbers
+        directly (a 10^5-point table is mostly these), the rest through the constructor.
+        ``index``: the item number in the list at ``path`` (for the message only)."""
+        tag, text = ynode.tag, ynode.value
+        if tag == _STR_TAG:
+            value = text
+        elif tag == _INT_TAG and _PLAIN_INT.fullmatch(text):
+            value = int(text)
+        elif tag == _FLOAT_TAG and _PLAIN_FLOAT.fullmatch(text):
+            value = float(text)
+        else:
+            where = path if index is None else f"{path}[{index}]"
+            try:
+                value = self.constructor.construct_object(ynode)
+            except (yaml.YAMLError, ValueError, OverflowError):  # ValueError: a bad !!timestamp
+                raise self.fail(ynode, f"unsupported YAML tag {quote(tag)}", where) from None
+            if isinstance(value, bytes):  # `!!binary`: no field of a deck holds bytes
+                raise self.fail(ynode, f"unsupported YAML tag {quote(tag)}", where)
+        line = None if self.origin else ynode.start_mark.line + 1
+        return Node("scalar", value, line, text, origin=self.origin)
+
     def convert(self, ynode: yaml.Node, path: str, depth: int = 0) -> Node:
+        if type(ynode) is yaml.ScalarNode:  # shared by aliases or not, a scalar is a value
+            return self.scalar(ynode, path)
         key = id(ynode)
         if key in self.done:
             return self.done[key]
@@ -264,18 +295,11 @@ class _Converter:
         self.active.add(key)
         if isinstance(ynode, yaml.MappingNode):
             node = self.mapping(ynode, path, depth)
-        elif isinstance(ynode, yaml.SequenceNode):
-            items = [self.convert(v, f"{path}[{i}]", depth + 1) for i, v in enumerate(ynode.value)]
-            node = Node("seq", items, self.line(ynode))
         else:
-            try:
-                value = self.constructor.construct_object(ynode)
-            except (yaml.YAMLError, ValueError, OverflowError):  # ValueError: a bad !!timestamp
-                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}", path) \
-                    from None
-            if isinstance(value, bytes):  # `!!binary`: no field of a deck holds bytes
-                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}", path)
-            node = Node("scalar", value, self.line(ynode), text=ynode.value)
+            scalar, convert, sn = self.scalar, self.convert, yaml.ScalarNode
+            items = [scalar(v, path, i) if type(v) is sn else convert(v, f"{path}[{i}]", depth + 1)
+                     for i, v in enumerate(ynode.value)]  # fmt: skip
+            node = Node("seq", items, self.line(ynode))
         node.origin = self.origin
         self.active.discard(key)
         self.done[key] = node
