@@ -16,7 +16,10 @@ Decks (issue 23, item 7; targets: <= 2 s CPU each, <= 200 MB for the refused tab
 - ``study_mode_1e5``: a 1.2 MB deck whose study case ``mode`` is a 10^5-element list (was
   18 s: the message was built from every item);
 - ``sum_4999``: a parameter that is a sum of 4 999 terms, just under the 10 000-character
-  formula limit (was refused with a recursion message).
+  formula limit (was refused with a recursion message);
+- ``table_1e5``: the largest table the limits allow (99 999 points), a valid deck;
+- ``values_5e5``: five lists of 99 000 numbers, just under the limit of 500 000 values in a
+  deck (refused afterwards for its unknown keys): the most a deck can cost to compose.
 """
 
 from __future__ import annotations
@@ -45,6 +48,18 @@ def table(n: int) -> str:
                           f"function: {{table: {{t: [{t}], value: [{v}]}}}}")
 
 
+def table_points(n: int) -> str:
+    t = ",".join(f"{i * 1e-5:.5f}" for i in range(n))
+    v = ",".join(f"{(i % 100) * 0.01:.2f}" for i in range(n))
+    return SLIDER.replace("function: pi/2 + omega*t",
+                          f"function: {{table: {{t: [{t}], value: [{v}]}}}}")
+
+
+def many_values(lists: int, n: int) -> str:
+    return SLIDER + "\n" + "\n".join(f"z{k}: [" + ",".join(["1.25"] * n) + "]"
+                                      for k in range(lists)) + "\n"
+
+
 def study_mode(n: int) -> str:
     modes = "[" + ", ".join(["kinematic"] * n) + "]"
     return ("bodies:\n  ground: {ground: true}\n  b: {mass: 1, inertia: [1, 1, 1]}\n"
@@ -62,6 +77,8 @@ DECKS = {
     "table_1e6": lambda: table(10**6),
     "study_mode_1e5": lambda: study_mode(99_999),
     "sum_4999": lambda: long_sum(4999),
+    "table_1e5": lambda: table_points(99_999),
+    "values_5e5": lambda: many_values(5, 99_000),
 }
 
 
