@@ -328,6 +328,11 @@ class Reader:
                 raise self.error(cw, f"expected a list of numbers, got {describe(col)}", col)
             if len(col.value) > limits.TABLE_POINTS.value:
                 raise self.error(cw, limits.TABLE_POINTS.exceeded(len(col.value)))
+            plain = [v.value for v in col.value]  # numbers as YAML read them: no conversion
+            if all(type(x) in (int, float) for x in plain) and np.isfinite(
+                    arr := np.array(plain, dtype=float)).all():  # fmt: skip
+                cols[key] = arr
+                continue
             cols[key] = np.array(
                 [self.number(v, _item(cw, i, v), kdim) for i, v in enumerate(col.value)]
             )
