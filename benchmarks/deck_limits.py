@@ -44,26 +44,34 @@ def chain(n: int) -> str:
 def table(n: int) -> str:
     t = ",".join(str(i) for i in range(n))
     v = ",".join(str(i % 10) for i in range(n))
-    return SLIDER.replace("function: pi/2 + omega*t",
-                          f"function: {{table: {{t: [{t}], value: [{v}]}}}}")
+    return SLIDER.replace(
+        "function: pi/2 + omega*t", f"function: {{table: {{t: [{t}], value: [{v}]}}}}"
+    )
 
 
 def table_points(n: int) -> str:
     t = ",".join(f"{i * 1e-5:.5f}" for i in range(n))
     v = ",".join(f"{(i % 100) * 0.01:.2f}" for i in range(n))
-    return SLIDER.replace("function: pi/2 + omega*t",
-                          f"function: {{table: {{t: [{t}], value: [{v}]}}}}")
+    return SLIDER.replace(
+        "function: pi/2 + omega*t", f"function: {{table: {{t: [{t}], value: [{v}]}}}}"
+    )
 
 
 def many_values(lists: int, n: int) -> str:
-    return SLIDER + "\n" + "\n".join(f"z{k}: [" + ",".join(["1.25"] * n) + "]"
-                                      for k in range(lists)) + "\n"
+    return (
+        SLIDER
+        + "\n"
+        + "\n".join(f"z{k}: [" + ",".join(["1.25"] * n) + "]" for k in range(lists))
+        + "\n"
+    )
 
 
 def study_mode(n: int) -> str:
     modes = "[" + ", ".join(["kinematic"] * n) + "]"
-    return ("bodies:\n  ground: {ground: true}\n  b: {mass: 1, inertia: [1, 1, 1]}\n"
-            f"studies:\n  s: {{cases: [{{label: a, mode: {modes}}}]}}\n")
+    return (
+        "bodies:\n  ground: {ground: true}\n  b: {mass: 1, inertia: [1, 1, 1]}\n"
+        f"studies:\n  s: {{cases: [{{label: a, mode: {modes}}}]}}\n"
+    )
 
 
 def long_sum(n: int) -> str:
@@ -86,8 +94,13 @@ def measure(path: Path) -> tuple[float, float, int, str]:
     """(CPU s, peak MB, exit code, last stderr line) of `mbsim check path`."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     with tempfile.TemporaryFile() as err:
-        p = subprocess.Popen([sys.executable, "-m", "mbsim", "check", str(path)],
-                             stdout=subprocess.DEVNULL, stderr=err, env=env, cwd=ROOT)
+        p = subprocess.Popen(
+            [sys.executable, "-m", "mbsim", "check", str(path)],
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            env=env,
+            cwd=ROOT,
+        )
         _, status, usage = os.wait4(p.pid, 0)
         p.returncode = os.waitstatus_to_exitcode(status)
         err.seek(0)

@@ -67,7 +67,7 @@ def run_model(model, mode: str, options: dict | None = None) -> Result:
     from mbsim.deck.schema import setting_name_problems
 
     fn = analysis_function(mode)
-    for key, message in setting_name_problems(mode, dict(options or {}), internal=True):
+    for _key, message in setting_name_problems(mode, dict(options or {}), internal=True):
         raise UsageError(message)
     for key, message in setting_problems(dict(options or {}), analysis_defaults(mode)):
         raise UsageError(f"analysis setting {key}: {message}")

@@ -64,8 +64,10 @@ def _holder(path: Path) -> dict | None:
 def describe_holder(holder: dict | None) -> str:
     if not holder:
         return "another process (its lock file cannot be read)"
-    return (f"process {holder.get('pid', '?')} on host {holder.get('host', '?')} since "
-            f"{holder.get('started', '?')} ({holder.get('command', 'mbsim')})")
+    return (
+        f"process {holder.get('pid', '?')} on host {holder.get('host', '?')} since "
+        f"{holder.get('started', '?')} ({holder.get('command', 'mbsim')})"
+    )
 
 
 class OutputLock:
@@ -105,18 +107,24 @@ class OutputLock:
                 self._take_over_if_stale()
                 continue
             except OSError as exc:
-                raise UsageError(f"{self.what}: cannot create the lock file {self.path}: "
-                                 f"{exc.strerror or exc}") from None
+                raise UsageError(
+                    f"{self.what}: cannot create the lock file {self.path}: {exc.strerror or exc}"
+                ) from None
             self.record = record
             return self
         raise LockedError(self._refusal(_holder(self.path)))
 
     def _refusal(self, holder: dict | None) -> str:
         other_host = holder is not None and holder.get("host") != socket.gethostname()
-        gone = ("if that run is gone (it runs on another host, which mbsim cannot check), "
-                if other_host else "if that run is gone, ")
-        return (f"{self.what} is in use: written by {describe_holder(holder)}; wait for it "
-                f"to finish or, {gone}delete {self.path}")
+        gone = (
+            "if that run is gone (it runs on another host, which mbsim cannot check), "
+            if other_host
+            else "if that run is gone, "
+        )
+        return (
+            f"{self.what} is in use: written by {describe_holder(holder)}; wait for it "
+            f"to finish or, {gone}delete {self.path}"
+        )
 
     def _take_over_if_stale(self) -> None:
         """Remove the lock at ``path`` if its process no longer runs on this host; else
@@ -127,8 +135,7 @@ class OutputLock:
                 return  # released meanwhile: try again
             raise LockedError(self._refusal(None))
         pid = holder.get("pid")
-        if holder.get("host") != socket.gethostname() or not isinstance(pid, int) \
-                or _alive(pid):
+        if holder.get("host") != socket.gethostname() or not isinstance(pid, int) or _alive(pid):
             raise LockedError(self._refusal(holder))
         stale = self.path.with_name(f".{self.path.name}.stale-{os.getpid()}")
         try:
@@ -139,8 +146,10 @@ class OutputLock:
             os.rename(stale, self.path)
             raise LockedError(self._refusal(_holder(self.path)))
         stale.unlink(missing_ok=True)
-        self.warnings.append(f"{self.what}: took over the lock {self.path} of "
-                             f"{describe_holder(holder)}, which no longer runs")
+        self.warnings.append(
+            f"{self.what}: took over the lock {self.path} of "
+            f"{describe_holder(holder)}, which no longer runs"
+        )
 
     def release(self) -> None:
         """Remove the lock file if it is still this process's."""

@@ -341,10 +341,8 @@ class Sweep:
 def _check_paths(deck, scene: str | None, params: Sequence[Param]) -> None:
     """Every --param key path must exist in the deck (a ParsedDeck) with the scene applied
     (or be a key the format allows there)."""
-    from mbsim.deck.schema import can_add
+    from mbsim.deck.schema import can_add, setting_name_problems
     from mbsim.deck.tree import Node, PathError, set_path
-
-    from mbsim.deck.schema import setting_name_problems
 
     root, file = deck.variant(scene), deck.file  # a copy-on-write view: deck stays as parsed
     for p in params:

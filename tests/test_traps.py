@@ -67,8 +67,9 @@ def test_a_date_given_with_set_is_a_deck_error():
     one_error(res, 2, "bodies.crank.mass", "got a date 2001-12-14", "(value from --set)")
 
 
-@pytest.mark.parametrize("path", ["analysis.dynamic.t_end", "bodies.crank.r[0]",
-                                  "drivers.crank.function"])
+@pytest.mark.parametrize(
+    "path", ["analysis.dynamic.t_end", "bodies.crank.r[0]", "drivers.crank.function"]
+)
 def test_a_date_in_a_setting_vector_or_function_is_a_deck_error(path):
     res = cli("check", SLIDER, "--set", f"{path}=2001-12-14")
     one_error(res, 2, path, "got a date 2001-12-14")
@@ -76,8 +77,20 @@ def test_a_date_in_a_setting_vector_or_function_is_a_deck_error(path):
 
 def test_a_date_given_with_sweep_param_fails_its_case_only(tmp_path):
     out = tmp_path / "sw"
-    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "bodies.crank.mass=0.12,2001-12-14",
-              "--t-end", "0.02", "-j", "1", "-o", out)
+    res = cli(
+        "sweep",
+        SLIDER,
+        "--mode",
+        "kinematic",
+        "--param",
+        "bodies.crank.mass=0.12,2001-12-14",
+        "--t-end",
+        "0.02",
+        "-j",
+        "1",
+        "-o",
+        out,
+    )
     one_error(res, 1, "1 of 2 case(s) not complete")
     rows = {r["bodies.crank.mass"]: r for r in read_index(out / "index.csv")}
     assert rows["0.12"]["status"] == "complete"
@@ -100,8 +113,20 @@ def test_sweep_whose_index_cannot_be_written_keeps_the_case_files(tmp_path, monk
 
     monkeypatch.setattr(mbsim.sweep, "_atomic", full)
     out = tmp_path / "sw"
-    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27",
-              "--t-end", "0.02", "-j", "1", "-o", out)
+    res = cli(
+        "sweep",
+        SLIDER,
+        "--mode",
+        "kinematic",
+        "--param",
+        "ell=0.3,0.27",
+        "--t-end",
+        "0.02",
+        "-j",
+        "1",
+        "-o",
+        out,
+    )
     one_error(res, 1, "cannot write the index", os.strerror(code), "2 case file(s) written")
     assert sorted(p.name for p in out.glob("*.h5")) == ["ell=0.27.h5", "ell=0.3.h5"]
 
@@ -119,8 +144,20 @@ def test_sweep_into_a_folder_that_takes_no_file_runs_nothing(tmp_path, monkeypat
 
     monkeypatch.setattr(builtins, "open", refuse)
     out = tmp_path / "sw"
-    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27",
-              "--t-end", "0.02", "-j", "1", "-o", out)
+    res = cli(
+        "sweep",
+        SLIDER,
+        "--mode",
+        "kinematic",
+        "--param",
+        "ell=0.3,0.27",
+        "--t-end",
+        "0.02",
+        "-j",
+        "1",
+        "-o",
+        out,
+    )
     one_error(res, 2, f"output folder {out}", os.strerror(code))
     assert not list(out.glob("*.h5"))
 
@@ -139,15 +176,24 @@ def test_sweep_into_a_folder_that_takes_no_file_runs_nothing(tmp_path, monkeypat
     ("{mode:.3f}.h5", "Unknown format code"),
 ])  # fmt: skip
 def test_output_template_takes_only_plain_documented_fields(tmp_path, template, says):
-    res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.01", "-o",
-              tmp_path / template)
+    res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.01", "-o", tmp_path / template)
     one_error(res, 2, "output name template", says)
     assert not list(tmp_path.iterdir())
 
 
 def test_output_template_fields_and_short_formats(tmp_path):
-    res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.01", "--set",
-              "parameters.ell=0.27", "-o", tmp_path / "{deck}_{mode}_{ell:.3f}{scene}.h5")
+    res = cli(
+        "run",
+        SLIDER,
+        "--mode",
+        "kinematic",
+        "--t-end",
+        "0.01",
+        "--set",
+        "parameters.ell=0.27",
+        "-o",
+        tmp_path / "{deck}_{mode}_{ell:.3f}{scene}.h5",
+    )
     assert res.exit_code == 0, res.output
     assert (tmp_path / "slider_crank_kinematic_0.270.h5").is_file()
 
@@ -183,8 +229,9 @@ def _never(*a, **k):
     (["study", SLIDER, "inverse_rod_length", "-o", "{h5}/x"], "mbsim.study", "run_study",
      "output folder {h5}/x: cannot write there"),
 ])  # fmt: skip
-def test_every_command_checks_its_output_path_first(tmp_path, slider_h5, monkeypatch, args,
-                                                    module, fn, says):
+def test_every_command_checks_its_output_path_first(
+    tmp_path, slider_h5, monkeypatch, args, module, fn, says
+):
     import importlib
 
     monkeypatch.setattr(importlib.import_module(module), fn, _never)
@@ -213,13 +260,21 @@ def test_a_compact_million_point_table_is_refused_while_parsing(tmp_path, monkey
     n = 10**6
     text = SLIDER.read_text().replace(
         "function: pi/2 + omega*t",
-        "function: {table: {t: [" + ",".join(map(str, range(n))) + "], value: ["
-        + ",".join("1" for _ in range(n)) + "]}}")
+        "function: {table: {t: ["
+        + ",".join(map(str, range(n)))
+        + "], value: ["
+        + ",".join("1" for _ in range(n))
+        + "]}}",
+    )
     p = tmp_path / "table.yaml"
     p.write_text(text)
     line = text[: text.index("{table")].count("\n") + 1
-    one_error(cli("check", p), 2, f"table.yaml:{line}: drivers.crank.function.table.t: "
-              "number of entries of one list", "MBSIM_MAX_ITEMS")
+    one_error(
+        cli("check", p),
+        2,
+        f"table.yaml:{line}: drivers.crank.function.table.t: number of entries of one list",
+        "MBSIM_MAX_ITEMS",
+    )
 
 
 @pytest.mark.parametrize("nesting", [
@@ -264,8 +319,9 @@ def test_a_sum_of_4999_terms_under_the_length_limit_is_read(tmp_path):
     assert res.exit_code == 0, res.output
 
 
-@pytest.mark.parametrize("formula", ["-" * 3000 + "1", "2**" * 1000 + "1",
-                                     "1 if t else " * 500 + "0"])
+@pytest.mark.parametrize(
+    "formula", ["-" * 3000 + "1", "2**" * 1000 + "1", "1 if t else " * 500 + "0"]
+)
 def test_deep_formula_nesting_is_a_clean_limit(formula):
     res = cli("check", SLIDER, "--set", f"parameters.ell={formula}")
     one_error(res, 2, "parameters.ell", "nested deeper than 100 levels")
@@ -302,15 +358,41 @@ def test_9990_chained_parameters_are_each_evaluated_once(tmp_path, monkeypatch):
 def test_a_misspelt_setting_in_the_deck_is_an_error_with_a_suggestion(tmp_path):
     deck = slider_with(tmp_path, "analysis:\n", "analysis:\n  dynamic: {t_ned: 0.5}\n")
     line = deck.read_text().split("\n").index("  dynamic: {t_ned: 0.5}") + 1
-    one_error(cli("check", deck), 2, f"deck.yaml:{line}:", "analysis.dynamic.t_ned",
-              "unknown setting 't_ned' of the dynamic analysis; did you mean t_end?")
+    one_error(
+        cli("check", deck),
+        2,
+        f"deck.yaml:{line}:",
+        "analysis.dynamic.t_ned",
+        "unknown setting 't_ned' of the dynamic analysis; did you mean t_end?",
+    )
 
 
 def test_a_misspelt_setting_given_with_set_or_sweep_param_is_an_error(tmp_path):
-    one_error(cli("run", SLIDER, "--mode", "kinematic", "--set", "analysis.kinematic.stepp=0.1",
-                  "-o", tmp_path / "x.h5"), 2, "analysis.kinematic.stepp", "did you mean step?")
-    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param",
-              "analysis.kinematic.t_ennd=0.1,0.2", "-o", tmp_path / "sw")
+    one_error(
+        cli(
+            "run",
+            SLIDER,
+            "--mode",
+            "kinematic",
+            "--set",
+            "analysis.kinematic.stepp=0.1",
+            "-o",
+            tmp_path / "x.h5",
+        ),
+        2,
+        "analysis.kinematic.stepp",
+        "did you mean step?",
+    )
+    res = cli(
+        "sweep",
+        SLIDER,
+        "--mode",
+        "kinematic",
+        "--param",
+        "analysis.kinematic.t_ennd=0.1,0.2",
+        "-o",
+        tmp_path / "sw",
+    )
     one_error(res, 2, "cannot --param analysis.kinematic.t_ennd", "did you mean t_end?")
     assert not (tmp_path / "sw").exists()
 
@@ -320,21 +402,42 @@ def test_a_misspelt_setting_of_run_model_is_a_usage_error():
     from mbsim.errors import UsageError
 
     _, model = load_model(SLIDER)
-    with pytest.raises(UsageError, match="unknown setting 't_ennd' of the inverse analysis; "
-                                         "did you mean t_end"):
+    with pytest.raises(
+        UsageError, match="unknown setting 't_ennd' of the inverse analysis; did you mean t_end"
+    ):
         run_model(model, "inverse", {"t_ennd": 1})
 
 
 def test_an_option_of_another_mode_is_a_usage_error(tmp_path):
-    one_error(cli("run", SLIDER, "--mode", "kinematic", "--integrator", "rk4", "-o",
-                  tmp_path / "x.h5"), 2, "--integrator does not apply to --mode kinematic")
-    one_error(cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3", "--rtol",
-                  "1e-6", "-o", tmp_path / "sw"), 2, "--rtol does not apply to --mode kinematic")
+    one_error(
+        cli("run", SLIDER, "--mode", "kinematic", "--integrator", "rk4", "-o", tmp_path / "x.h5"),
+        2,
+        "--integrator does not apply to --mode kinematic",
+    )
+    one_error(
+        cli(
+            "sweep",
+            SLIDER,
+            "--mode",
+            "kinematic",
+            "--param",
+            "ell=0.3",
+            "--rtol",
+            "1e-6",
+            "-o",
+            tmp_path / "sw",
+        ),
+        2,
+        "--rtol does not apply to --mode kinematic",
+    )
 
 
 def test_a_misspelt_setting_of_a_study_case_is_an_error(tmp_path):
-    deck = slider_with(tmp_path, "\nstudies:\n", "\nstudies:\n  s: {cases: [{label: a, mode: "
-                       "kinematic, options: {t_edn: 0.1}}]}\n")
+    deck = slider_with(
+        tmp_path,
+        "\nstudies:\n",
+        "\nstudies:\n  s: {cases: [{label: a, mode: kinematic, options: {t_edn: 0.1}}]}\n",
+    )
     one_error(cli("check", deck), 2, "options.t_edn", "did you mean t_end?")
 
 
@@ -343,8 +446,16 @@ def _plant_lock(path: Path, pid: int) -> None:
     import json
     import socket
 
-    path.write_text(json.dumps({"pid": pid, "host": socket.gethostname(), "command": "mbsim run",
-                                "started": "2026-11-27T21:00:00+00:00"}))
+    path.write_text(
+        json.dumps(
+            {
+                "pid": pid,
+                "host": socket.gethostname(),
+                "command": "mbsim run",
+                "started": "2026-11-27T21:00:00+00:00",
+            }
+        )
+    )
 
 
 def _dead_pid() -> int:
@@ -360,8 +471,14 @@ def test_a_second_run_to_an_output_in_use_is_refused(tmp_path):
     out = tmp_path / "r.h5"
     _plant_lock(tmp_path / "r.h5.lock", os.getpid())  # a live holder
     res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.01", "-o", out)
-    one_error(res, 2, f"output {out} is in use", f"process {os.getpid()}", "mbsim run",
-              f"delete {out}.lock")
+    one_error(
+        res,
+        2,
+        f"output {out} is in use",
+        f"process {os.getpid()}",
+        "mbsim run",
+        f"delete {out}.lock",
+    )
     assert not out.exists() and (tmp_path / "r.h5.lock").exists()
 
 
@@ -372,15 +489,26 @@ def test_a_stale_lock_of_a_dead_process_is_taken_over_with_a_warning(tmp_path):
     res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.01", "-o", out)
     assert res.exit_code == 0, res.output
     warnings = [ln for ln in res.stderr.splitlines() if ln.startswith("warning:")]
-    assert len(warnings) == 1 and f"process {dead}" in warnings[0] and "no longer runs" \
-        in warnings[0]
+    assert (
+        len(warnings) == 1 and f"process {dead}" in warnings[0] and "no longer runs" in warnings[0]
+    )
     assert out.is_file() and not (tmp_path / "r.h5.lock").exists()
 
 
 def test_the_lock_is_released_after_an_error(tmp_path):
     out = tmp_path / "r.h5"
-    res = cli("run", SLIDER, "--mode", "kinematic", "--set", "parameters.ell=0.2362",
-              "--t-end", "0.15", "-o", out)  # locks up near t = 0.11 s: exit 1, data kept
+    res = cli(
+        "run",
+        SLIDER,
+        "--mode",
+        "kinematic",
+        "--set",
+        "parameters.ell=0.2362",
+        "--t-end",
+        "0.15",
+        "-o",
+        out,
+    )  # locks up near t = 0.11 s: exit 1, data kept
     assert res.exit_code == 1, res.output
     assert out.is_file() and not (tmp_path / "r.h5.lock").exists()
 
@@ -395,20 +523,53 @@ def test_two_processes_writing_one_output(tmp_path):
 
     out, lock = tmp_path / "r.h5", tmp_path / "r.h5.lock"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    first = subprocess.Popen([sys.executable, "-m", "mbsim", "run", str(SLIDER), "-m",
-                              "kinematic", "--t-end", "500", "--step", "0.001", "-o", str(out),
-                              "--no-progress"], env=env, stderr=subprocess.PIPE, text=True)
+    first = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "mbsim",
+            "run",
+            str(SLIDER),
+            "-m",
+            "kinematic",
+            "--t-end",
+            "500",
+            "--step",
+            "0.001",
+            "-o",
+            str(out),
+            "--no-progress",
+        ],
+        env=env,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         end = time.monotonic() + 60
         while not lock.exists() and first.poll() is None and time.monotonic() < end:
             time.sleep(0.05)
         assert lock.exists(), "the first run did not take the lock"
-        second = subprocess.run([sys.executable, "-m", "mbsim", "run", str(SLIDER), "-m",
-                                 "kinematic", "--t-end", "0.01", "-o", str(out)], env=env,
-                                capture_output=True, text=True, timeout=120)
+        second = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "mbsim",
+                "run",
+                str(SLIDER),
+                "-m",
+                "kinematic",
+                "--t-end",
+                "0.01",
+                "-o",
+                str(out),
+            ],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert second.returncode == 2, second.stderr
-        assert f"process {first.pid} on host" in second.stderr and "Traceback" not in \
-            second.stderr
+        assert f"process {first.pid} on host" in second.stderr and "Traceback" not in second.stderr
     finally:
         first.send_signal(signal.SIGTERM)
         first.communicate(timeout=120)
@@ -420,13 +581,37 @@ def test_a_second_sweep_into_a_folder_in_use_is_refused(tmp_path):
     out = tmp_path / "sw"
     out.mkdir()
     _plant_lock(out / "sweep.lock", os.getpid())
-    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27", "--t-end",
-              "0.02", "-j", "1", "-o", out)
+    res = cli(
+        "sweep",
+        SLIDER,
+        "--mode",
+        "kinematic",
+        "--param",
+        "ell=0.3,0.27",
+        "--t-end",
+        "0.02",
+        "-j",
+        "1",
+        "-o",
+        out,
+    )
     one_error(res, 2, f"sweep folder {out} is in use", f"process {os.getpid()}")
     assert not list(out.glob("*.h5"))
     _plant_lock(out / "sweep.lock", _dead_pid())
-    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27", "--t-end",
-              "0.02", "-j", "1", "-o", out)
+    res = cli(
+        "sweep",
+        SLIDER,
+        "--mode",
+        "kinematic",
+        "--param",
+        "ell=0.3,0.27",
+        "--t-end",
+        "0.02",
+        "-j",
+        "1",
+        "-o",
+        out,
+    )
     assert res.exit_code == 0, res.output
     assert "no longer runs" in res.stderr
     assert len(list(out.glob("ell=*.h5"))) == 2 and not (out / "sweep.lock").exists()
@@ -435,8 +620,6 @@ def test_a_second_sweep_into_a_folder_in_use_is_refused(tmp_path):
 def test_sweep_whose_folder_fills_before_the_cases_run_ends_in_one_line(tmp_path, monkeypatch):
     """The spool folder of the workers' results cannot be made (ENOSPC): one error line,
     exit 1, nothing half-written left as a result."""
-    import tempfile
-
     import mbsim.sweep
 
     def full(*a, **k):
@@ -444,10 +627,21 @@ def test_sweep_whose_folder_fills_before_the_cases_run_ends_in_one_line(tmp_path
 
     monkeypatch.setattr(mbsim.sweep.tempfile, "TemporaryDirectory", full)
     out = tmp_path / "sw"
-    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27",
-              "--t-end", "0.02", "-j", "1", "-o", out)
-    one_error(res, 1, f"sweep into {out} stopped after 0 of 2 case(s)",
-              os.strerror(errno.ENOSPC))
+    res = cli(
+        "sweep",
+        SLIDER,
+        "--mode",
+        "kinematic",
+        "--param",
+        "ell=0.3,0.27",
+        "--t-end",
+        "0.02",
+        "-j",
+        "1",
+        "-o",
+        out,
+    )
+    one_error(res, 1, f"sweep into {out} stopped after 0 of 2 case(s)", os.strerror(errno.ENOSPC))
     assert not list(out.glob("ell=*.h5")) and not (out / "sweep.lock").exists()
     assert [r["status"] for r in read_index(out / "index.csv")] == ["cancelled"] * 2
 
@@ -462,6 +656,18 @@ def test_sweep_into_a_folder_that_cannot_be_made_runs_nothing(tmp_path, monkeypa
 
     monkeypatch.setattr(Path, "mkdir", read_only)
     out = tmp_path / "sw"
-    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27",
-              "--t-end", "0.02", "-j", "1", "-o", out)
+    res = cli(
+        "sweep",
+        SLIDER,
+        "--mode",
+        "kinematic",
+        "--param",
+        "ell=0.3,0.27",
+        "--t-end",
+        "0.02",
+        "-j",
+        "1",
+        "-o",
+        out,
+    )
     one_error(res, 2, f"output folder {out}", os.strerror(errno.EROFS))

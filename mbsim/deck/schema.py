@@ -8,7 +8,6 @@ model in ``mbsim.forces``).  docs/deck.md is the prose version of these tables.
 from __future__ import annotations
 
 import difflib
-
 from typing import Any, NamedTuple
 
 TOP_KEYS = (

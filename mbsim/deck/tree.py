@@ -63,7 +63,7 @@ def compose(text: str, file: str, origin: str | None = None) -> Node | None:
         # it stops at the first event past a limit, before anything is composed, so a 10^6-
         # point table or a 10^5-deep list costs a fraction of a second, and the message is
         # mbsim's own whatever the YAML library's version.
-        over = _over_limit(text, origin)
+        over = _over_limit(text)
         if over is not None:
             message, path, line = over
             raise DeckError(message, Where(file, path, line if origin is None else None))
@@ -115,7 +115,7 @@ def _indent_hint(text: str, row: int) -> str:
             f"{indent(row)} spaces): keys of one mapping start in the same column")
 
 
-def _over_limit(text: str, origin: str | None = None) -> tuple[str, str, int | None] | None:
+def _over_limit(text: str) -> tuple[str, str, int | None] | None:
     """(message, key path, line) of the first place ``text`` goes past a limit of
     :mod:`mbsim.deck.limits` (bytes, nesting depth, entries of one list or mapping, values
     in all), else None.
