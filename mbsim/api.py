@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import importlib
 import logging
+import re
+import string
 import time
 from pathlib import Path
 
-from mbsim.errors import MbsimError, UsageError
+from mbsim.errors import MbsimError, UsageError, quote
 from mbsim.result import STATUS_INCOMPLETE, Result
 
 log = logging.getLogger(__name__)  # "mbsim.api": shown with -v
@@ -57,11 +59,16 @@ def run_model(model, mode: str, options: dict | None = None) -> Result:
     """Run one analysis. An MbsimError during the run becomes an incomplete Result only if the
     analysis itself did not already return one (analyses keep partial data themselves).
 
-    Settings are checked first (tolerances in (0, 1), steps > 0, the number of output times:
-    mbsim.deck.limits), so a sweep or study case with ``step: 0`` is a UsageError too."""
+    Settings are checked first: their names (mbsim.deck.schema.ANALYSIS_SETTINGS: a typo
+    such as ``t_ennd`` is a UsageError with a suggestion), tolerances in (0, 1), steps > 0,
+    the number of output times (mbsim.deck.limits), so a sweep or study case with
+    ``step: 0`` is a UsageError too."""
     from mbsim.deck.limits import setting_problems
+    from mbsim.deck.schema import setting_name_problems
 
     fn = analysis_function(mode)
+    for _key, message in setting_name_problems(mode, dict(options or {}), internal=True):
+        raise UsageError(message)
     for key, message in setting_problems(dict(options or {}), analysis_defaults(mode)):
         raise UsageError(f"analysis setting {key}: {message}")
     t0 = time.perf_counter()
@@ -106,20 +113,55 @@ def _apply_only(model, result) -> None:
             del result.channels[path]
 
 
+# A format spec of an -o field: fill/align, sign, zero padding, width and precision of at most
+# two digits, a number type: `{ell:.3f}`, `{k:05d}`, `{mode:>8}`; nothing that builds a name of
+# gigabytes (`{mode:>2000000000}`) or nests fields.
+TEMPLATE_SPEC = re.compile(r"(?:[^{}]?[<>^=])?[+ -]?0?\d{0,2}(?:\.\d{1,2})?[bdeEfFgGnosxX%]?")
+TEMPLATE_CHARS = 1000  # the template and the name it gives, characters
+
+
 def output_path(template: str | None, deck: str | Path, mode: str, parameters: dict,
                 scene: str | None = None) -> Path:
-    """Default ``<deck stem>_<mode>.h5``; a template may use {mode}, {scene}, {deck} and any
-    parameter name, e.g. ``gov_k{k}.h5``."""
+    """Default ``<deck stem>_<mode>.h5``; a template may use the fields ``{deck}``,
+    ``{mode}``, ``{scene}`` and any parameter name, e.g. ``gov_k{k}.h5``, each a plain name
+    with at most a short format spec (:data:`TEMPLATE_SPEC`: ``{ell:.3f}``); attribute or
+    index access (``{mode.__class__}``), conversions (``{mode!r}``) and wide or nested specs
+    are UsageErrors (exit 2) before anything runs."""
     stem = Path(deck).stem
     if not template:
         return Path(f"{stem}_{mode}.h5" if not scene else f"{stem}_{scene}_{mode}.h5")
     fields = {k: (int(v) if float(v).is_integer() else v) for k, v in parameters.items()}
     fields.update(mode=mode, scene=scene or "", deck=stem)
+    available = f"available: {', '.join(sorted(fields))}"
+    what = f"output name template {quote(template)}"
+    if len(template) > TEMPLATE_CHARS:
+        raise UsageError(f"{what}: longer than {TEMPLATE_CHARS} characters")
     try:
-        return Path(template.format(**fields))
-    except (KeyError, IndexError, ValueError) as exc:
-        raise UsageError(f"output name template {template!r}: unknown field {exc}; "
-                        f"available: {', '.join(sorted(fields))}") from exc
+        parts = list(string.Formatter().parse(template))
+    except ValueError as exc:  # a lone '{' or '}'
+        raise UsageError(f"{what}: {exc} (write {{{{ and }}}} for braces)") from None
+    for _text, name, spec, conversion in parts:
+        if name is None:
+            continue
+        if name not in fields:
+            plain = re.match(r"[A-Za-z_][A-Za-z_0-9]*", name)
+            if plain and plain.group() != name and plain.group() in fields:
+                raise UsageError(f"{what}: field {quote('{' + name + '}')}: only plain "
+                                 f"names, no attribute or index access; {available}")
+            raise UsageError(f"{what}: unknown field {quote(name or '{}')}; {available}")
+        if conversion is not None:
+            raise UsageError(f"{what}: field {{{name}!{conversion}}}: no conversions; "
+                             f"write {{{name}}}")
+        if spec and not TEMPLATE_SPEC.fullmatch(spec):
+            raise UsageError(f"{what}: field {{{name}}}: format {quote(spec)} not allowed "
+                             "(a width or precision of at most two digits, e.g. {ell:.3f})")
+    try:
+        name = template.format(**fields)
+    except (ValueError, TypeError) as exc:  # '{mode:.3f}': a number format for a text
+        raise UsageError(f"{what}: {exc}") from None
+    if len(name) > TEMPLATE_CHARS:
+        raise UsageError(f"{what}: gives a name longer than {TEMPLATE_CHARS} characters")
+    return Path(name)
 
 
 __all__ = ["ANALYSES", "STATUS_INCOMPLETE", "MbsimError", "load_model", "output_path", "run_model"]

@@ -47,12 +47,34 @@ def _check_settings(deck, mode: str, spec, opts: dict, names: dict[str, str]) ->
     option), else the deck key (exit 2)."""
     from mbsim.api import analysis_defaults
     from mbsim.deck.limits import setting_problems
+    from mbsim.deck.schema import setting_name_problems
 
+    for key, _ in setting_name_problems(mode, opts):
+        option = names.get(key, f"--{key.replace('_', '-')}")
+        _fail(UsageError(f"{option} does not apply to --mode {mode}"), deck)
     given = {**spec.analysis.get(mode, {}), **opts}
     for key, message in setting_problems(given, analysis_defaults(mode)):
         where = names[key] if key in opts and key in names else f"analysis.{mode}.{key}"
         _fail(UsageError(f"{where}: {message}") if key in opts else
               DeckError(message, Where(str(deck), f"analysis.{mode}.{key}")), deck)
+
+
+def check_output(path, option: str, figure: bool = False) -> Path:
+    """Before a command's work: ``path`` (given with ``option``) is not a folder, its folder
+    exists and takes a new file, and (``figure``) its suffix is a figure format; otherwise
+    one ``error:`` line naming the option and the path, exit 2."""
+    from mbsim.output.hdf5 import prepare_output
+
+    try:
+        if figure:
+            from mbsim.output.plots import figure_suffix_problem
+
+            why = figure_suffix_problem(path)
+            if why:
+                raise UsageError(why)
+        return prepare_output(path)
+    except UsageError as exc:
+        _fail(UsageError(f"{option}: {exc}"))
 
 
 def _warn(lines) -> None:
@@ -258,10 +280,12 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
     Example: mbsim run models/governor.yaml --mode dynamic --t-end 2 -o gov.h5
     """
     from mbsim.api import output_path, run_model
+    from mbsim.lock import OutputLock, lock_path
     from mbsim.output import write_result
     from mbsim.output.hdf5 import prepare_output
     from mbsim.progress import terminal_progress
 
+    lock = None
     try:
         spec, model = _load(deck, sets, scene)
         out = output_path(output, deck, mode, spec.parameters, scene)
@@ -272,6 +296,10 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         _check_settings(deck, mode, spec, opts, {"t_end": "--t-end", "step": "--step",
                         "rtol": "--rtol", "atol": "--atol", "accuracy": "--accuracy"})
         prepare_output(out)  # before the analysis: a bad -o costs nothing
+        # one writer per file: a second run to the same -o is refused (exit 2) while this
+        # one holds OUT.lock (released below, also on errors and Ctrl-C)
+        lock = OutputLock(lock_path(out), f"output {out}").acquire()
+        _warn(lock.warnings)
         prog = terminal_progress(sys.stderr, False if quiet and progress is None else progress,
                                  label=mode)
         if prog is not None:
@@ -289,6 +317,9 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         write_result(result, out)
     except MbsimError as exc:
         _fail(exc, deck)
+    finally:
+        if lock is not None:
+            lock.release()
     if not quiet:
         _warn(result.summary.get("warnings", ()))  # standard error, as cli.md says
     if make_plot:
@@ -558,6 +589,10 @@ def plot(args, ys, x, output, labels, title, list_only, units, data_file):
     bad = [f for f in files if problems[f]]
     if bad:
         _fail(UsageError(f"{bad[0]}: {problems[bad[0]]}"))
+    if not list_only:  # before reading anything: a bad -o or --data costs nothing
+        check_output(output, "-o", figure=True)
+        if data_file:
+            check_output(data_file, "--data")
     try:
         if list_only:
             for f in files:
@@ -695,10 +730,13 @@ def export(file, csv_path, channels):
     from mbsim.output import export_csv, read_result
 
     _results_file(file)
+    target = Path(csv_path or Path(file).with_suffix(".csv"))
+    if not target.is_dir():  # a folder takes <deck stem>.csv (export_csv)
+        check_output(target, "--csv")
     try:
         res = read_result(file)
         chans = [c.strip() for c in channels.split(",")] if channels else None
-        paths = export_csv(res, csv_path or str(Path(file).with_suffix(".csv")), channels=chans)
+        paths = export_csv(res, target, channels=chans)
     except (MbsimError, KeyError, IndexError, ValueError, OSError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else UsageError(_key_message(exc)))
     for p in paths:

@@ -38,8 +38,10 @@ def bench_command(deck, integrators, tolerances, steps_, t_end, outputs, repeats
     Example: mbsim bench models/governor.yaml --t-end 1 --integrators gcp-dop853,genalpha
     """
     from mbsim.analyses.bench import work_precision, work_precision_figure
-    from mbsim.cli import _fail, _load
+    from mbsim.cli import _fail, _load, check_output
 
+    if output:  # before the benchmark: a bad -o costs nothing
+        check_output(output, "-o", figure=True)
     names = [n.strip() for n in integrators.split(",")] if integrators else None
     try:
         _, model = _load(deck, sets, scene)

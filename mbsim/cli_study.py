@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from mbsim.cli import EXIT_FAILED, _fail, _warn
+from mbsim.cli import EXIT_FAILED, _fail, _warn, check_output
 from mbsim.errors import MbsimError, UsageError
 
 VIEWS = ("iso", "xy", "xz", "yz")
@@ -66,6 +66,12 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
         _fail(exc, deck)
     _warn(spec.warnings)
     folder = Path(out_dir) if out_dir else Path(f"{Path(deck).stem}_studies")
+    from mbsim.sweep import prepare_out_dir
+
+    try:
+        prepare_out_dir(folder)  # before any case: a folder that cannot be written is exit 2
+    except MbsimError as exc:
+        _fail(exc, deck)
     failed = False
     seen_warnings: set[str] = set(spec.warnings)
 
@@ -142,6 +148,7 @@ def animate_command(file, output, fps, view, every, dpi, size, mode_shape, label
     out = Path(output) if output else Path(file).with_suffix(".gif")
     if every < 1 or fps <= 0:
         _fail(UsageError("--every must be >= 1 and --fps > 0"))
+    check_output(out, "-o")  # before rendering: a bad -o costs nothing
     try:
         path, nframes = animate_file(file, out, fps=fps, view=view, every=every, dpi=dpi,
                                      size=size, mode_shape=mode_shape, labels=labels)

@@ -73,7 +73,7 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
     --param k=1000,2000,3000 -j 2 --summary bodies.spindle.omega.y:final
     --summary bodies.spindle.omega.y:settle:from=0.1 -o gov_k
     """
-    from mbsim.cli import EXIT_FAILED, EXIT_OK, EXIT_USAGE, _fail, _parse_sets, _warn
+    from mbsim.cli import _fail, _parse_sets, _warn
     from mbsim.errors import MbsimError
 
     if hasattr(signal, "SIGPIPE"):
@@ -82,14 +82,7 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
         # sockets, where a peer that went away must be an error, not the silent end of the
         # sweep with its workers left running
         signal.signal(signal.SIGPIPE, signal.SIG_IGN)
-    from mbsim.sweep import (
-        STATUS_COMPLETE,
-        default_out_dir,
-        parse_param,
-        parse_summary,
-        plan_sweep,
-        run_sweep,
-    )
+    from mbsim.sweep import default_out_dir, parse_param, parse_summary, plan_sweep
 
     options = {"t_end": t_end, "step": step, "integrator": integrator, "rtol": rtol,
                "atol": atol, "accuracy": accuracy, "error_estimate": error_estimate,
@@ -110,10 +103,32 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
             summaries=[parse_summary(s) for s in summaries])
     except MbsimError as exc:
         _fail(exc, deck)
+    from mbsim.lock import OutputLock
+    from mbsim.sweep import prepare_out_dir
+
+    try:
+        prepare_out_dir(plan.out_dir)  # a folder that cannot be written: nothing has run
+        # one sweep per folder: a second one is refused (exit 2) while this one holds
+        # DIR/sweep.lock (released when this command ends, however it ends)
+        lock = OutputLock(plan.out_dir / "sweep.lock", f"sweep folder {plan.out_dir}").acquire()
+    except MbsimError as exc:
+        _fail(exc, deck)
+    _warn(lock.warnings)
+    try:
+        _run_and_report(plan, deck, mode, params, jobs, scheduler, quiet)
+    finally:
+        lock.release()
+
+
+def _run_and_report(plan, deck, mode, params, jobs, scheduler, quiet) -> None:
+    """Run the planned sweep, print its lines, exit with its code (sweep_command's tail)."""
+    from mbsim.cli import EXIT_FAILED, EXIT_OK, EXIT_USAGE, _fail, _warn
+    from mbsim.errors import MbsimError
+    from mbsim.output.hdf5 import remove_stale_temporaries
+    from mbsim.sweep import STATUS_COMPLETE, parse_param, run_sweep
+
     ncases = len(plan.cases)
     done = 0
-    from mbsim.output.hdf5 import remove_stale_temporaries
-
     remove_stale_temporaries(plan.out_dir)  # .X.h5.tmp-PID of a sweep killed (kill -9) mid-write
 
     def on_case(rec) -> None:
@@ -141,6 +156,12 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
         sys.exit(EXIT_FAILED)
     except MbsimError as exc:
         _fail(exc, deck)
+    except OSError as exc:  # the disk filled or went read-only under the sweep
+        from mbsim.errors import AnalysisError
+
+        _fail(AnalysisError(f"sweep into {plan.out_dir} stopped after {done} of {ncases} "
+                            f"case(s): {exc.strerror or exc}; the files written are kept "
+                            "(re-run the same command to continue)"), deck)
     counts = {s: outcome.count(s) for s in ("complete", "incomplete", "failed", "cancelled")}
     skipped = sum(r.skipped for r in outcome.records)
     if not quiet:

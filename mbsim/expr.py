@@ -470,7 +470,7 @@ class _Converter:
 
     def convert(self, n: ast.AST, depth: int = 0) -> Node:
         if depth > MAX_DEPTH:
-            raise self.error(f"formula nested deeper than {MAX_DEPTH} levels", n)
+            raise _TooDeep  # _parse regroups long sums and products, or reports the limit
         sub = functools.partial(self.convert, depth=depth + 1)
         if isinstance(n, ast.Constant):
             if isinstance(n.value, bool) or not isinstance(n.value, (int, float)):
@@ -539,6 +539,10 @@ class _Converter:
         return Apply(name, tuple(sub(a) for a in n.args))
 
 
+class _TooDeep(Exception):
+    """The tree as Python parses it is deeper than MAX_DEPTH (or than ast can build)."""
+
+
 @functools.lru_cache(maxsize=1024)
 def _parse(text: str) -> Expression:
     if len(text) > MAX_LENGTH:
@@ -548,14 +552,129 @@ def _parse(text: str) -> Expression:
     # Parentheses let leading spaces and YAML line breaks through; only the tree is ever used.
     src = "(" + text.replace("\r", " ").replace("\n", " ") + ")"
     try:
+        return _parse_src(text, src)
+    except _TooDeep:
+        pass
+    # Python reads a + b + c ... as ((a + b) + c) ...: a sum or product of many terms is a
+    # deep tree.  Regrouped into nested groups of at most FLAT_GROUP terms it is shallow
+    # (5000 terms: 4 levels of groups); the value differs from the left-to-right sum by
+    # round-off only.  What is still too deep is nesting the formula writes itself.
+    flat = _regroup(src)
+    if flat is not None and flat != src:
+        try:
+            return _parse_src(text, flat)
+        except _TooDeep:
+            pass
+    raise ExpressionError(f"formula nested deeper than {MAX_DEPTH} levels (parentheses, "
+                          "function calls, powers or conditions inside one another)", text)
+
+
+def _parse_src(text: str, src: str) -> Expression:
+    try:
         tree = ast.parse(src, mode="eval")
     except SyntaxError as exc:
         col = min(max((exc.offset or 1) - 1, 1), len(text) + 1)
         raise ExpressionError(f"invalid formula: {exc.msg}", text, col) from None
-    except (RecursionError, MemoryError, ValueError) as exc:
+    except RecursionError:
+        raise _TooDeep from None
+    except (MemoryError, ValueError) as exc:
         raise ExpressionError(f"invalid formula: {exc}", text) from None
     conv = _Converter(text, src)
     return Expression(conv.convert(tree.body), text, conv.columns)
+
+
+FLAT_GROUP = 16  # terms per group when a long sum or product is regrouped (_regroup)
+_CHAIN_OPS = {"+", "-", "*", "/", "**"}
+_SEPARATORS = {"if", "else", "and", "or", "not", "in", "is", "lambda"}
+_OPEN, _CLOSE = {"(": ")", "[": "]", "{": "}"}, {")", "]", "}"}
+
+
+def _regroup(src: str) -> str | None:
+    """``src`` with every sum (``+ -``) or product (``* /``) of more than FLAT_GROUP terms
+    written as nested parenthesised groups of at most FLAT_GROUP terms: ``a - b - c + d``
+    -> ``(a - b) - (c - d)``, ``a / b / c * d`` -> ``(a / b) / (c / d)`` (the operators of a
+    group after a ``-`` or ``/`` are flipped, so the value is the same up to round-off).
+
+    Works on Python's tokens, bracket group by bracket group, without recursion (a stack);
+    None when the text does not tokenize (the parser then reports the syntax error).
+    """
+    import io
+    import tokenize
+
+    try:
+        toks = [t.string for t in tokenize.generate_tokens(io.StringIO(src).readline)
+                if t.type not in (tokenize.NEWLINE, tokenize.NL, tokenize.ENDMARKER,
+                                  tokenize.COMMENT, tokenize.INDENT, tokenize.DEDENT)]
+    except (tokenize.TokenError, SyntaxError, IndentationError):
+        return None
+    stack: list[list[str]] = [[]]  # the items of each open bracket group
+    for tok in toks:
+        if tok in _OPEN:
+            stack.append([tok])
+        elif tok in _CLOSE and len(stack) > 1:
+            group = stack.pop()
+            stack[-1].append(group[0] + " ".join(_flatten_span(group[1:])) + tok)
+        else:
+            stack[-1].append(tok)
+    if len(stack) != 1:
+        return None
+    return " ".join(_flatten_span(stack[0]))
+
+
+def _flatten_span(items: list[str]) -> list[str]:
+    """One bracket group's items (inner groups already one item each), chains regrouped."""
+    out: list[str] = []
+    segment: list[str] = []
+    for item in items:
+        if item in _SEPARATORS or item == "," or (
+                not item[:1].isalnum() and item[:1] not in "._([{" and item not in _CHAIN_OPS):
+            out += _flatten_segment(segment) + [item]  # a comparison, a comma, `if`...
+            segment = []
+        else:
+            segment.append(item)
+    return out + _flatten_segment(segment)
+
+
+def _operand_end(item: str | None) -> bool:
+    return item is not None and item not in _CHAIN_OPS
+
+
+def _flatten_segment(seg: list[str]) -> list[str]:
+    """A run of operands and ``+ - * / **``: sums, then each term's products, regrouped."""
+    if not seg:
+        return []
+    terms = _split(seg, ("+", "-"))
+    for k, (op, term) in enumerate(terms):
+        factors = _split(term, ("*", "/"))
+        terms[k] = (op, [_grouped(factors, {"*": "/", "/": "*"})])
+    return [_grouped(terms, {"+": "-", "-": "+"})]
+
+
+def _split(seg: list[str], ops: tuple[str, str]) -> list[tuple[str | None, list[str]]]:
+    """[(operator before, items)]: ``seg`` cut at its binary ``ops``."""
+    parts: list[tuple[str | None, list[str]]] = [(None, [])]
+    prev = None
+    for item in seg:
+        if item in ops and _operand_end(prev):
+            parts.append((item, []))
+        else:
+            parts[-1][1].append(item)
+        prev = item
+    return parts
+
+
+def _grouped(parts: list[tuple[str | None, list[str]]], flip: dict[str, str]) -> str:
+    terms = [(op, " ".join(items)) for op, items in parts]
+    while len(terms) > FLAT_GROUP:
+        chunks = [terms[i:i + FLAT_GROUP] for i in range(0, len(terms), FLAT_GROUP)]
+        terms = []
+        for chunk in chunks:
+            op0, first = chunk[0]
+            inverse = op0 is not None and op0 == list(flip)[1]  # after '-' or '/'
+            rest = "".join(f" {flip[op] if inverse else op} {t}" for op, t in chunk[1:])
+            terms.append((op0, f"({first}{rest})"))
+    text = terms[0][1]
+    return text + "".join(f" {op} {t}" for op, t in terms[1:])
 
 
 def parse_expression(text: str | float, allowed: Iterable[str] | None = None) -> Expression:

@@ -87,7 +87,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mbsim.errors import DeckError, MbsimError, Where
+from mbsim.errors import AnalysisError, DeckError, MbsimError, Where
 from mbsim.result import STATUS_COMPLETE, STATUS_INCOMPLETE, Result
 from mbsim.study import RATIO_STATS, STATS, TIME_STATS
 
@@ -341,7 +341,7 @@ class Sweep:
 def _check_paths(deck, scene: str | None, params: Sequence[Param]) -> None:
     """Every --param key path must exist in the deck (a ParsedDeck) with the scene applied
     (or be a key the format allows there)."""
-    from mbsim.deck.schema import can_add
+    from mbsim.deck.schema import can_add, setting_name_problems
     from mbsim.deck.tree import Node, PathError, set_path
 
     root, file = deck.variant(scene), deck.file  # a copy-on-write view: deck stays as parsed
@@ -351,6 +351,10 @@ def _check_paths(deck, scene: str | None, params: Sequence[Param]) -> None:
         except PathError as exc:
             raise DeckError(f"cannot --param {p.label}: {exc.message}", Where(file, p.path)) \
                 from None
+        segs = p.path.split(".")
+        if len(segs) == 3 and segs[0] == "analysis":  # analysis.<mode>.<setting>
+            for _, message in setting_name_problems(segs[1], [segs[2]]):
+                raise DeckError(f"cannot --param {p.label}: {message}", Where(file, p.path))
 
 
 def plan_sweep(deck: str | Path, mode: str, params: Sequence[Param], out_dir: str | Path,
@@ -386,6 +390,11 @@ def plan_sweep(deck: str | Path, mode: str, params: Sequence[Param], out_dir: st
         raise SweepError(f"--param {clash[0]}: the index has a column of that name; "
                          f"write the key path, parameters.{clash[0]}")
     summaries = tuple(dict.fromkeys(summaries))  # one column per distinct --summary
+    from mbsim.deck.schema import setting_name_problems
+
+    given = [k for k, v in (options or {}).items() if v is not None]
+    for key, _ in setting_name_problems(mode, given):
+        raise SweepError(f"--{key.replace('_', '-')} does not apply to --mode {mode}")
     parsed = parse_deck(deck, scene)
     spec = parsed.spec(scene, overrides)
     _check_paths(parsed, scene, params)
@@ -713,7 +722,7 @@ def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
     inside an executor's locks) after the index is written (unfinished cases
     ``cancelled``); an executor opened here is stopped first (running workers ended).
     """
-    sweep.out_dir.mkdir(parents=True, exist_ok=True)
+    prepare_out_dir(sweep.out_dir)
     records: dict[int, CaseRecord] = {}
     todo = []
     for case in sweep.cases:
@@ -724,11 +733,17 @@ def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
         else:
             todo.append(case)
     last_index = -math.inf
+    index_failed: list[str] = []  # why the index could not be written (disk full, read-only)
 
     def index_now(force=False):
         nonlocal last_index
         if force or time.monotonic() - last_index >= INDEX_INTERVAL:
-            write_index(sweep, _all_records(sweep, records))
+            try:
+                write_index(sweep, _all_records(sweep, records))
+                index_failed.clear()
+            except OSError as exc:  # the cases go on: their files are what matters
+                index_failed[:] = [f"cannot write the index {index_paths(sweep.out_dir)[0]}: "
+                                   f"{exc.strerror or exc}"]
             last_index = time.monotonic()
 
     try:
@@ -782,7 +797,33 @@ def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
         index_now(force=True)
         raise
     index_now(force=True)
+    if index_failed:
+        done = [r for r in records.values() if r.file and not r.skipped]
+        raise SweepWriteError(f"{index_failed[0]}; {len(done)} case file(s) written and "
+                              f"{sum(r.skipped for r in records.values())} kept in "
+                              f"{sweep.out_dir} (re-run the same command when there is room: "
+                              "it runs only the missing cases)")
     return SweepOutcome(_all_records(sweep, records), *index_paths(sweep.out_dir))
+
+
+class SweepWriteError(AnalysisError):
+    """The sweep ran but its index could not be written (disk full, read-only): exit 1,
+    the case files written are kept."""
+
+
+def prepare_out_dir(out_dir: Path) -> Path:
+    """Make the sweep's folder and check that it takes a new file, before any case runs:
+    a folder that cannot be made or written is a SweepError (exit 2) naming it."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        probe = out_dir / f".write-probe-{os.getpid()}"
+        with open(probe, "wb"):
+            pass
+        probe.unlink()
+    except OSError as exc:
+        raise SweepError(f"output folder {out_dir}: cannot write there: "
+                         f"{exc.strerror or exc}") from None
+    return out_dir
 
 
 def _all_records(sweep: Sweep, records: dict[int, CaseRecord]) -> list[CaseRecord]:

@@ -365,3 +365,22 @@ def test_functions_registry_is_documented():
         assert f.name == name and f.signature.startswith(f"{name}(") and f.doc
         lo, hi = f.nargs
         assert hi is None or hi >= lo >= 1
+
+
+def test_long_sums_and_products_are_regrouped_with_the_same_value():
+    """A sum or product of more terms than the depth limit is read as nested groups
+    (mbsim.expr._regroup): the value is the left-to-right one up to round-off, and str()
+    parses back to the same tree."""
+    import random
+
+    from mbsim.expr import MAX_DEPTH, parse_expression
+
+    rng = random.Random(1)
+    vals = [rng.uniform(0.5, 2.0) for _ in range(3 * MAX_DEPTH)]
+    ops = [rng.choice("+-*/") for _ in vals[1:]]
+    text = repr(vals[0]) + "".join(f" {o} x*{v!r}" for o, v in zip(ops, vals[1:]))
+    ref = eval(text, {"x": 1.5})  # noqa: S307 - the test's own numbers
+    expr = parse_expression(text)
+    assert abs(expr(x=1.5) - ref) <= 1e-12 * abs(ref)
+    assert parse_expression(str(expr)) == expr
+    assert parse_expression(" - ".join(["x"] * 2000))(x=1.0) == -1998.0

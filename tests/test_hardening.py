@@ -188,10 +188,8 @@ def test_a_1e5_element_study_mode_is_rejected_quickly_with_a_short_message(tmp_p
         studies:
           s: {{cases: [{{label: a, mode: {modes}}}]}}
     """))
-    t0 = time.process_time()  # CPU time of this process (CliRunner runs in-process)
+    # (its CPU time: python benchmarks/deck_limits.py; the message was built from every item)
     res = cli("check", p)
-    assert time.process_time() - t0 < 6  # was 18 s (the message was built from every item);
-    # now ~1.6 s, most of it reading the 10^5 YAML scalars
     line = one_error(res, 2, "studies.s.cases[0].mode", "expected mode")
     assert len(line) < 600
 
@@ -301,15 +299,19 @@ def test_verbose_and_quiet_work_before_and_after_the_command(tmp_path):
 
 # -- output: path, disk full, stale temporaries, SIGTERM, NaN ----------------------------------
 @pytest.mark.parametrize("kind", ["missing folder", "file as folder", "folder"])
-def test_unwritable_output_is_refused_before_the_analysis(tmp_path, kind):
+def test_unwritable_output_is_refused_before_the_analysis(tmp_path, kind, monkeypatch):
     # issue: traceback, exit 1, discovered only after the whole analysis had run
+    import mbsim.api
+
+    def never(*a, **k):
+        raise AssertionError("the analysis ran although the output cannot be written")
+
+    monkeypatch.setattr(mbsim.api, "run_model", never)
     (tmp_path / "afile").write_text("x")
     out = {"missing folder": tmp_path / "nonexistent_dir" / "x.h5",
            "file as folder": tmp_path / "afile" / "x.h5", "folder": tmp_path}[kind]
-    t0 = time.process_time()
     res = cli("run", MODELS / "slider_crank.yaml", "-m", "kinematic", "--step", "1e-4",
               "-o", out)  # fmt: skip
-    assert time.process_time() - t0 < 5  # 10^4 outputs take ~20 s of CPU: it did not run
     one_error(res, 2, str(out))
 
 

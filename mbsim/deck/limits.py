@@ -1,10 +1,15 @@
-"""Size limits on decks, checked while loading before anything big is allocated.
+"""Size limits on decks, checked while the YAML is parsed, before anything big is allocated.
 
 Decks come from other people: a limit turns a deck that would take minutes or gigabytes
 (a 10^7-point table, a 100 000-deep list, 10^12 output times) into one ``error:`` line that
 names the limit and the environment variable that raises it (docs/deck.md, "Limits").
 The defaults are far above the seed's decks (largest: 25 kB, nesting 7, lists of 12 items,
 38 parameters, 2001 output times) and bound the load time to about a second.
+
+Where each is checked: DECK_BYTES on the file's size before it is read (and on deck text
+given otherwise); DEPTH, ITEMS and NODES on YAML's parser events as they come, before
+anything is composed (mbsim.deck.tree._over_limit); NAME_CHARS, TABLE_POINTS,
+POLYNOMIAL_TERMS and PARAMETERS on the composed tree; OUTPUTS with the analysis settings.
 """
 
 from __future__ import annotations
@@ -46,6 +51,8 @@ class Limit:
 DECK_BYTES = Limit("DECK_BYTES", 16 * 2**20, "deck file size (bytes)")
 DEPTH = Limit("DEPTH", 64, "nesting depth of lists and mappings")
 ITEMS = Limit("ITEMS", 100_000, "number of entries of one list or mapping")
+NODES = Limit("NODES", 500_000, "number of values in the deck (every number, text, list and "
+              "mapping)")
 NAME_CHARS = Limit("NAME_CHARS", 200, "length of a key (characters)")
 TABLE_POINTS = Limit("TABLE_POINTS", 100_000, "number of points of a table or polynomial")
 POLYNOMIAL_TERMS = Limit("POLYNOMIAL_TERMS", 1000, "number of polynomial coefficients")
@@ -53,7 +60,7 @@ PARAMETERS = Limit("PARAMETERS", 10_000, "number of parameters")
 OUTPUTS = Limit("OUTPUTS", 1_000_000, "number of output times (t_end - t_start)/step")
 FORMULA_CHARS = 10_000  # mbsim.expr.MAX_LENGTH: fixed, a formula is one line
 
-ALL = (DECK_BYTES, DEPTH, ITEMS, NAME_CHARS, TABLE_POINTS, POLYNOMIAL_TERMS, PARAMETERS, OUTPUTS)
+ALL = (DECK_BYTES, DEPTH, ITEMS, NODES, NAME_CHARS, TABLE_POINTS, POLYNOMIAL_TERMS, PARAMETERS, OUTPUTS)
 
 
 # -- analysis settings ---------------------------------------------------------------------------

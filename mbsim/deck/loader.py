@@ -573,6 +573,8 @@ def _analysis(rd: Reader, node: Node, where: Where) -> dict[str, dict]:
     out = {}
     for mode in got:
         items = rd.items(*got[mode])
+        for key, message in schema.setting_name_problems(mode, [k for k, _, _ in items]):
+            raise rd.error(next(w for k, _, w in items if k == key), message)
         out[mode] = {key: rd.setting(child, w, schema.ANALYSIS_DIMENSIONS.get(key))
                      for key, child, w in items}  # fmt: skip
         wheres = {key: w for key, _, w in items}
@@ -678,6 +680,8 @@ def _study_case(rd: Reader, node: Node, where: Where, base: Node) -> dict:
             for key, child, w in rd.items(*got["options"])
         }
         wheres = {key: w for key, _, w in rd.items(*got["options"])}
+        for key, message in schema.setting_name_problems(case["mode"], case["options"]):
+            raise rd.error(wheres[key], message)
         for key, message in limits.setting_problems(case["options"]):
             raise rd.error(wheres.get(key, got["options"][1]), message)
     return case

@@ -7,6 +7,7 @@ model in ``mbsim.forces``).  docs/deck.md is the prose version of these tables.
 
 from __future__ import annotations
 
+import difflib
 from typing import Any, NamedTuple
 
 TOP_KEYS = (
@@ -94,6 +95,47 @@ FIELD_DIMENSIONS = {
 
 # Analysis settings of known dimension (others: any quantity, converted to SI).
 ANALYSIS_DIMENSIONS = {"t_start": "time", "t_end": "time", "step": "time", "h": "time"}
+
+# The settings each analysis reads (docs/deck.md, "analysis"): the keys of the DEFAULTS of
+# its module in mbsim/analyses/ (tests/deck/test_loader.py checks that they are all here)
+# and those it reads without a default (the integrators' own settings).  One table for the
+# deck's `analysis:`, scenes, --set, a study case's options, sweep --param and
+# mbsim.api.run_model: a key not listed is an error with a suggestion (setting_name_problems).
+_TIME_GRID = ("t_start", "t_end", "step")
+_INTEGRATOR_OWN = ("alpha", "beta", "rho_inf", "newton_tol", "jacobian", "repartition_ratio",
+                   "drift_bound", "tangent_steps", "partition", "projection_tol", "h_min")
+ANALYSIS_SETTINGS: dict[str, tuple[str, ...]] = {
+    "assembly": ("hold",),
+    "kinematic": (*_TIME_GRID, "tol", "max_iter", "cond_max"),
+    "inverse": (*_TIME_GRID, "tol", "max_iter", "cond_max"),
+    "dynamic": (*_TIME_GRID, "integrator", "rtol", "atol", "accuracy", "error_estimate",
+                "estimate_ratio", "h", "h_max", "max_steps", "tol", "sparse", *_INTEGRATOR_OWN),
+    "equilibrium": ("method", "tol", "max_iter", "max_step", "phi_tol", "fd_step", "t",
+                    "t_start", "t_end", "step", "damping", "settle_tol", "from_rest", "body",
+                    "bodies", "omega", "axis", "point", "integrator", "rtol", "atol",
+                    "max_steps"),
+    "linear": ("about", "method", "time", "t", "fd_step", "phi_tol", "zero_tol", "re_tol"),
+}  # fmt: skip
+# Passed by code, not by decks: a progress callback, a starting state, a first step.
+INTERNAL_SETTINGS = ("progress", "q0", "qd0", "h0")
+
+
+def setting_name_problems(mode: str, keys, internal: bool = False) -> list[tuple[str, str]]:
+    """[(key, message)] for the keys that are not settings of ``mode``'s analysis (with
+    ``internal``, :data:`INTERNAL_SETTINGS` are accepted too); empty for an unknown mode
+    (that is reported where the mode is chosen)."""
+    known = ANALYSIS_SETTINGS.get(mode)
+    if known is None:
+        return []
+    allowed = set(known) | (set(INTERNAL_SETTINGS) if internal else set())
+    out = []
+    for key in keys:
+        if key in allowed:
+            continue
+        close = difflib.get_close_matches(str(key), known, n=1)
+        hint = f"; did you mean {close[0]}?" if close else f" (settings: {', '.join(known)})"
+        out.append((key, f"unknown setting {str(key)[:80]!r} of the {mode} analysis{hint}"))
+    return out
 
 
 class JointType(NamedTuple):

@@ -32,12 +32,14 @@ CONTAINER_TAGS = ("tag:yaml.org,2002:seq", "tag:yaml.org,2002:map")
 LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, slots=True)
 class Node:
     """One YAML value.
 
     kind: 'map' (value: dict[str, Node]), 'seq' (value: list[Node]) or 'scalar'
-    (value: None, bool, int, float, str, as YAML's safe loader reads it).
+    (value: None, bool, int, float, str, or a datetime.date/datetime for an unquoted date,
+    as YAML's safe loader reads it; `!!binary` is refused).  A date is a name or a text
+    where one is expected (``name()``), and an error where a number is.
     """
 
     kind: str
@@ -57,12 +59,14 @@ class Node:
 def compose(text: str, file: str, origin: str | None = None) -> Node | None:
     """Parse YAML ``text`` into a Node tree (None for an empty document)."""
     try:
-        # The composer recurses once per nesting level (libyaml's in C: a segfault past some
-        # 10^5 levels), so the depth is checked first on the parser's events, which do not.
-        line = _too_deep_line(text)
-        if line is not None:
-            raise DeckError(limits.DEPTH.exceeded(), Where(file, "", line if origin is None
-                                                           else None))  # fmt: skip
+        # The limits are checked on the parser's event stream first (:func:`_over_limit`):
+        # it stops at the first event past a limit, before anything is composed, so a 10^6-
+        # point table or a 10^5-deep list costs a fraction of a second, and the message is
+        # mbsim's own whatever the YAML library's version.
+        over = _over_limit(text)
+        if over is not None:
+            message, path, line = over
+            raise DeckError(message, Where(file, path, line if origin is None else None))
         root = yaml.compose(text, Loader=LOADER)
     except RecursionError:  # pragma: no cover - the depth check comes first
         raise DeckError(limits.DEPTH.exceeded(), Where(file)) from None
@@ -111,21 +115,127 @@ def _indent_hint(text: str, row: int) -> str:
             f"{indent(row)} spaces): keys of one mapping start in the same column")
 
 
-def _too_deep_line(text: str) -> int | None:
-    """Line of the first list/mapping nested deeper than the limit, else None (a YAML error
-    is left for the composer to report).  Walking the parser's events does not recurse."""
-    depth, limit = 0, limits.DEPTH.value
+def _over_limit(text: str) -> tuple[str, str, int | None] | None:
+    """(message, key path, line) of the first place ``text`` goes past a limit of
+    :mod:`mbsim.deck.limits` (bytes, nesting depth, entries of one list or mapping, values
+    in all), else None.
+
+    Walks the parser's events, one at a time, and stops at the first one past a limit: no
+    node is built and nothing recurses, so the cost is that of the events up to there
+    (about 1 us each with libyaml) and the memory that of the text.  A YAML syntax error
+    is left for the composer to report with its line and column.
+    """
+    if len(text) > limits.DECK_BYTES.value:  # deck text not read from a file, --set values
+        return limits.DECK_BYTES.exceeded(len(text)), "", None
+    max_depth, max_items, max_nodes = limits.DEPTH.value, limits.ITEMS.value, limits.NODES.value
+    start = (yaml.SequenceStartEvent, yaml.MappingStartEvent)
+    end = (yaml.SequenceEndEvent, yaml.MappingEndEvent)
+    value = (yaml.ScalarEvent, yaml.AliasEvent)
+    # the open containers, innermost last: [events so far, events per entry (2 for a
+    # mapping: key and value), line, key path, the mapping's last key]
+    open_: list[list] = []
+    nodes = 0
+    parser = LOADER(text)
     try:
-        for event in yaml.parse(text, Loader=LOADER):
-            if isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
-                depth += 1
-                if depth > limit:
-                    return event.start_mark.line + 1
-            elif isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
-                depth -= 1
+        while parser.check_event():
+            event = parser.get_event()
+            if isinstance(event, end):
+                open_.pop()
+                continue
+            is_start = isinstance(event, start)
+            if not (is_start or isinstance(event, value)):
+                continue  # stream and document events
+            nodes += 1
+            path = ""
+            if open_:
+                top = open_[-1]
+                if top[1] == 2 and top[0] % 2 == 0:  # a key of a mapping
+                    top[4] = event.value if isinstance(event, yaml.ScalarEvent) else "?"
+                if is_start or nodes > max_nodes:
+                    path = (_join_key(top[3], top[4]) if top[1] == 2
+                            else f"{top[3]}[{top[0]}]")  # fmt: skip
+                top[0] += 1
+                if top[0] > max_items * top[1]:
+                    return limits.ITEMS.exceeded(), top[3], top[2]
+            if nodes > max_nodes:
+                return limits.NODES.exceeded(), path, event.start_mark.line + 1
+            if is_start:
+                if len(open_) >= max_depth:
+                    return limits.DEPTH.exceeded(), path, event.start_mark.line + 1
+                per = 2 if isinstance(event, yaml.MappingStartEvent) else 1
+                open_.append([0, per, event.start_mark.line + 1, path, ""])
     except yaml.YAMLError:
-        return None
+        # PyYAML >= 6.0.4 refuses deep flow nesting (`[[[...`) in its scanner, which reads a
+        # flow collection ahead before it yields the events above: count the brackets.
+        line = _flow_too_deep(text, max_depth)
+        return None if line is None else (limits.DEPTH.exceeded(), "", line)
+    finally:
+        parser.dispose()
     return None
+
+
+def _join_key(path: str, key: str) -> str:
+    key = key if len(key) <= 40 else key[:40] + "..."
+    return f"{path}.{key}" if path else key
+
+
+_FLOW_CHARS = re.compile(r"[\[\]{}\"'#]")
+
+
+def _flow_too_deep(text: str, limit: int) -> int | None:
+    """Line where flow brackets ``[ {`` open deeper than ``limit``, else None.
+
+    A scan of the text, not of YAML's events (only called when the parser refused the text):
+    quoted scalars and comments are skipped; a quote counts as one only where a scalar can
+    start (after ``[ { , : -`` or at the start of a line), so ``[don't]`` is a plain word.
+    """
+    depth, pos, n = 0, 0, len(text)
+    while True:
+        m = _FLOW_CHARS.search(text, pos)
+        if m is None:
+            return None
+        c, k = m.group(), m.start()
+        pos = k + 1
+        if c in "[{":
+            depth += 1
+            if depth > limit:
+                return text.count("\n", 0, k) + 1
+        elif c in "]}":
+            depth = max(0, depth - 1)
+        elif c == "#":
+            if k == 0 or text[k - 1] in " \t\n":
+                pos = text.find("\n", k)
+                if pos < 0:
+                    return None
+        else:  # a quote
+            j = k - 1
+            while j >= 0 and text[j] in " \t":
+                j -= 1
+            if j >= 0 and text[j] not in "[{,:-\n":
+                continue  # inside a plain scalar
+            end = k
+            while True:
+                end = text.find(c, end + 1)
+                if end < 0:
+                    return None
+                if c == "'" and end + 1 < n and text[end + 1] == "'":
+                    end += 1  # '' inside single quotes
+                    continue
+                if c == '"':
+                    b = end - 1
+                    while text[b] == "\\":
+                        b -= 1
+                    if (end - 1 - b) % 2:  # an odd number of backslashes escapes it
+                        continue
+                break
+            pos = end + 1
+
+
+_STR_TAG, _INT_TAG, _FLOAT_TAG = ("tag:yaml.org,2002:str", "tag:yaml.org,2002:int",
+                                  "tag:yaml.org,2002:float")
+# numbers that int()/float() read exactly as YAML 1.1 does (no 0x, 0o17, 1_000, 1:30, .inf)
+_PLAIN_INT = re.compile(r"-?(?:0|[1-9][0-9]*)")
+_PLAIN_FLOAT = re.compile(r"-?(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+][0-9]+)?")
 
 
 class _Converter:
@@ -142,10 +252,34 @@ class _Converter:
     def line(self, ynode: yaml.Node) -> int | None:
         return None if self.origin else ynode.start_mark.line + 1
 
-    def fail(self, ynode: yaml.Node, message: str) -> DeckError:
-        return DeckError(message, Where(self.file, "", self.line(ynode)))
+    def fail(self, ynode: yaml.Node, message: str, path: str = "") -> DeckError:
+        return DeckError(message, Where(self.file, path, self.line(ynode)))
+
+    def scalar(self, ynode: yaml.ScalarNode, path: str, index: int | None = None) -> Node:
+        """A scalar as YAML's safe loader reads it; plain strings and decimal numbers
+        directly (a 10^5-point table is mostly these), the rest through the constructor.
+        ``index``: the item number in the list at ``path`` (for the message only)."""
+        tag, text = ynode.tag, ynode.value
+        if tag == _STR_TAG:
+            value = text
+        elif tag == _INT_TAG and _PLAIN_INT.fullmatch(text):
+            value = int(text)
+        elif tag == _FLOAT_TAG and _PLAIN_FLOAT.fullmatch(text):
+            value = float(text)
+        else:
+            where = path if index is None else f"{path}[{index}]"
+            try:
+                value = self.constructor.construct_object(ynode)
+            except (yaml.YAMLError, ValueError, OverflowError):  # ValueError: a bad !!timestamp
+                raise self.fail(ynode, f"unsupported YAML tag {quote(tag)}", where) from None
+            if isinstance(value, bytes):  # `!!binary`: no field of a deck holds bytes
+                raise self.fail(ynode, f"unsupported YAML tag {quote(tag)}", where)
+        line = None if self.origin else ynode.start_mark.line + 1
+        return Node("scalar", value, line, text, origin=self.origin)
 
     def convert(self, ynode: yaml.Node, path: str, depth: int = 0) -> Node:
+        if type(ynode) is yaml.ScalarNode:  # shared by aliases or not, a scalar is a value
+            return self.scalar(ynode, path)
         key = id(ynode)
         if key in self.done:
             return self.done[key]
@@ -155,21 +289,17 @@ class _Converter:
             raise self.fail(ynode, limits.DEPTH.exceeded(depth))
         if not isinstance(ynode, yaml.ScalarNode):
             if ynode.tag not in CONTAINER_TAGS:
-                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}")
+                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}", path)
             if len(ynode.value) > self.max_items:
                 raise self.fail(ynode, limits.ITEMS.exceeded(len(ynode.value)))
         self.active.add(key)
         if isinstance(ynode, yaml.MappingNode):
             node = self.mapping(ynode, path, depth)
-        elif isinstance(ynode, yaml.SequenceNode):
-            items = [self.convert(v, f"{path}[{i}]", depth + 1) for i, v in enumerate(ynode.value)]
-            node = Node("seq", items, self.line(ynode))
         else:
-            try:
-                value = self.constructor.construct_object(ynode)
-            except (yaml.YAMLError, ValueError, OverflowError):  # ValueError: a bad !!timestamp
-                raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}") from None
-            node = Node("scalar", value, self.line(ynode), text=ynode.value)
+            scalar, convert, sn = self.scalar, self.convert, yaml.ScalarNode
+            items = [scalar(v, path, i) if type(v) is sn else convert(v, f"{path}[{i}]", depth + 1)
+                     for i, v in enumerate(ynode.value)]  # fmt: skip
+            node = Node("seq", items, self.line(ynode))
         node.origin = self.origin
         self.active.discard(key)
         self.done[key] = node
@@ -243,7 +373,8 @@ def from_value(value: Any, file: str, path: str, origin: str = "--set") -> Node:
     try:
         node = compose(value, file, origin=origin)
     except DeckError as exc:
-        raise DeckError(f"{origin} {path}={value}: {exc.message}", Where(file, path)) from None
+        shown = value if len(value) <= 80 else value[:80] + f"... (+{len(value) - 80} characters)"
+        raise DeckError(f"{origin} {path}={shown}: {exc.message}", Where(file, path)) from None
     return node if node is not None else Node("scalar", None, None, "", origin=origin)
 
 

@@ -47,6 +47,9 @@ def describe(node: Node | None, limit: int = 80) -> str:
         text = node.text
     elif isinstance(node.value, (int, float)):
         text = repr(float(node.value))
+    elif not isinstance(node.value, str):  # a YAML timestamp: `2001-12-14` unquoted
+        text = f"a date {node.text or node.value} (YAML reads an unquoted date as a date)"
+        return text if len(text) <= 2 * limit else text[: 2 * limit - 4] + " ..."
     else:
         text = quote(node.value, limit)
     return text if len(text) <= limit else text[: limit - 4] + " ...]"
@@ -152,7 +155,7 @@ class Reader:
     def number_info(self, node: Node, where: Where, dim: str | None) -> tuple[float, bool]:
         """(SI value, whether it was written with a unit)."""
         value = node.value if node.kind == "scalar" else None
-        if value is None or isinstance(value, bool):
+        if value is None or isinstance(value, bool) or not isinstance(value, (int, float, str)):
             raise self.error(where, f"expected {_a(dim)}, got {describe(node)}", node)
         if isinstance(value, (int, float)):
             return self._finite(float(value), node, where), False
@@ -165,7 +168,7 @@ class Reader:
             return self.params[text], False
         if units.looks_like_quantity(text):
             return self._quantity(text, node, where, dim), True
-        expr = self.formula(text, node, where, set(self.params))
+        expr = self.formula(text, node, where, set())
         return self._finite(_constant(expr), node, where, text), False
 
     def _finite(self, x: float, node: Node, where: Where, text: str | None = None) -> float:
@@ -200,13 +203,19 @@ class Reader:
             self._dims[dim] = units.parse_quantity(f"1 {DIMENSIONS[dim][0]}")[1]
         return self._dims[dim]
 
-    def formula(self, text: str, node: Node, where: Where, allowed: set[str] | None):
-        """Parse ``text`` (only ``allowed`` names; None: any) and bind the parameters."""
+    def formula(self, text: str, node: Node, where: Where, extra: set[str] | None):
+        """Parse ``text`` and bind the parameters; it may use the parameters and the names
+        ``extra`` (None: any name).  The cost is that of the formula's own names, not of
+        the number of parameters (a deck of 10^4 chained parameters is read in linear time)."""
         try:
-            expr = parse_expression(text, allowed=None if allowed is None else sorted(allowed))
+            expr = parse_expression(text)
+            if extra is not None and any(n not in self.params and n not in extra
+                                         for n in expr.names):
+                parse_expression(text, allowed=sorted({*self.params, *extra}))  # the error
         except ExpressionError as exc:
+            allowed = None if extra is None else {*self.params, *extra}
             raise self.error(where, self._formula_problem(text, exc, allowed), node) from None
-        bound = {k: v for k, v in self.params.items() if k in expr.names}
+        bound = {k: self.params[k] for k in expr.names if k in self.params}
         return expr.bind(bound) if bound else expr
 
     def _formula_problem(self, text: str, exc: ExpressionError, allowed) -> str:
@@ -243,6 +252,9 @@ class Reader:
         value = node.value
         if isinstance(value, bool) or value is None:
             return value
+        if not isinstance(value, (int, float, str)):  # a date
+            raise self.error(where, f"expected a number, a name or true/false, got "
+                             f"{describe(node)}", node)
         if isinstance(value, float) or isinstance(value, int) and dim is not None:
             return self.number(node, where, dim)
         if isinstance(value, str) and self._numeric_text(value.strip()):
@@ -256,7 +268,7 @@ class Reader:
             expr = parse_expression(text)
         except ExpressionError:  # not a formula: a plain string setting ('dop853')
             return False
-        return expr.names <= set(self.params)
+        return all(n in self.params for n in expr.names)
 
     def item(self, where: Where, i: int, node: Node) -> Where:
         """The Where of item ``i`` of the list at ``where``."""
@@ -316,6 +328,11 @@ class Reader:
                 raise self.error(cw, f"expected a list of numbers, got {describe(col)}", col)
             if len(col.value) > limits.TABLE_POINTS.value:
                 raise self.error(cw, limits.TABLE_POINTS.exceeded(len(col.value)))
+            plain = [v.value for v in col.value]  # numbers as YAML read them: no conversion
+            if all(type(x) in (int, float) for x in plain) and np.isfinite(
+                    arr := np.array(plain, dtype=float)).all():  # fmt: skip
+                cols[key] = arr
+                continue
             cols[key] = np.array(
                 [self.number(v, _item(cw, i, v), kdim) for i, v in enumerate(col.value)]
             )
@@ -346,7 +363,7 @@ class Reader:
             return FunctionSpec("constant", {"value": self.number(node, where, dim)}, where)
         if units.looks_like_quantity(text):
             return FunctionSpec("constant", {"value": self.number(node, where, dim)}, where)
-        expr = self.formula(text, node, where, set(self.params) | variables)
+        expr = self.formula(text, node, where, variables)
         if not set(expr.names) & variables:
             value = self._finite(_constant(expr), node, where, text)
             return FunctionSpec("constant", {"value": value}, where)
@@ -360,8 +377,7 @@ class Reader:
         text = node.value.strip()
         if text in self.params or _is_float(text) or units.looks_like_quantity(text):
             return self.function(node, where, dim)
-        allowed = None if names is None else set(self.params) | {"t"} | set(names)
-        expr = self.formula(text, node, where, allowed)
+        expr = self.formula(text, node, where, None if names is None else {"t", *names})
         if not expr.names:  # folded to a constant once parameters are bound (e.g. 0 psi)
             return FunctionSpec("constant", {"value": self._finite(_constant(expr), node, where,
                                                                   text)}, where)

@@ -321,6 +321,15 @@ def export_plot_data(fig: Figure, path: str | Path) -> Path:
     return path
 
 
+def figure_suffix_problem(path: str | Path) -> str:
+    """Why a figure cannot be saved as ``path`` judging by its suffix, '' when it can."""
+    path = Path(path)
+    if path.suffix.lower() in FORMATS:
+        return ""
+    return (f"cannot save a figure as {path.suffix or 'a file without suffix'!r} ({path.name}); "
+            f"use one of {', '.join(FORMATS)}")
+
+
 def save_figure(fig: Figure, path: str | Path, dpi: float = 150) -> Path:
     """Save `fig` to `path`; the format comes from the suffix (.png, .svg or .pdf).
 
@@ -332,10 +341,7 @@ def save_figure(fig: Figure, path: str | Path, dpi: float = 150) -> Path:
     path = Path(path)
     fmt = FORMATS.get(path.suffix.lower())
     if fmt is None:
-        raise ValueError(
-            f"cannot save a figure as {path.suffix or 'a file without suffix'!r} ({path.name}); "
-            f"use one of {', '.join(FORMATS)}"
-        )
+        raise ValueError(figure_suffix_problem(path))
     if fig.canvas is None or not isinstance(fig.canvas, FigureCanvasAgg):
         FigureCanvasAgg(fig)
     fig.savefig(path, format=fmt, dpi=dpi)

@@ -339,3 +339,15 @@ def test_force_laws_stay_expressions_and_measures_pass_through():
     np.testing.assert_array_equal(push.data["direction"], [0, 0, 1])
     assert spec.forces["pair"].bodies == ("ground", "crank")
     np.testing.assert_array_equal(spec.forces["pair"].data["vector"], [0, 0, 2])
+
+
+def test_the_settings_table_lists_every_default_of_every_analysis():
+    """mbsim.deck.schema.ANALYSIS_SETTINGS (what decks, --set, sweeps and run_model accept)
+    holds every key of each analysis module's DEFAULTS."""
+    from mbsim.api import ANALYSES, analysis_defaults
+    from mbsim.deck.schema import ANALYSIS_MODES, ANALYSIS_SETTINGS
+
+    assert set(ANALYSIS_SETTINGS) == set(ANALYSIS_MODES)
+    for mode in ANALYSES:
+        missing = set(analysis_defaults(mode)) - set(ANALYSIS_SETTINGS[mode])
+        assert not missing, (mode, missing)
