@@ -267,7 +267,8 @@ def _single_run(model, opt, progress=None):
     tr = _main_trajectory(model, prep, opt, progress)
     est = None
     if tr.interrupted:  # the user asked to stop: not another integration now
-        est = {"method": "not computed: the run was interrupted"}
+        est = {"method": "not computed: the run was interrupted", "position": None,
+               "reason": "the run was interrupted (Ctrl-C or SIGTERM) before t_end"}
     elif opt.get("error_estimate", True) and len(tr) >= 2:
         est = _estimate(model, prep, opt, tr)
     return _build_result(model, prep, opt, tr, est)
