@@ -1,6 +1,6 @@
 """Change points of a mechanism (a rank loss of Phi_q, here the flat position of a parallelogram
 linkage) passed slowly or approached and left: the step across the change point
-(mbsim/integrators/tangent.py, Approach) and the error test's round-off floor for the
+(mbsim/integrators/changepoints.py, Approach) and the error test's round-off floor for the
 index-1 and gcp families.
 
 models/parallel_fourbar.yaml with w0 = 10.51 rad/s crosses its flat position at 0.32 rad/s
@@ -17,7 +17,7 @@ rk4 at h = 0.25 ms ends 3.7e-11 ... 4.0e-9 m off over starts perturbed by 4 ulps
 OpenBLAS kernels Haswell, SkylakeX and Prescott; projection-dop853 through the deck's
 eleven fast passages at rtol 1e-11 2.3e-11 ... 2.5e-9 m.  CROSSING_ROUNDOFF is twice the
 largest of these; the faults these tests guard against leave 1e-4 ... 1e-3 m (module docs of
-tangent.py and index1.py), five orders of magnitude above it.
+changepoints.py and index1.py), five orders of magnitude above it.
 """
 
 from pathlib import Path
@@ -27,7 +27,8 @@ import pytest
 
 from mbsim.analyses.dynamic import dynamic
 from mbsim.api import load_model
-from mbsim.integrators import rk, tangent
+from mbsim.integrators import changepoints as cp
+from mbsim.integrators import rk
 from tests.integrators import models as M
 from tests.integrators import references as R
 
@@ -72,9 +73,9 @@ def test_slow_crossing_with_fixed_steps(integrator):
 def test_crossing_time_extrapolates_a_linear_measure():
     """s linear in the distance: the point is found exactly; a measure that does not fall
     (a motion leaving the point, or turning short of it) predicts nothing."""
-    assert tangent.crossing_time(((1.0, 0.3), (1.1, 0.2))) == pytest.approx(0.2)
-    assert tangent.crossing_time(((1.0, 0.2), (1.1, 0.3))) is None
-    assert tangent.crossing_time(((1.0, 0.2), (1.1, 0.0))) is None
+    assert cp.crossing_time(((1.0, 0.3), (1.1, 0.2))) == pytest.approx(0.2)
+    assert cp.crossing_time(((1.0, 0.2), (1.1, 0.3))) is None
+    assert cp.crossing_time(((1.0, 0.2), (1.1, 0.0))) is None
 
 
 @pytest.mark.parametrize("tableau,gap", [(rk.Dop853, (1 / 3, 0.6)),
@@ -82,7 +83,7 @@ def test_crossing_time_extrapolates_a_linear_measure():
 def test_clear_step_puts_the_point_in_the_widest_gap(tableau, gap):
     """With room to choose, the point lies midway in the widest gap between the stage
     times (DOP853's dense output's extra stages included), half that gap from them."""
-    h, clear = tangent.clear_step(tangent.stage_times(tableau), 0.45, 0.5, 1.5)
+    h, clear = cp.clear_step(cp.stage_times(tableau), 0.45, 0.5, 1.5)
     assert h == pytest.approx(0.45 / (0.5 * (gap[0] + gap[1])))
     assert clear == pytest.approx(0.5 * (gap[1] - gap[0]) * h)
 
@@ -95,8 +96,8 @@ def test_clear_step_is_the_farthest(tableau, d, lo, hi):
     (start and end included), and no step of a fine grid over [lo, hi] does better; of
     equals (d = 0.01: every step that puts the point between the start and the first stage
     keeps it d from the start) the smallest."""
-    c = tangent.stage_times(tableau)
-    h, clear = tangent.clear_step(c, d, lo, hi)
+    c = cp.stage_times(tableau)
+    h, clear = cp.clear_step(c, d, lo, hi)
     assert lo <= h <= hi
     assert clear == pytest.approx(np.abs(h * c - d).min())
     grid = np.linspace(lo, hi, 2001)
@@ -143,3 +144,35 @@ def test_dwell_at_the_dead_centre_below_round_off():
     assert res.complete, res.message
     err = float(R.position_error(res, M.parallel_fourbar_reference(res.t, 10.505)).max())
     assert err <= 10 * 1e-11 + CROSSING_ROUNDOFF, f"{err:.3g} m"
+
+
+def test_policy_switch_follows_the_round_off_law():
+    """Policy.tangent: where three solves' round-off eps s^-3 reaches rtol, s = (eps /
+    rtol)^(1/3), within each family's limits (changepoints.Policy); fixed steps S_FIXED;
+    ``tangent_steps: false`` is 0; the approach region a fixed multiple of the switch."""
+    eps = np.finfo(float).eps
+    for rtol in (1e-4, 1e-6, 1e-8, 1e-10, 1e-12):
+        law = (eps / rtol) ** (1 / 3)
+        g = cp.Policy.for_run("gcp", rtol, rtol / 100, fixed=False)
+        i = cp.Policy.for_run("index-1", rtol, rtol / 100, fixed=False)
+        assert g.tangent == pytest.approx(max(cp.S_FIXED, law))
+        assert i.tangent == pytest.approx(min(cp.S_INDEX1_CAP,
+                                              max(np.sqrt(cp.SCHUR_PIVOT_FLOOR), law)))
+        assert eps * g.tangent ** -3 <= rtol * (1 + 1e-12)
+        assert g.near == pytest.approx(cp.NEAR_GCP * g.tangent)
+        assert i.near == pytest.approx(cp.NEAR_INDEX1 * i.tangent)
+    for family in ("gcp", "index-1"):
+        assert cp.Policy.for_run(family, 1e-6, 1e-8, fixed=True).tangent == cp.S_FIXED
+    assert cp.Policy.for_run("index-1", 1e-6, 1e-8, False, tangent=False).tangent == 0.0
+
+
+def test_schur_pivot_floor_is_the_kernels():
+    """The index-1 switch's floor is the pivot floor of the Schur factor in
+    mbsim/fast/kernels.c (below it the kernels change the solve): one number in two
+    languages, checked here."""
+    import re
+
+    src = (Path(__file__).resolve().parents[2] / "mbsim" / "fast" / "kernels.c").read_text()
+    m = re.search(r"#define PIVOT_FLOOR ([0-9.eE+-]+)", src)
+    assert m and float(m.group(1)) == cp.SCHUR_PIVOT_FLOOR
+
