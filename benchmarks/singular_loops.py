@@ -4,11 +4,12 @@
 
 One run per (method, rtol) of tests/integrators/test_singular_loops.py's problem (atol =
 rtol/100; fixed-step methods at the step that test uses for that rtol), against its exact
-one-DOF reduction: status, true position error, the issue's bound 10 rtol + 1e-9 m, the error
-estimate and estimate / true error, CPU s (whole analysis with its estimate) and its ratio to
-the method's first rtol; --cranks N: N parallel cranks (N - 1 loops, 4 (N - 2) + 3 redundant
-rows; 41 is the 40-loop linkage) instead of four (issue 11's budget: at most 10x from rtol 1e-6 to 1e-10; the unit
-tests assert no timings).  A run still going after 120 s wall is interrupted (a failure).
+one-DOF reduction: status, true position error, the issue's bound 10 rtol + 1e-9 m, the
+error estimate and estimate / true error, CPU s (whole analysis with its estimate) and its
+ratio to the method's first rtol (issue 11's budget: at most 10x from rtol 1e-6 to 1e-10;
+the unit tests assert no timings).  --cranks N: N parallel cranks (N - 1 loops, 4 (N - 2)
++ 3 redundant rows; 41 is the 40-loop linkage) instead of four.  A run still going after
+120 s wall is interrupted (a failure).
 """
 
 from __future__ import annotations

@@ -45,7 +45,7 @@ EPS = float(np.finfo(float).eps)
 # -- the policy ------------------------------------------------------------------------------
 # Every constant of the policy, once; Policy's docstring derives each.  s is the measure above
 # (dimensionless); "tolerances" are the scaled RMS norms of the error test (1 = the tolerance).
-SCHUR_PIVOT_FLOOR = 1e-8  # kernels.c PIVOT_FLOOR: (sigma_min / sigma)^2 below which it raises a pivot
+SCHUR_PIVOT_FLOOR = 1e-8  # kernels.c PIVOT_FLOOR: Schur pivot / diagonal below which it is raised
 S_FIXED = 1e-3  # s of the tangent switch for fixed steps (no tolerance)
 S_INDEX1_CAP = 10 ** -2.5  # the index-1 switch's largest s (Schur pivot ratio 1e-5)
 S_NOISE = 1e-5  # the round-off probe is not used below this s (Schur pivot ratio 1e-10)

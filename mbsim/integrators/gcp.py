@@ -59,8 +59,8 @@ from mbsim.integrators import changepoints as cp
 from mbsim.integrators.base import quintic_hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
-
 log = logging.getLogger(__name__)
+
 
 class Partition:
     """iv: (nv,) independent coordinates; iu: (m_a,) dependent ones; s0: sensitivity;

@@ -48,8 +48,7 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim.integrators import changepoints as cp
-from mbsim.integrators.base import (NUMERICAL_ERRORS, ROUNDOFF_ULPS, quintic_hermite,
-                                   rms_norm)
+from mbsim.integrators.base import NUMERICAL_ERRORS, ROUNDOFF_ULPS, quintic_hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
 

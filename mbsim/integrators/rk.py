@@ -12,8 +12,14 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim.integrators import dop853_coefficients as dop
-from mbsim.integrators.base import (FIRST_STEP_ROOM, MAX_REJECTS, NUMERICAL_ERRORS, Integrator,
-                                   hermite, rms_norm)
+from mbsim.integrators.base import (
+    FIRST_STEP_ROOM,
+    MAX_REJECTS,
+    NUMERICAL_ERRORS,
+    Integrator,
+    hermite,
+    rms_norm,
+)
 
 
 class StageFailure(ArithmeticError):

@@ -31,9 +31,8 @@ from scipy.integrate import solve_ivp
 from mbsim.analyses.common import rank_and_redundant
 from mbsim.analyses.dynamic import _jac, dynamic, make_system
 from mbsim.expr import parse_expression
-from mbsim.integrators import INTEGRATORS
+from mbsim.integrators import INTEGRATORS, gcp
 from mbsim.integrators import changepoints as cp
-from mbsim.integrators import gcp
 from mbsim.model import compile_model
 from tests.helpers import body, driver, func, joint, pts, spec
 from tests.integrators import models as M

@@ -14,9 +14,9 @@ at the largest of the steps 5, 2, 1, 0.5 ms that reaches that error: RK4's error
 measured 5e-7, 1.5e-8, 9e-10 m at h = 5, 2, 1 ms for rk4, 1.1e-9 m at 1 ms for gcp-rk4; below
 1 ms see tests/integrators/test_index1_tangent.py); position error <= 10 rtol + 1e-9
 m (the cost of each run against the same method's rtol 1e-6 run, which issue 11 bounds by
-10x: python benchmarks/singular_loops.py). Beyond the issue's list: each run's error_estimate is within a
-factor 10 of its true error (the honesty asked of the default, here for every method), and the
-deck and the CLI's --accuracy reproduce the reduction.
+10x: python benchmarks/singular_loops.py).  Beyond the issue's list: each run's
+error_estimate is within a factor 10 of its true error (the honesty asked of the default,
+here for every method), and the deck and the CLI's --accuracy reproduce the reduction.
 """
 
 import signal
@@ -183,11 +183,10 @@ def test_cli_accuracy_on_the_deck(tmp_path):
 
 @pytest.mark.parametrize("rtol", [1e-11, 1e-12])
 def test_gcp_below_the_issue_tolerances(rtol):
-    """gcp-dop853 past the issue's rtol range, where the fixed pivot threshold 1e-3 of the
-    tangent switch let the coordinate accelerations' noise (~ pivot ratio^-2.5) into the
-    steps: 5.8e-9 and 4.7e-10 m at rtol 1e-11 and 1e-12.  With gcp.singular_pivot(rtol)
-    (1.3e-2 at 1e-10, 6e-2 at 1e-12): 4.6e-10 and 4.2e-11 m, within the same bound
-    10 rtol + 1e-9 m."""
+    """gcp-dop853 past the issue's rtol range, where a fixed switch of 1e-3 let the
+    coordinate accelerations' round-off (eps s^-3, changepoints.Policy) into the steps:
+    5.8e-9 and 4.7e-10 m at rtol 1e-11 and 1e-12.  With the policy's switch (1.3e-2 at
+    1e-10, 6e-2 at 1e-12): 4.6e-10 and 4.2e-11 m, within the same bound 10 rtol + 1e-9 m."""
     res, err = run("gcp-dop853", rtol)
     assert res.complete, res.message
     assert err <= 10 * rtol + 1e-9, f"position error {err:.3g} m"
