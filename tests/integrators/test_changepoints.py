@@ -147,8 +147,9 @@ def test_dwell_at_the_dead_centre_below_round_off():
 
 
 def test_policy_switch_follows_the_round_off_law():
-    """Policy.tangent: where three solves' round-off eps s^-3 reaches rtol, s = (eps /
-    rtol)^(1/3), within each family's limits (changepoints.Policy); fixed steps S_FIXED;
+    """Policy.tangent: gcp where three solves' round-off eps s^-3 reaches rtol, s = (eps /
+    rtol)^(1/3), index-1 at its square (measured), each within its family's limits
+    (changepoints.Policy); fixed steps S_FIXED;
     ``tangent_steps: false`` is 0; the approach region a fixed multiple of the switch."""
     eps = np.finfo(float).eps
     for rtol in (1e-4, 1e-6, 1e-8, 1e-10, 1e-12):
@@ -157,7 +158,7 @@ def test_policy_switch_follows_the_round_off_law():
         i = cp.Policy.for_run("index-1", rtol, rtol / 100, fixed=False)
         assert g.tangent == pytest.approx(max(cp.S_FIXED, law))
         assert i.tangent == pytest.approx(min(cp.S_INDEX1_CAP,
-                                              max(np.sqrt(cp.SCHUR_PIVOT_FLOOR), law)))
+                                              max(np.sqrt(cp.SCHUR_PIVOT_FLOOR), law ** 2)))
         assert eps * g.tangent ** -3 <= rtol * (1 + 1e-12)
         assert g.near == pytest.approx(cp.NEAR_GCP * g.tangent)
         assert i.near == pytest.approx(cp.NEAR_INDEX1 * i.tangent)
