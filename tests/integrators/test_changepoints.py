@@ -13,10 +13,10 @@ state only to eps / sigma_min(Phi_q), and a motion that dwells there carries tha
 along; what it leaves at the end depends on the machine's round-off pattern (the BLAS
 kernel, the start's last bits), not on the tolerance.  Measured (python
 benchmarks/dead_centre.py --perturb 3 --integrators rk4 --steps 2.5e-4 --w0 10.51):
-rk4 at h = 0.25 ms ends 3.7e-11 ... 4.0e-9 m off over starts perturbed by 4 ulps and the
+rk4 at h = 0.25 ms ends 2.6e-11 ... 4.0e-9 m off over starts perturbed by 4 ulps and the
 OpenBLAS kernels Haswell, SkylakeX and Prescott; projection-dop853 through the deck's
-eleven fast passages at rtol 1e-11 2.3e-11 ... 2.5e-9 m.  CROSSING_ROUNDOFF is twice the
-largest of these; the faults these tests guard against leave 1e-4 ... 1e-3 m (module docs of
+eleven fast passages at rtol 1e-11 2.3e-11 ... 2.5e-9 m.  CROSSING_ROUNDOFF is 2.5 times
+the largest of these (a measured floor, not a derived one); the faults these tests guard against leave 1e-4 ... 1e-3 m (module docs of
 changepoints.py and index1.py), five orders of magnitude above it.
 """
 
