@@ -17,6 +17,7 @@ from mbsim.integrators.system import SolveError  # singular matrices
 SAFETY = 0.9  # times the asymptotically optimal step (Hairer, Norsett & Wanner, Sec. II.4)
 MIN_FACTOR = 0.2  # largest decrease of the step after a rejected step
 MAX_FACTOR = 5.0  # largest increase after an accepted step
+FIRST_STEP_ROOM = MIN_FACTOR ** -3  # the first step is at least this x h_min (rk._initial_step)
 MAX_REJECTS = 100  # rejected trials in a row before a step loop gives up (no progress)
 STALL_FLOOR = 1e-11  # an accepted step below this x max(1, |t|) makes no real progress
 # round-off of q: |Phi| at a converged Newton iterate is 0.5-1 ulp of max(1, |q|) (measured);

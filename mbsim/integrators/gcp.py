@@ -30,33 +30,21 @@ Near a change point: tangent coordinates.  Where the mechanism approaches a sing
 (the parallel four-bar's flat position: Phi_q loses rank there, the independent rows admit a
 second solution branch), Phi_u is close to singular for every choice of v, and round-off in
 the dependent coordinates (~eps / sigma_min) becomes noise in ud (~1/sigma^2) and in the
-accelerations (~1/sigma^3) along the soft directions of Phi_q.  That noise lies in the
-directions M-orthogonal to the tangent space (the constraint forces' directions,
-M^-1 Phi_q^T), so that a coordinate v sees it in proportion to its share of them (measured on
-the four-bar 1e-3 rad from flat: 2e-4 rad/s^2 in a crank's Euler parameter, 7e-6 m/s^2 in the
-coupler's y).  When the LU pivots of Phi_u fall below ``singular_pivot(rtol)`` of the largest
-(1e-3, more at tolerances below 2e-7), the independent coordinates become the tangent
-coordinates v = C q, C = (N^T M N)^-1 N^T M, N an orthonormal basis of the null space of
-Phi_q at the partition point (the M-orthogonal
-projection onto the tangent space: Mani, Haug & Atkinson 1985 choose v in the null space by
-the SVD of Phi_q; Potra & Yen 1991 parametrize the constraint manifold by its tangent space).
-C annihilates the M-orthogonal soft directions, so v'' does not carry the noise (measured
-there: 1e-9 instead of 2e-4 at 1e-3 rad, 1e-7 instead of 0.1 at 1e-4 rad).  q then solves
-[Phi(q, t); C q - v] = 0 by Newton on the square matrix A = [Phi_q; C]; qd = A^-1 [nu; vd];
-the accelerations come from the reduced equations (T^T M T) v'' = T^T (Q - M p), T = A^-1
-[0; I], p = A^-1 [gamma; 0] (Haug Sec. 11.4 with T in place of [I; -Phi_u^-1 Phi_v]), which
-solve only A (not the Schur complement, whose condition is the square of Phi_q's and whose
-pivot floor in kernels.c changes the result near singular positions).  A stage computed in
-coordinates with Phi_u that near singular fails its step, which is tried again from its start
-in tangent coordinates (a step may cross the singular position with no accepted point near
-it).  The tangent partition is replaced when its sensitivity max |T| grows (as a coordinate
-one), or as soon as the coordinate choice's Phi_u is no longer near singular: RK4's error
-constant is larger in the position-like tangent coordinates (measured 7x on the four-bar)
-than in the Euler parameters the null-space choice picks.  A motion that approaches the
-change point slowly meets the round-off of the constraint equations themselves there; the
-step across the point is then chosen to keep its stages clear of it
-(:class:`mbsim.integrators.tangent.Approach`, followed by the LU pivot ratio of Phi_u;
-counter ``straddle_steps``).
+accelerations (~1/sigma^3) along the soft directions of Phi_q: the three solves of the
+change-point policy (:mod:`mbsim.integrators.changepoints`, ``Policy.tangent``).  The LU
+pivot ratio of Phi_u is gcp's estimate of the measure s; below the policy's switch the
+independent coordinates become the tangent coordinates v = C q of that module, taken at the
+partition point.  C annihilates the M-orthogonal soft directions, where the noise lies, so
+v'' does not carry it; q then solves [Phi(q, t); C q - v] = 0 by the shared Newton
+completion on A = [Phi_q; C], qd = A^-1 [nu; vd], and the accelerations come from the
+reduced equations, which solve only A.  A stage computed in coordinates with Phi_u below the
+switch fails its step, which is tried again from its start in tangent coordinates (a step
+may cross the singular position with no accepted point near it).  The tangent partition is
+replaced when its sensitivity max |T| grows (as a coordinate one), or as soon as the
+coordinate choice's Phi_u is above the switch again: RK4's error constant is larger in the
+position-like tangent coordinates than in the Euler parameters the null-space choice picks.
+A motion that approaches the change point slowly is given a step across it that keeps its
+stages clear of it (:class:`changepoints.Approach`; counter ``straddle_steps``).
 """
 
 from __future__ import annotations
@@ -67,36 +55,11 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse.linalg as spla
 
-from mbsim.integrators import tangent
+from mbsim.integrators import changepoints as cp
 from mbsim.integrators.base import quintic_hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
-
 log = logging.getLogger(__name__)
-
-# Phi_u with LU pivots below this fraction of its largest: tangent coordinates (module doc).
-# The noise they avoid grows like (pivot ratio)^-2.5: 2e-7 of v'' at a pivot ratio of 6e-4
-# (measured, a crank's Euler parameter 3e-3 rad from the four-bar's flat position), 1e-8 at
-# 2e-3, 1e-3 at 2e-5; above the threshold the coordinates keep the cheaper Schur solve.
-SINGULAR_PIVOT = 1e-3
-STRADDLE_NEAR = 3.0  # an approach to a change point (tangent.Approach): pivot ratio below this
-# x singular_pivot (0.2 x the angle from the four-bar's flat position: 1.5e-2 rad at rtol 1e-6)
-
-
-def singular_pivot(rtol, adaptive=True):
-    """The pivot ratio below which tangent coordinates are used: SINGULAR_PIVOT, or for an
-    adaptive run at a tighter tolerance (eps / rtol)^(1/3), where the noise of the coordinate
-    accelerations (measured law above) reaches rtol: 6e-4, 2.8e-3, 1.3e-2, 6e-2 at rtol 1e-6,
-    1e-8, 1e-10, 1e-12 against 3e-4, 2e-3, 1.3e-2, 8e-2 from the law.  With the fixed 1e-3 the
-    noise read as local error at tight tolerances: gcp-dop853 on the four parallel cranks
-    ended 1.3e-10, 5.8e-9, 4.7e-10 m off at rtol 1e-10, 1e-11, 1e-12 (now 4.6e-11, 4.6e-10,
-    4.2e-11), gcp-rk45's estimate at 1e-10 was 0.27 of its error (now 0.79), and DOP853's
-    extra dense-output stages fell in coordinates next to a flat position (3e-9 m at one
-    output of the shaken linkage, tests/integrators/test_gcp_tangent_rheonomic.py), for
-    10-20 % more CPU (benchmarks/singular_loops.py).  Defaults (rtol 1e-6) are unchanged."""
-    if not adaptive:
-        return SINGULAR_PIVOT
-    return max(SINGULAR_PIVOT, (np.finfo(float).eps / rtol) ** (1.0 / 3.0))
 
 
 class Partition:
@@ -134,11 +97,11 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self.method = self.options.get("partition", self.partition_method)
         if self.method not in ("nullspace", "lu"):
             raise ValueError(f"partition: expected nullspace | lu, got {self.method!r}")
-        self.newton_tol = float(self.options.get(
-            "newton_tol", 1e-12 if self.h_fixed else min(1e-9, max(1e-12, 1e-2 * self.atol))))
+        # the change-point policy (changepoints.Policy)
+        self.policy = cp.Policy.for_run("gcp", self.rtol, self.atol, self.h_fixed is not None)
+        self.newton_tol = float(self.options.get("newton_tol", self.policy.newton_tol))
         self.counters["repartitions"] = 0
         self.counters["tangent_partitions"] = 0
-        self.singular_pivot = singular_pivot(self.rtol, self.h_fixed is None)
         self._pred = None  # the full q predicted for the next stage (see _trial)
         qdd, _, _ = system.accelerations(self.q, self.qd, self.t)
         self._ref = (self.t, self.q.copy(), self.qd.copy(), qdd)  # Newton predictor data
@@ -149,11 +112,10 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._tangent_wanted = False  # a stage of the failed step was near a change point
         self.part = self._partition(self.t, self.q)
         self.n_err = 2 * self.part.k  # (v, vd); the work integral is not controlled
-        # the approach to a change point and the step across it (tangent.Approach), followed
-        # by the pivot ratio of Phi_u at the accepted states (None: a new partition)
+        # the approach to a change point and the step across it (changepoints.Approach),
+        # followed by the measure of Phi_u at the accepted states (None: a new partition)
         self.counters["straddle_steps"] = 0
-        self._approach = tangent.Approach(tangent.stage_times(self.tableau), self.h_fixed,
-                                          STRADDLE_NEAR * self.singular_pivot)
+        self._approach = cp.Approach(cp.stage_times(self.tableau), self.h_fixed, self.policy)
         self._pivot = None  # (_accept)
         self._pivot_iu = None  # u of the last accepted step
         self._start()
@@ -182,21 +144,20 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         iv = np.setdiff1d(np.arange(self.n), iu)
         fac = self._factor(J, iu)
         part = None
-        if (tangent or self._pivot_ratio(fac) < self.singular_pivot) and self._tangent_ok:
+        if (tangent or self._pivot_ratio(fac) < self.policy.tangent) and self._tangent_ok:
             part = self._tangent_partition(q, J, Jd, iv, iu)
             self._tangent_ok = part is not None
         return part or Partition(iv, iu, self._sensitivity(fac, J, iv))
 
     def _pivot_ratio(self, fac):
-        """Smallest / largest |pivot| of the LU factors of Phi_u (an estimate of how close to
-        singular it is: at the four-bar's flat position, 0.2 x the angle from it)."""
-        d = np.abs(fac.U.diagonal() if self.system.sparse else np.diag(fac[0]))
-        return float(d.min() / d.max()) if d.size and d.max() > 0 else 1.0
+        """The change-point measure from the LU factor of Phi_u
+        (:func:`changepoints.measure_from_lu`)."""
+        return cp.measure_from_lu(fac, self.system.sparse)
 
     def _tangent_partition(self, q, J, Jd, iv, iu):
-        """Tangent coordinates at q (module doc; :func:`tangent.tangent_map`); None where the
+        """Tangent coordinates at q (module doc; :func:`changepoints.tangent_map`); None where the
         mass matrix is singular on the tangent space (a massless motion)."""
-        C = tangent.tangent_map(self.system, q, Jd)
+        C = cp.tangent_map(self.system, q, Jd)
         if C is None:
             return None
         part = Partition(iv, iu, 0.0, C)
@@ -205,11 +166,11 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
 
     def _factor_tangent(self, J, C):
         """LU of A = [Phi_q; C] (n x n)."""
-        return tangent.factor(self.system, J, C)
+        return cp.factor(self.system, J, C)
 
     def _tangent_sensitivity(self, fac, k):
         """max |T|: as max |Phi_u^-1 Phi_v| for coordinates, how far q moves per unit of v."""
-        return float(np.abs(tangent.basis(self.system, fac, k)).max(initial=0.0))
+        return float(np.abs(cp.basis(self.system, fac, k)).max(initial=0.0))
 
     def _factor(self, J, iu):
         self.system.counters["factorizations"] += 1
@@ -227,7 +188,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         return float(np.abs(Z).max(initial=0.0))
 
     def _solve(self, fac, b):
-        return tangent.solve(self.system, fac, b)
+        return cp.solve(self.system, fac, b)
 
     # -- the stage function ----------------------------------------------------------------
     def _complete(self, t, v, vd, part):
@@ -244,26 +205,22 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             tau = t - t0
             q = q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
         if C is not None:
-            q, qd, fac, T = tangent.complete(s, t, q, v, vd, C, self.newton_tol,
-                                             self.max_newton)
+            q, qd, fac, T = cp.complete(s, t, q, v, vd, C, self.newton_tol, self.max_newton)
             if qd is None:
                 self._raise_newton_failure(T, t)
             self._jac = T.jac
             return q, qd, fac
         q[iv] = v
-        for _ in range(self.max_newton):
-            T = s.terms(q, t, jac=True, nu=s.rheonomic)
+
+        def correction(T, x):  # Newton on u alone: Phi_u du = Phi
             fac = self._factor(T.jac, iu)
-            dx = self._solve(fac, T.phi)
-            q[iu] -= dx
-            s.counters["newton_iterations"] += 1
-            if np.abs(dx).max(initial=0.0) <= self.newton_tol:
-                break  # Phi_q of this iterate is within newton_tol of Phi_q(q): keep it
-        else:
-            # the corrections may stagnate at round-off of an ill-conditioned Phi_u while the
-            # constraints themselves hold: then keep it (a failure here lost whole runs)
-            if np.abs(T.phi).max(initial=0.0) > self.newton_tol:
-                self._raise_newton_failure(T, t)
+            dx = np.zeros(self.n)
+            dx[iu] = self._solve(fac, T.phi)
+            return dx, fac
+
+        q, T, fac, ok = cp.newton(s, t, q, correction, self.newton_tol, self.max_newton)
+        if not ok:
+            self._raise_newton_failure(T, t)
         nu = T.nu if s.rheonomic else np.zeros(s.m)
         qd = np.empty(self.n)
         qd[iv] = vd
@@ -273,8 +230,8 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
 
     def _tangent_accelerations(self, t, q, qd, fac, part):
         """(qdd, power) in tangent coordinates from the reduced equations (module doc;
-        :func:`tangent.accelerations`)."""
-        return tangent.accelerations(self.system, t, q, qd, fac, part.k)
+        :func:`changepoints.accelerations`)."""
+        return cp.accelerations(self.system, t, q, qd, fac, part.k)
 
     def _raise_newton_failure(self, T, t):
         s = self.system
@@ -327,10 +284,10 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         """A stage in coordinates with Phi_u near singular fails the trial, so that the step is
         tried again from its start in tangent coordinates (``_recover``): an accepted point
         need not fall near the change point (a step of DOP853 or RK4 crosses the four-bar's
-        flat position, 1e-2 rad wide at SINGULAR_PIVOT, with stages on both sides)."""
+        flat position, 1e-2 rad wide at the default switch, with stages on both sides)."""
         if self.part.C is None and self._tangent_ok:
             ratio = self._pivot_ratio(self._last[5])
-            if ratio < self.singular_pivot:
+            if ratio < self.policy.tangent:
                 self._tangent_wanted = True
                 raise StageFailure(f"t = {t:.6g} s: Phi_u near singular (pivot ratio "
                                    f"{ratio:.3g}); tangent coordinates")
@@ -343,7 +300,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         if self.h_fixed is not None:
             return
         dev = rms_norm(q - pred, self.atol + self.rtol * np.abs(pred))
-        if dev > tangent.BRANCH_JUMP:
+        if dev > self.policy.branch_jump:
             raise StageFailure(f"t = {t:.6g} s: the dependent coordinates moved {dev:.3g} "
                                f"tolerances from the RK solution (another branch of the "
                                f"constraints)")
@@ -453,14 +410,14 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         if cur.C is None:
             sens = self._sensitivity(fac, self._jac, cur.iv)
             self._pivot = self._pivot_ratio(fac)
-            change = self._pivot < self.singular_pivot  # towards a change point
+            change = self._pivot < self.policy.tangent  # towards a change point
             limit = self.ratio * max(1.0, cur.s0)
         else:  # max |T| grows as 1 / cos of the tangent's rotation since the partition
             sens = self._tangent_sensitivity(fac, cur.k)
             limit = self.ratio * cur.s0
             # back to coordinates as soon as their Phi_u is no longer near singular
             self._pivot = self._pivot_ratio(self._factor(self._jac, cur.iu))
-            change = self._pivot >= self.singular_pivot
+            change = self._pivot >= self.policy.tangent
         if change or sens > limit:
             part = self._partition(t, q)
             if part.same(cur):
@@ -479,7 +436,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
     def _step_impl(self):
         h = self._approach.step(self.h_abs) if self._tangent_ok else None
         if h is not None:
-            self.h_abs = h  # a step across the change point ahead (tangent.Approach)
+            self.h_abs = h  # a step across the change point ahead (changepoints.Approach)
         iu = self.part.iu
         ok, msg = super()._step_impl()
         if ok:

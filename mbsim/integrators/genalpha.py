@@ -35,7 +35,6 @@ import scipy.sparse.linalg as spla
 
 from mbsim.integrators.base import MAX_REJECTS, ROUNDOFF_ULPS, Integrator, hermite, rms_norm
 
-
 KKT_REG = 1e-10  # relative regularisation of the Newton matrix's zero block (see below)
 
 

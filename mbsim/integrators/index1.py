@@ -15,98 +15,41 @@ Near a change point (the flat position of a parallelogram linkage, where the act
 lose rank) the accelerations of the Schur complement S = Phi_q M^-1 Phi_q^T go wrong: a
 stage off the constraints by delta gets an acceleration error ~ delta / sigma_min along the
 other branch's direction, and the pivot floor that bounds it (kernels.c) biases the
-multiplier there by ~ sigma_min |lam|.  Fixed-step RK4 on the four parallel cranks ended
-2.7e-7 m off at h = 0.35 ms (2.7e-11 at 0.5 ms and 0.25 ms: which step lands next to the flat
-position decides), and projection-dop853 at rtol 1e-12 took 9.3 s and its error estimate was
-1100x too large.  So the kernels report the smallest Schur pivot ratio of every solve
-(System.pivot_ratio), and a trial step with a stage below :func:`tangent_pivot` is taken
-again from its start (outside the region: continuity picks the branch) with every stage in
-the tangent coordinates of :mod:`mbsim.integrators.tangent`: the stage's (q, qd) completed
-onto the constraints at fixed v = C q, vd = C qd, the accelerations from the reduced
-equations (no Schur complement), the error test on (C q, C qd), the step's end and the dense
-outputs put on the constraints the same way; the next accepted state above the threshold
-ends it (counter ``tangent_stages``).  Measured: RK4's error falls as h^4 to 1e-12 (9.7e-10,
-4.1e-11, 6.6e-12, 1.3e-12, 4.7e-13 m at h = 1, 0.5, 0.35, 0.25, 0.175 ms), projection-dop853
-at rtol 1e-10, 1e-11, 1e-12 ends 4.1e-11, 3.4e-12, 7.9e-11 m off in 0.14, 0.17, 0.23 s with
-its estimate (estimate / error 1.0, 1.7, 1.0; before: 4.1e-11, 1.2e-10, 2.7e-10 m, and 0.22,
-0.92, 9.3 s).  A model whose ratio
-is below the threshold at the start (its scaling, or a start at the change point) and one
-without an M-orthogonal tangent map keep the Schur path; so does ``drift_bound: false``.
+multiplier there by ~ sigma_min |lam|.  The kernels report the smallest Schur pivot ratio of
+every solve (System.pivot_ratio), whose square root is the change-point measure s of
+:mod:`mbsim.integrators.changepoints`; a trial step with a stage below the policy's switch
+(``Policy.tangent``) is taken again from its start (outside the region: continuity picks the
+branch) with every stage in tangent coordinates: the stage's (q, qd) completed onto the
+constraints at fixed v = C q, vd = C qd, the accelerations from the reduced equations (no
+Schur complement), the error test on (C q, C qd), the step's end and the dense outputs put
+on the constraints the same way; the next accepted state above the switch ends it (counter
+``tangent_stages``).  A model whose measure is below the switch at the start (its scaling,
+or a start at the change point) and one without an M-orthogonal tangent map keep the Schur
+path; so does ``drift_bound: false``.
 
-A motion that approaches the change point slowly meets the round-off of the constraint
-equations themselves there; the step across the point is then chosen to keep its stages
-clear of it (:class:`tangent.Approach`, followed by the square root of the pivot ratio;
-counter ``straddle_steps``), and where it dwells near the point without crossing it the
-error test takes off what that round-off alone makes (:meth:`Index1._stage_noise`).
+In the region the error test sees round-off, not truncation error, in two places, and the
+policy takes each off: the completed stage velocities carry round-off that grows as s falls,
+which the full-q part of the error test would read as error, so that part is left out once
+a passage's steps are cut below ``Policy.noise_step`` x its first tangent step (an embedded
+estimate of truncation error falls like h^(p+1): what still cuts the step is the round-off;
+:meth:`Index1._error_norm`); and where the motion dwells next to the point without crossing
+it, the error test takes off what the stages' round-off alone makes, probed by two
+completions from q perturbed by ROUNDOFF_ULPS ulps (:meth:`Index1._stage_noise`).  A motion
+that approaches the point slowly is given a step across it that keeps its stages clear of
+it (:class:`changepoints.Approach`; counter ``straddle_steps``).
 
-Option ``tangent_steps`` (default true; false keeps the Schur path everywhere).  In the
-region the completed stage velocities carry round-off that grows as the pivot ratio falls
-(on models/parallel_fourbar.yaml ~ 5e-16 ... 3e-15 / ratio per 1e-13 m of position
-perturbation, ratios 1e-9 ... 5e-6), and the full-q part of the error test sees it: that
-deck's 2 s run at rtol 1e-11 approached its 11th flat passage (t = 1.98374 s) with steps
-shrinking like the square of the distance and stopped there (no progress), so the q part
-is left out once the steps of a passage are cut below NOISE_STEP x its first tangent step
-(:meth:`_error_norm`).  Measured on the four cranks (python benchmarks/singular_loops.py)
-at rtol 1e-11 and 1e-12, estimate / true error: projection-dop853 1.7, 1.0 (Schur path
-0.25, 1130), projection 0.81, 0.79 (0.12, 0.10), baumgarte 0.79, 2.3 (0.016, 0.016);
-errors at rtol 1e-12 7.9e-11, 2.3e-12, 1.1e-12 m (Schur path 2.7e-10, 1.8e-10, 1.9e-10 m);
-the deck at rtol 1e-9 ... 1e-12 with all three completes within 10 rtol + 1e-9 m, estimate /
-error 0.8-3.2, in 0.1-0.6 s.  (With the round-off floor of the error test, above, the
-estimates at rtol 1e-11 and 1e-12 are 6.6, 1.0; 0.80, 0.57; 0.77, 1.5, the errors the same
-to 2 digits but projection's and baumgarte's at 1e-12, 1.7e-12 and 7.8e-13 m.)
+Option ``tangent_steps`` (default true; false keeps the Schur path everywhere).  The
+measurements behind these choices are in docs/benchmarks.md (python
+benchmarks/singular_loops.py, benchmarks/dead_centre.py).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from mbsim.integrators import tangent
-from mbsim.integrators.base import (NUMERICAL_ERRORS, ROUNDOFF_ULPS, quintic_hermite,
-                                   rms_norm)
+from mbsim.integrators import changepoints as cp
+from mbsim.integrators.base import NUMERICAL_ERRORS, ROUNDOFF_ULPS, quintic_hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
-
-
-TANGENT_PIVOT = 1e-5  # adaptive runs at tight tolerances (tangent_pivot)
-TANGENT_FLOOR = 1e-8  # adaptive runs at any tolerance: a motion that dwells near a change point
-TANGENT_PIVOT_FIXED = 1e-6  # fixed steps
-NOISE_ERR = 0.1  # tangent steps whose error norm exceeds this are probed for round-off
-NOISE_RATIO = 1e-10  # ... unless a stage's Schur pivot ratio was below this (_stage_noise)
-NOISE_STEP = 1e-2  # steps cut below this x a passage's first tangent step: the q part is noise
-STRADDLE_NEAR = 1e3  # an approach to a change point: ratio below this x the tangent threshold
-
-
-def tangent_pivot(rtol, adaptive=True):
-    """The Schur pivot ratio (kernels.c: smallest pivot / diagonal, ~ 0.12 theta^2 on the
-    four parallel cranks, theta from the flat position) below which a step is taken in
-    tangent coordinates.  Fixed steps: TANGENT_PIVOT_FIXED.  Adaptive: (eps / rtol)^(4/3),
-    at least TANGENT_FLOOR and at most TANGENT_PIVOT (1e-8, 1e-8, 2.8e-8, 6e-7, 1e-5 at rtol
-    1e-6, 1e-8, 1e-10, 1e-11, 1e-12).
-
-    The power law: the Schur path is accurate on the four cranks' fast passages down to
-    rtol 1e-10 (4.1e-11 m) and the tangent steps cost more per stage, so they are kept to
-    where the Schur accelerations' bias and noise decide.  Measured on the four cranks,
-    `accuracy` 1e-6 and 1e-8 (projection-dop853 at rtol 3e-9, 3e-11 and their companions):
-    0.065, 0.104 s CPU with it, 0.091, 0.13 s with (eps / rtol)^(2/3) (same errors, rtol
-    1e-11 and 1e-12 alike: 2.5-3.4e-12 m, 7.9e-11 m); with 1e-5 at every tolerance (and
-    the tangent steps' error test on C q, C qd alone) projection-dop853 at rtol 1e-5 ended
-    2.1e-4 m off (1.5e-5 m on the Schur path; 2.2e-4 m again with today's error test).
-
-    The floor is for a motion that dwells near the change point, where that bias acts for a
-    long time: models/parallel_fourbar.yaml with w0 = 10.505 rad/s swings up to 0.004 deg
-    short of its flat position and back (a linkage stopping at its dead centre).  Without
-    the floor (threshold 1.3e-13 at rtol 1e-6) projection-dop853 gained 2.4e-5 J at the turn
-    and ended 0.2 m off at rtol 1e-6 (projection and baumgarte alike), and with w0 = 10.51
-    (through the flat position at 0.32 rad/s) projection ended 2.2e-3 m off at rtol 1e-8
-    after 18 s.  With it every such run of the three methods at rtol 1e-5 ... 1e-9 is
-    within 10 rtol + 1e-9 m, estimate / error 0.8-1.3, in 0.1-0.3 s, and the four cranks'
-    fast passages are unchanged (their ratios seldom fall below 1e-8).  At rtol 1e-10 a run
-    through the flat position at 0.32 rad/s then still crawled (tangent steps of 5e-10 s
-    cut by round-off 4e-6 s short of the point): the steps across it of
-    :class:`tangent.Approach` end that (benchmarks/dead_centre.py)."""
-    if not adaptive:
-        return TANGENT_PIVOT_FIXED
-    return min(TANGENT_PIVOT, max(TANGENT_FLOOR,
-                                  (np.finfo(float).eps / rtol) ** (4.0 / 3.0)))
 
 
 class Index1(RungeKuttaIntegrator):
@@ -129,16 +72,14 @@ class Index1(RungeKuttaIntegrator):
                                                min(1e-10, max(1e-14, 1e-3 * self.atol))))
         if self.project:
             self.counters["output_steps"] = 0  # steps of outputs integrated to (dense output)
-        # Schur pivot ratio (~ 0.12 theta^2 on the four cranks, theta from flat) below which
-        # a step's stages are in tangent coordinates (module doc: ``tangent_steps``)
-        on = self.options.get("tangent_steps", True)
-        self.tangent_pivot = tangent_pivot(self.rtol, self.h_fixed is None) if on else 0.0
-        self.newton_tol = float(self.options.get(
-            "newton_tol", 1e-12 if self.h_fixed else min(1e-9, max(1e-12, 1e-2 * self.atol))))
+        # the change-point policy (changepoints.Policy; module doc: ``tangent_steps``)
+        self.policy = cp.Policy.for_run("index-1", self.rtol, self.atol, self.h_fixed is not None,
+                                        bool(self.options.get("tangent_steps", True)))
+        self.newton_tol = float(self.options.get("newton_tol", self.policy.newton_tol))
         self.counters["tangent_stages"] = 0
         self.counters["noise_limited_steps"] = 0
         self._rng = np.random.default_rng(0)  # signs of the round-off probe (reproducible)
-        self._ratio = 1.0  # the Schur factor's pivot ratio at the latest stage
+        self._s = 1.0  # the change-point measure at the latest stage (from its Schur factor)
         self._C = None  # tangent map C (k, nq) of the latest tangent-coordinate step
         self._step_start = (t0, self.q)  # (t, q) at the start of the current step
         self._tangent = False  # the steps' stages are in tangent coordinates
@@ -146,23 +87,22 @@ class Index1(RungeKuttaIntegrator):
         self._tangent_h0 = None  # the first tangent step of the passage (_error_norm)
         self._tangent_wanted = False  # a stage of the failed trial was in the region
         self._in_trial = False
-        self._trial_ratio = np.inf
-        # the approach to a change point and the step across it (tangent.Approach)
+        self._trial_s = np.inf
+        # the approach to a change point and the step across it (changepoints.Approach)
         self.counters["straddle_steps"] = 0
         self._approach = None
-        if self.tangent_pivot > 0.0:
-            # a ratio already below the threshold at the start is the model's scaling (or a
+        if self.policy.tangent > 0.0:
+            # a measure already below the switch at the start is the model's scaling (or a
             # start at the change point, where no branch is known): no tangent coordinates
             system.accelerations(self.q, self.qd, self.t, self.stab)
-            if system.pivot_ratio < self.tangent_pivot:
-                self.tangent_pivot = 0.0
-        if self.tangent_pivot > 0.0:
+            if cp.measure_from_schur(system.pivot_ratio) < self.policy.tangent:
+                self.policy = self.policy.off()
+        if self.policy.tangent > 0.0:
             self._approach = self._new_approach()
         self._start()
 
     def _new_approach(self):
-        return tangent.Approach(tangent.stage_times(self.tableau), self.h_fixed,
-                                np.sqrt(STRADDLE_NEAR * self.tangent_pivot))
+        return cp.Approach(cp.stage_times(self.tableau), self.h_fixed, self.policy)
 
     def _y_from_state(self):
         return np.concatenate([self.q, self.qd, [self.w]])
@@ -175,15 +115,15 @@ class Index1(RungeKuttaIntegrator):
         n = self.n
         q, qd = y[:n], y[n:2 * n]
         qdd, _, power = self.system.accelerations(q, qd, t, self.stab)
-        self._ratio = r = self.system.pivot_ratio
-        self._trial_ratio = min(self._trial_ratio, r)
-        near = r < self.tangent_pivot and self.tangent_pivot > 0.0  # (r can be <= 0: 0 is off)
+        self._s = s = cp.measure_from_schur(self.system.pivot_ratio)
+        self._trial_s = min(self._trial_s, s)
+        near = s < self.policy.tangent  # (a switch of 0 is off)
         if self._tangent or (not self._in_trial and (self._step_tangent or near)):
             qd, qdd, power = self._tangent_stage(t, q, qd)
         elif near:  # a trial's stage: the step again in tangent coordinates (_recover)
             self._tangent_wanted = True
-            raise StageFailure(f"t = {t:.6g} s: active rows near dependent (Schur pivot ratio "
-                               f"{r:.3g}); tangent coordinates")
+            raise StageFailure(f"t = {t:.6g} s: active rows near dependent (measure {s:.3g}); "
+                               f"tangent coordinates")
         out = np.empty_like(y)
         out[:n], out[n:2 * n], out[-1] = qd, qdd, power
         return out
@@ -196,16 +136,15 @@ class Index1(RungeKuttaIntegrator):
             # step that was not in tangent coordinates: C at that step's start
             self._C = self._tangent_map(*self._step_start)
         x, qdp, fac = self._tangent_complete(t, q, qd)
-        qdd, power = tangent.accelerations(self.system, t, x, qdp, fac, self._C.shape[0])
+        qdd, power = cp.accelerations(self.system, t, x, qdp, fac, self._C.shape[0])
         self.counters["tangent_stages"] += 1
         return qdp, qdd, power
 
     def _tangent_complete(self, t, q, qd):
         """(q, qd, fac) on Phi = 0, Phi_q qd = nu with the same tangent coordinates v = C q,
-        vd = C qd (:func:`tangent.complete`, as gcp's); fac the LU of A = [Phi_q; C]."""
+        vd = C qd (:func:`changepoints.complete`, as gcp's); fac the LU of A = [Phi_q; C]."""
         C = self._C
-        x, qdp, fac, T = tangent.complete(self.system, t, q, C @ q, C @ qd, C,
-                                          self.newton_tol, 8)
+        x, qdp, fac, T = cp.complete(self.system, t, q, C @ q, C @ qd, C, self.newton_tol, 8)
         if qdp is None:
             raise StageFailure(f"t = {t:.6g} s: Newton in tangent coordinates did not "
                                f"converge (max |Phi| = {np.abs(T.phi).max():.3g})")
@@ -214,22 +153,14 @@ class Index1(RungeKuttaIntegrator):
     def _error_norm(self, h, y_new):
         """In tangent coordinates: the error of v = C q and vd = C qd (as gcp's), and the
         embedded error of the full q from the stages' completed velocities (gcp's
-        _extra_error); not that of the full qd, which near the change point carries the
-        round-off of the completion (~eps / sigma_min).  With (v, vd) alone a 12.8 ms DOP853
-        step across the flat position of the shaken four-crank linkage (rheonomic) passed
-        and left 7.5e-9 m at rtol 1e-10 (now 4.1e-11 m).  The q scale has a floor of a tenth
-        of the completion's Newton tolerance, the noise of the completed q: without it
-        projection (DP5) at rtol 1e-12 shrank its steps to h_min at the first flat position
-        of the four cranks (4107 steps, 18 s), with 1e-2 its companion took 23 s, with 1e-1
-        the run and its estimate take 0.5 s (2.3e-12 m).  Once a passage's steps have been
-        cut below NOISE_STEP x its first tangent step, the q part is left out: an embedded
-        estimate of truncation error falls like h^(p+1), so what still cuts the step there is
-        the stage velocities' round-off (module doc).  Measured on models/parallel_fourbar.yaml
-        at rtol 1e-11 (projection-dop853): with the q part always in, no progress at t =
-        1.98374 s (steps to 1e-11 s; rows re-selected, 16 s, 1.1e-9 m); with 1e-3 the same; with
-        1e-2 0.2 s, 3.4e-10 m.  A noise term h 10 eps max|qd| / ratio in its scale instead
-        also ended the stall but left the step across the flat position of
-        test_rheonomic_linkage 7.4e-9 m off (4.1e-11 m now)."""
+        _extra_error: a step that (v, vd) accepts can still be off in q across the point);
+        not that of the full qd, which near the change point carries the round-off of the
+        completion (~eps / sigma_min).  The q scale has a floor of a tenth of the
+        completion's Newton tolerance, the noise of the completed q.  The policy's two
+        round-off rules (module doc): the noise of (v, vd) probed and taken off
+        (:meth:`_stage_noise`) where the norm exceeds ``noise_err`` and no stage came below
+        ``noise_s``; the q part left out once the passage's steps are cut below
+        ``noise_step`` x its first tangent step."""
         if not self._tangent:
             return super()._error_norm(h, y_new)
         n, C = self.n, self._C
@@ -238,7 +169,7 @@ class Index1(RungeKuttaIntegrator):
         y1 = np.concatenate([C @ y_new[:n], C @ y_new[n:2 * n]])
         scale = self.atol + self.rtol * np.maximum(np.abs(y0), np.abs(y1))
         err_v = self.tableau.error_norm(K, h, scale)
-        if err_v > NOISE_ERR and self._trial_ratio >= NOISE_RATIO:
+        if err_v > self.policy.noise_err and self._trial_s >= self.policy.noise_s:
             # what the stages' round-off alone makes is not error (_stage_noise)
             noise = self._stage_noise(self.t + h, y_new)
             if noise is not None:
@@ -248,7 +179,7 @@ class Index1(RungeKuttaIntegrator):
                 err_v = floored
         if self._tangent_h0 is None:
             self._tangent_h0 = h
-        if h < NOISE_STEP * self._tangent_h0:
+        if h < self.policy.noise_step * self._tangent_h0:
             return err_v
         scale_q = (self.atol + 0.1 * self.newton_tol
                    + self.rtol * np.maximum(np.abs(self.y[:n]), np.abs(y_new[:n])))
@@ -261,19 +192,15 @@ class Index1(RungeKuttaIntegrator):
         where a completion fails.
 
         Next to a change point the completed state lies on a computed constraint set
-        u w = eps whose curvature grows as the point nears (tangent.Approach), so C qdd
-        carries noise ~ ratio^-1.5 (on the four cranks 2e-8 of 57 m/s^2 at a Schur pivot
-        ratio of 7e-9, 0.12 at 3e-13).  A motion that dwells there (turning just short of
-        the point) meets it at every stage for as long as it dwells: at rtol 1e-12 the
-        error test cut projection-dop853's steps to 1e-7 s for the whole turn (40 s had not
-        passed it).  The error norm therefore takes off what that noise alone makes
-        (Tableau.error_norm with ``noise``; counter ``noise_limited_steps`` when that
-        passes a step), as generalized-alpha's does with its Newton round-off: that run now
-        ends 1.4e-11 m off in 38 s, and at rtol 1e-11 2.3e-11 m in 2 s.  Not where a stage
-        of the trial came within a pivot ratio of NOISE_RATIO of the point: there the
-        noise is that of a crossing, unbounded, and taking it off accepted steps onto the
-        other branch (rtol 1e-12, w0 = 10.51 rad/s: 0.01-0.4 m off; such a run still
-        crawls, as it did before)."""
+        u w = eps whose curvature grows as the point nears (changepoints.Approach), so C qdd
+        carries noise ~ s^-3.  A motion that dwells there (turning just short of the point)
+        meets it at every stage for as long as it dwells, and an error test that counted it
+        would cut the steps for the whole turn.  The error norm therefore takes off what
+        that noise alone makes (Tableau.error_norm with ``noise``; counter
+        ``noise_limited_steps`` when that passes a step), as generalized-alpha's does with
+        its Newton round-off.  Not where a stage of the trial came below the policy's
+        ``noise_s``: there the noise is that of a crossing, unbounded, and taking it off
+        would accept steps onto the other branch."""
         n, C = self.n, self._C
         q, qd = y[:n], y[n:2 * n]
         rng = self._rng
@@ -283,7 +210,7 @@ class Index1(RungeKuttaIntegrator):
             for _ in range(2):
                 qp = q + ulp * rng.choice([-1.0, 1.0], n)
                 x, qdp, fac = self._tangent_complete(t, qp, qd)
-                a.append(C @ tangent.accelerations(self.system, t, x, qdp, fac, C.shape[0])[0])
+                a.append(C @ cp.accelerations(self.system, t, x, qdp, fac, C.shape[0])[0])
         except NUMERICAL_ERRORS:
             return None
         k = C.shape[0]
@@ -292,14 +219,14 @@ class Index1(RungeKuttaIntegrator):
     def _tangent_map(self, t, q):
         s = self.system
         J = s.terms(q, t, phi=False).jac
-        C = tangent.tangent_map(s, q, J.toarray() if s.sparse else J)
+        C = cp.tangent_map(s, q, J.toarray() if s.sparse else J)
         if C is None:
             raise StageFailure(f"t = {t:.6g} s: singular mass matrix on the tangent space")
         return C
 
     def _trial(self, h):
         self._in_trial = True
-        self._trial_ratio = np.inf  # the smallest pivot ratio of the trial's stages
+        self._trial_s = np.inf  # the smallest measure of the trial's stages
         try:
             return super()._trial(h)
         finally:
@@ -314,7 +241,7 @@ class Index1(RungeKuttaIntegrator):
         try:
             self._C = self._tangent_map(self.t, self.q)
         except StageFailure:  # no tangent coordinates here: the Schur path for this run
-            self.tangent_pivot = 0.0
+            self.policy = self.policy.off()
             return True
         self._tangent = True
         self._tangent_h0 = None  # the passage's first tangent step (_error_norm)
@@ -328,16 +255,15 @@ class Index1(RungeKuttaIntegrator):
             self._C = None
         self._step_start = (self.t, self.q)
         self._step_tangent = False  # (the last step's dense output has been taken)
-        approach = self._approach if self.tangent_pivot > 0.0 else None
+        approach = self._approach if self.policy.tangent > 0.0 else None
         h = approach.step(self.h_abs) if approach else None
         if h is not None:
-            self.h_abs = h  # a step across the change point ahead (tangent.Approach)
+            self.h_abs = h  # a step across the change point ahead (changepoints.Approach)
         ok, msg = super()._step_impl()
         self._step_tangent = self._tangent
-        if ok and approach and approach.accepted(self.t, self.h_last,
-                                                 np.sqrt(max(self._ratio, 0.0))):
+        if ok and approach and approach.accepted(self.t, self.h_last, self._s):
             self.counters["straddle_steps"] += 1
-        if ok and self._tangent and self._ratio >= self.tangent_pivot:
+        if ok and self._tangent and self._s >= self.policy.tangent:
             self._tangent = False  # the accepted state is outside the region
             self.f = self._rhs(self.t, self.y)
         return ok, msg
@@ -389,7 +315,7 @@ class Index1(RungeKuttaIntegrator):
         The test costs nothing where the first Newton step already reaches the projection
         tolerance, as on smooth motions; the step's own end is never affected.  In a tangent
         step the sample is completed at fixed v = C q as the step's stages are; where that
-        moves q by more than tangent.BRANCH_JUMP tolerances the interpolant is off the
+        moves q by more than the policy's ``branch_jump`` tolerances the interpolant is off the
         constraints by that much (on the four cranks at rtol 2e-11, 2.5e-3 s from a flat
         position: 5.9e-5 m off, an output 1.2e-4 m off with the step's ends right), and the
         quintic Hermite interpolant of the step's ends (q, qd, qdd: fifth order; as gcp's
@@ -416,7 +342,7 @@ class Index1(RungeKuttaIntegrator):
                 qp, qdp, _ = self._tangent_complete(t, q, qd)
             except StageFailure:
                 return None
-            return (qp, qdp) if rms_norm(qp - q, scale) <= tangent.BRANCH_JUMP else None
+            return (qp, qdp) if rms_norm(qp - q, scale) <= self.policy.branch_jump else None
 
         def projected(t):
             q, qd, w = out(t)
@@ -448,10 +374,10 @@ class Index1(RungeKuttaIntegrator):
         n = self.n
         opt = dict(self.options, h0=last["h"] or self.h_last or None)
         sub = type(self)(self.system, t_s, y_s[:n], y_s[n:2 * n], t, opt)
-        if sub.tangent_pivot == 0.0 < self.tangent_pivot:
+        if sub.policy.tangent == 0.0 < self.policy.tangent:
             # a start next to the change point, where a new run keeps the Schur path: this
             # run's tangent steps (the start is on its branch)
-            sub.tangent_pivot = self.tangent_pivot
+            sub.policy = self.policy
             sub._approach = sub._new_approach()
         while sub.t < t:
             ok, msg = sub.step()
@@ -497,7 +423,7 @@ class Baumgarte(Index1):
         super().__init__(system, t0, q0, qd0, t_bound, options)
         self.drift_bound = bool(self.options.get("drift_bound", True))
         if not self.drift_bound:  # Baumgarte (1972) alone: no tangent coordinates either
-            self.tangent_pivot = 0.0
+            self.policy = self.policy.off()
         self.counters["drift_projections"] = 0
 
     def _accept(self, t, y, f):

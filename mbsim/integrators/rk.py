@@ -12,7 +12,14 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim.integrators import dop853_coefficients as dop
-from mbsim.integrators.base import MAX_REJECTS, NUMERICAL_ERRORS, Integrator, hermite, rms_norm
+from mbsim.integrators.base import (
+    FIRST_STEP_ROOM,
+    MAX_REJECTS,
+    NUMERICAL_ERRORS,
+    Integrator,
+    hermite,
+    rms_norm,
+)
 
 
 class StageFailure(ArithmeticError):
@@ -212,7 +219,13 @@ class RungeKuttaIntegrator(Integrator):
         if not np.isfinite(dm):
             return h0
         h1 = max(1e-6, h0 * 1e-3) if dm <= 1e-15 else (0.01 / dm) ** (1 / order)
-        return min(100 * h0, h1, self.h_max)
+        # the guess is a start for the controller, never a verdict: a state within its
+        # tolerance of zero (d0 ~ 1: a start at rest in coordinates that are zero there, as
+        # tangent coordinates can be) makes 0.01 d0 / d1 as small as 1e-18 s, below h_min;
+        # start FIRST_STEP_ROOM x the smallest step instead, from which the controller can
+        # still reject (factor >= MIN_FACTOR) three times before h_min
+        h_floor = min(FIRST_STEP_ROOM * self._min_step(), self.h_max, self.t_bound - self.t)
+        return max(min(100 * h0, h1, self.h_max), h_floor)
 
     def _trial(self, h):
         """One RK step of size h from (t, y); returns y_new, f_new (K filled)."""

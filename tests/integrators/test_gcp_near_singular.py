@@ -82,18 +82,22 @@ def test_tangent_coordinates_near_flat_position(delta):
 
 
 def test_pivot_ratio_tracks_the_flat_position():
-    """The trigger: the coordinate partition's Phi_u pivot ratio falls in proportion to the
-    angle from the flat position (0.2 delta measured), below SINGULAR_PIVOT within 5e-3 rad,
-    and a partition there is the tangent one."""
-    from mbsim.integrators.gcp import SINGULAR_PIVOT
+    """The trigger: the change-point measure falls in proportion to the angle from the flat
+    position, as both families estimate it: the coordinate partition's Phi_u pivot ratio
+    (gcp; 0.2 delta measured) and the square root of the Schur pivot ratio (index-1); below
+    the policy's switch within 5e-3 rad, and a gcp partition there is the tangent one."""
+    from mbsim.integrators import changepoints as cp
 
     model, system, integ, _ = setup(0.5)
-    ratios = []
+    ratios, schur = [], []
     for delta in (1e-1, 1e-2, 1e-3):
-        q, _, _ = exact_state(model, delta, 20.0)
+        q, qd, _ = exact_state(model, delta, 20.0)
         J = system.terms(q, 0.0, phi=False).jac
         ratios.append(integ._pivot_ratio(integ._factor(J, integ.part.iu)))
-    assert ratios[1] == pytest.approx(ratios[0] / 10, rel=0.05)
-    assert ratios[2] == pytest.approx(ratios[0] / 100, rel=0.05)
-    assert ratios[2] < SINGULAR_PIVOT < ratios[0]
+        system.accelerations(q, qd, 0.0)
+        schur.append(cp.measure_from_schur(system.pivot_ratio))
+    for s in (ratios, schur):
+        assert s[1] == pytest.approx(s[0] / 10, rel=0.05), s
+        assert s[2] == pytest.approx(s[0] / 100, rel=0.05), s
+    assert ratios[2] < integ.policy.tangent < ratios[0]
     assert integ._partition(0.0, q).C is not None

@@ -32,14 +32,14 @@ def cases():
         for rtol in LADDER:
             marks = []
             if (name, rtol) in KNOWN:
-                marks.append(pytest.mark.xfail(reason=KNOWN[name, rtol], strict=False))
+                marks.append(pytest.mark.xfail(reason=KNOWN[name, rtol], strict=True))
             out.append(pytest.param(name, rtol, id=f"{name}-{rtol:g}", marks=marks))
     return out
 
 
 @pytest.mark.parametrize("name,rtol", cases())
 def test_ladder_through_flat_positions(name, rtol):
-    res, _, err = run(name, rtol)
+    res, err = run(name, rtol)
     assert res.complete, res.message
     bound = 10 * rtol + 1e-9
     assert err <= bound, f"{name} rtol {rtol:g}: position error {err:.3g} m > {bound:.3g} m"
@@ -49,18 +49,18 @@ def test_ladder_through_flat_positions(name, rtol):
 
 def test_outputs_inside_the_step_over_the_flat_position():
     """rtol 1e-7 (the case of the issue's note): one 27 ms step crosses the first flat
-    position; the outputs inside it (t = 0.08, 0.09, 0.10 s) are integrated to and within
-    the bound, and so is every other output."""
+    position; the outputs inside it (t = 0.08, 0.09, 0.10 s) are within 10 rtol of the
+    reduction (an interpolant whose extra stages met the flat position left 2.6e-4 m there),
+    and so is every other output."""
     from tests.integrators import models as M
     from tests.integrators import references as R
 
-    res, _, _ = run("projection-dop853", 1e-7)
+    res, _ = run("projection-dop853", 1e-7)
     pb = M.reference_problem("parallel_fourbar")
     err = R.position_error(res, pb.reference(res.t))
     inside = (res.t > 0.075) & (res.t < 0.105)
     assert inside.sum() == 3
-    assert err[inside].max() <= 1e-6
-    assert res.counters["output_steps"] > 0
+    assert err.max() <= 1e-6, f"{err.max():.3g} m"
 
 
 @pytest.mark.parametrize("deck,scene", [("models/governor.yaml", None),
