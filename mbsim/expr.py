@@ -178,8 +178,11 @@ def _make(op: str, *args: Node) -> Node:
     """``op(*args)``, constant-folded (when the value is finite) and simplified."""
     if all(isinstance(a, Num) for a in args):
         impl = _impl(op)
+        # functions fold with Python floats (math: the same libm on every numpy version;
+        # numpy 1.24's log(e) is 1 - 1 ulp), operators with numpy's (1/0 is inf, no raise)
+        cast = float if op in FUNCTIONS else np.float64
         with np.errstate(all="ignore"):
-            v = float(impl(*(np.float64(a.value) for a in args)))
+            v = float(impl(*(cast(a.value) for a in args)))
         if math.isfinite(v):  # 1/0 or log(-1) stay as written: a formula, not 'inf'
             return Num(v)
     rule = _SIMPLIFY.get(op)
