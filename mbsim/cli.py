@@ -187,6 +187,7 @@ class LazyGroup(click.Group):
         "sweep": ("mbsim.cli_sweep", "sweep_command"),
         "study": ("mbsim.cli_study", "study_command"),
         "animate": ("mbsim.cli_study", "animate_command"),
+        "view": ("mbsim.cli_view", "view_command"),
     }
 
     def list_commands(self, ctx):

@@ -31,8 +31,8 @@ PALETTE = ("#4e79a7", "#f28e2b", "#59a14f", "#e15759", "#76b7b2", "#edc948", "#b
            "#ff9da7", "#9c755f", "#bab0ac")  # fmt: skip  (Tableau 10)
 ROD_RADIUS = 0.025  # rods of a default shape: radius / the body's size
 MIN_EDGE = 0.05  # edges of an inertia box: at least this fraction of the body's size
-_AXIS = {"z": np.eye(3), "x": np.array([[0.0, 0, 1], [1, 0, 0], [0, 1, 0]]),
-         "y": np.array([[0.0, 1, 0], [0, 0, 1], [1, 0, 0]])}  # fmt: skip  # rows: z -> axis
+_AXIS = {"z": np.eye(3), "x": np.array([[0.0, 1, 0], [0, 0, 1], [1, 0, 0]]),
+         "y": np.array([[0.0, 0, 1], [1, 0, 0], [0, 1, 0]])}  # fmt: skip  # v @ M: z -> axis
 
 
 def triangulate(shape: ShapeSpec) -> tuple[np.ndarray, np.ndarray]:
@@ -134,15 +134,15 @@ def attachment_points(spec: DeckSpec) -> dict[str, list[np.ndarray]]:
 
 def default_shapes(spec: DeckSpec, name: str, points: list[np.ndarray]) -> list[ShapeSpec]:
     """A body's shape when the deck gives none: its inertia box (principal axes), edges kept
-    between MIN_EDGE and 2 times the body's size (the farthest joint or force point; the box's
-    largest edge when it has none), and rods from the centroid to the points outside it."""
+    between MIN_EDGE and 1 times the body's size (the distance to its farthest joint or force
+    point; the box's largest edge when it has none), and rods from the centroid to the points outside it."""
     body = spec.bodies[name]
     if body.ground:
         return []
     edges, axes = inertia_box(body.mass, body.inertia)
     reach = max((float(np.linalg.norm(p)) for p in points), default=0.0)
     size = reach if reach > 0 else float(edges.max()) or 0.1
-    edges = np.clip(edges, MIN_EDGE * size, 2 * size)
+    edges = np.clip(edges, MIN_EDGE * size, size)
     v, f = box(edges)
     pieces = [ShapeSpec("mesh", {"vertices": v @ axes.T, "faces": f}, np.zeros(3))]
     radius = ROD_RADIUS * size
@@ -201,7 +201,8 @@ def layout(spec: DeckSpec) -> dict:
                 for it in group.values()]  # fmt: skip
 
     return {
-        "bodies": {b.name: {"ground": bool(b.ground)} for b in spec.bodies.values()},
+        "bodies": {b.name: {"ground": bool(b.ground), "mass": float(b.mass)}
+                   for b in spec.bodies.values()},
         "joints": items(spec.joints),
         "drivers": items(spec.drivers),
         "forces": items(spec.forces),
