@@ -1,7 +1,8 @@
 // mbsim view: the mechanism of result files in 3D (three.js) with channel time histories.
 // Data: the JSON in #mbsim-data, written by mbsim/view/page.py (arrays base64, little endian).
-// URL fragment: #t=1.5&case=0&frames=1&play=1&channels=bodies/crank/r,monitors/energy
-// sets the time (and pauses), the case, the body frames, playing, the plotted channels.
+// URL fragment: #t=1.5&case=0&frames=1&follow=0&play=1&channels=bodies/crank/r,monitors/energy
+// sets the time (and pauses), the case, body frames, following the heaviest body, playing,
+// the plotted channels.
 // window.mbsimView exposes setTime, setCase and the figures firstFrameMs, frameMs.
 (function () {
   'use strict';
@@ -543,6 +544,7 @@
   const first = Math.min(Math.max(parseInt(params['case'] || '0', 10) || 0, 0), DATA.cases.length - 1);
   $('case').value = first;
   setCase(first, params.channels ? params.channels.split(',') : null);
+  if (params.follow !== undefined) $('follow').checked = params.follow === '1';
   if (params.t !== undefined) setTime(parseFloat(params.t));
   render(); // the first frame now, before the page's load event
   stats.firstFrameMs = performance.now();
