@@ -679,22 +679,34 @@ def compare(a, b, rtol, atol, channels, worst):
 @click.option("--csv", "csv_path", is_flag=False, flag_value="", default=None,
               help="CSV file to write; --csv alone (or no option) writes FILE.csv.")
 @click.option("--channels", help="Comma-separated channels (default: all).")
-def export(file, csv_path, channels):
-    """Export a results file to CSV for spreadsheets.
+@click.option("--vtk", "vtk_dir", default=None, metavar="DIR",
+              help="ParaView time series in DIR: <stem>_shapes.pvd, <stem>_points.pvd.")
+@click.option("--parquet", is_flag=False, flag_value="", default=None,
+              help="Parquet file (pandas columns); --parquet alone writes FILE.parquet.")
+def export(file, csv_path, channels, vtk_dir, parquet):
+    """Export a results file to CSV for spreadsheets, VTK for ParaView, Parquet for pandas.
 
     Example: mbsim export gov.h5 --csv gov.csv --channels bodies.collar.r
     """
     from mbsim.output import export_csv, read_result
 
     _results_file(file)
+    lines = []
     try:
-        res = read_result(file)
-        chans = [c.strip() for c in channels.split(",")] if channels else None
-        paths = export_csv(res, csv_path or str(Path(file).with_suffix(".csv")), channels=chans)
+        if vtk_dir is not None or parquet is not None:  # mbsim/cli_view.py
+            from mbsim.cli_view import export_exchange
+
+            lines = export_exchange(file, vtk_dir, parquet)
+        if csv_path is not None or not lines:
+            res = read_result(file)
+            chans = [c.strip() for c in channels.split(",")] if channels else None
+            paths = export_csv(res, csv_path or str(Path(file).with_suffix(".csv")),
+                               channels=chans)
+            lines += [f"csv -> {p}" for p in paths]
     except (MbsimError, KeyError, IndexError, ValueError, OSError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else UsageError(_key_message(exc)))
-    for p in paths:
-        click.echo(f"csv -> {p}")
+    for line in lines:
+        click.echo(line)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -52,7 +52,7 @@ def export_exchange(file: str, vtk_dir: str | None, parquet: str | None) -> list
         pvd = export_vtk(result, vtk_dir, stem=Path(file).stem)
         lines.append(f"vtk -> {pvd} ({len(result.t)} outputs)")
     if parquet is not None:
-        from mbsim.view.frame import export_parquet
+        from mbsim.output.frame import export_parquet
 
         out = export_parquet(result, parquet or str(Path(file).with_suffix(".parquet")))
         lines.append(f"parquet -> {out}")
