@@ -201,6 +201,7 @@ def layout(spec: DeckSpec) -> dict:
                 for it in group.values()]  # fmt: skip
 
     return {
+        "gravity": np.asarray(spec.gravity, float).tolist(),  # m/s^2: the views' 'up' opposes it
         "bodies": {b.name: {"ground": bool(b.ground), "mass": float(b.mass)}
                    for b in spec.bodies.values()},
         "joints": items(spec.joints),

@@ -129,21 +129,9 @@ def case_data(case: Case) -> dict:
         "nt": len(s.t),
         "bodies": bodies,
         "layout": {k: v for k, v in s.layout.items() if k != "bodies"},
-        "gravity": _gravity(case.result),
+        "gravity": s.layout.get("gravity", [0.0, 0.0, 0.0]),
         "channels": channels,
     }
-
-
-def _gravity(result: Result) -> list[float]:
-    """The deck's gravity (the viewer's 'up' is against it), from the deck text kept in the
-    file; [0, 0, 0] when it cannot be read."""
-    import yaml
-
-    try:
-        g = (yaml.safe_load(result.deck_text or "") or {}).get("gravity", [0, 0, 0])
-        return [float(x) for x in g]
-    except (yaml.YAMLError, TypeError, ValueError, AttributeError):
-        return [0.0, 0.0, 0.0]
 
 
 def build_page(paths: list[str | Path], title: str | None = None) -> str:
