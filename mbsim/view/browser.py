@@ -27,13 +27,13 @@ def find_chromium() -> str | None:
     return next((p for p in map(shutil.which, NAMES) if p), None)
 
 
-def _run(args: list[str]) -> subprocess.CompletedProcess:
+def _run(args: list[str], timeout: float = TIMEOUT) -> subprocess.CompletedProcess:
     exe = find_chromium()
     if exe is None:
         raise RuntimeError("no Chromium found (install it with .ci/browser.sh)")
     with tempfile.TemporaryDirectory(prefix="mbsim-chromium-") as profile:
         return subprocess.run([exe, *FLAGS, f"--user-data-dir={profile}", *args],
-                              capture_output=True, text=True, timeout=TIMEOUT)  # fmt: skip
+                              capture_output=True, text=True, timeout=timeout)  # fmt: skip
 
 
 def screenshot(page: str | Path, png: str | Path, fragment: str = "", size=(1200, 700),
@@ -48,7 +48,8 @@ def screenshot(page: str | Path, png: str | Path, fragment: str = "", size=(1200
     return png
 
 
-def dump_dom(page: str | Path, fragment: str = "", size=(1200, 700)) -> str:
-    """The page's DOM (HTML text) right after its load event."""
+def dump_dom(page: str | Path, fragment: str = "", size=(1200, 700),
+             timeout: float = TIMEOUT) -> str:
+    """The page's DOM (HTML text) right after its load event (and its handlers)."""
     url = Path(page).resolve().as_uri() + (f"#{fragment}" if fragment else "")
-    return _run([f"--window-size={size[0]},{size[1]}", "--dump-dom", url]).stdout
+    return _run([f"--window-size={size[0]},{size[1]}", "--dump-dom", url], timeout).stdout
