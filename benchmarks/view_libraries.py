@@ -76,12 +76,18 @@ window.addEventListener('load', () => {{
   const t0 = performance.now();
   for (let k = 0; k < D.steps; k++) {{
     const xs = [], ys = [], zs = [];
-    for (const b of D.bodies) {{ const [x, y, z] = pose(b, k); xs.push(x); ys.push(y); zs.push(z); }}
+    for (const b of D.bodies) {{
+      const [x, y, z] = pose(b, k); xs.push(x); ys.push(y); zs.push(z);
+    }}
     Plotly.restyle('p', {{x: xs, y: ys, z: zs}});
   }}
   document.body.dataset.frameMs = ((performance.now() - t0) / D.steps).toFixed(3);
 }});
 </script></body></html>"""
+
+
+def med(xs: list[float]) -> str:
+    return f"{statistics.median(xs):.1f}" if xs else "n/a"
 
 
 def attr(dom: str, name: str) -> float | None:
@@ -143,7 +149,6 @@ def main() -> None:
                 per.append(attr(dom, "frame-ms"))
             first = [x for x in first if x is not None]
             per = [x for x in per if x is not None]
-            med = (lambda xs: f"{statistics.median(xs):.1f}" if xs else "n/a")
             print(f"{name:<10} {page.stat().st_size / 1e6:>8.2f} {med(first):>15} "
                   f"{med(per):>14}")
 

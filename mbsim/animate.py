@@ -450,7 +450,6 @@ def animate_file(file: str | Path, path: str | Path, mode_shape: int | None = No
     """Read a results file and write its animation (see :func:`animate_result`); with
     ``mode_shape`` (a linear analysis' file) that mode oscillating."""
     from mbsim.output import read_result
-
     from mbsim.view.render import check_target
 
     if kwargs.get("style", "3d") == "3d":

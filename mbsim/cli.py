@@ -567,7 +567,12 @@ def plot(args, ys, x, output, labels, title, list_only, units, data_file):
             fig = plot_channels(results[0], list(ys), x=x, title=title, units=shown)
         else:
             labs = list(labels) or [case_label(r, Path(f).stem) for f, r in zip(files, results)]
-            fig = plot_results(list(zip(labs, results)), ys[0], x=x, title=title, units=shown)
+            cases = list(zip(labs, results))
+            if not labels:  # `DIR/*.h5` comes in string order (k=10, k=200, k=50): by value
+                from mbsim.view.page import natural_key
+
+                cases.sort(key=lambda case: natural_key(case[0]))
+            fig = plot_results(cases, ys[0], x=x, title=title, units=shown)
         save_figure(fig, output)
         if data_file:
             export_plot_data(fig, data_file)

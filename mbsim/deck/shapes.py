@@ -28,9 +28,9 @@ import numpy as np
 
 from mbsim.deck.limits import Limit
 from mbsim.deck.spec import ShapeSpec
+from mbsim.deck.tree import Node
 from mbsim.deck.values import Reader, describe
 from mbsim.errors import Where
-from mbsim.deck.tree import Node
 
 SHAPE_TYPES = {  # type -> (required keys, optional keys)
     "box": (("size",), ()),

@@ -135,7 +135,8 @@ def attachment_points(spec: DeckSpec) -> dict[str, list[np.ndarray]]:
 def default_shapes(spec: DeckSpec, name: str, points: list[np.ndarray]) -> list[ShapeSpec]:
     """A body's shape when the deck gives none: its inertia box (principal axes), edges kept
     between MIN_EDGE and 1 times the body's size (the distance to its farthest joint or force
-    point; the box's largest edge when it has none), and rods from the centroid to the points outside it."""
+    point; the box's largest edge when it has none), and rods from the centroid to the points
+    outside it."""
     body = spec.bodies[name]
     if body.ground:
         return []

@@ -134,7 +134,7 @@ def render_frames(scene: Scene, frames: list[int], view: str = "iso", gravity=No
         draw = ImageDraw.Draw(img)
         center = cam.center[i] @ cam.axes.T
 
-        def screen(p):  # camera coordinates (..., 3) -> pixel x, y
+        def screen(p, center=center):  # camera coordinates (..., 3) -> pixel x, y
             return ((p[..., 0] - center[0]) * cam.scale * ss + big / 2,
                     big / 2 - (p[..., 1] - center[1]) * cam.scale * ss)  # fmt: skip
 
