@@ -647,10 +647,13 @@ def list_(what):
 @click.argument("a", type=click.Path(exists=True, dir_okay=False))
 @click.argument("b", type=click.Path(exists=True, dir_okay=False))
 @click.option("--rtol", type=float, default=1e-9, show_default=True)
-@click.option("--atol", type=float, default=0.0, show_default=True)
+@click.option("--atol", type=float, default=None,
+              help="Absolute tolerance (default: rtol x each channel's range in B).")
 @click.option("--channels", help="Comma-separated channels to compare (default: all).")
+@click.option("--monitors", is_flag=True,
+              help="Also compare monitors.* and error.* (step sizes, violations, estimates).")
 @click.option("-n", "--worst", default=10, show_default=True, help="Rows in the table.")
-def compare(a, b, rtol, atol, channels, worst):
+def compare(a, b, rtol, atol, channels, monitors, worst):
     """Compare results A against reference B: exit 0 if they agree, 1 if not.
 
     Example: mbsim compare new.h5 golden.h5 --rtol 1e-6 --atol 1e-9
@@ -662,7 +665,8 @@ def compare(a, b, rtol, atol, channels, worst):
     try:
         ra, rb = read_result(a), read_result(b)
         chans = [c.strip().replace(".", "/") for c in channels.split(",")] if channels else None
-        ok, diffs, problems = compare_results(ra, rb, rtol=rtol, atol=atol, channels=chans)
+        ok, diffs, problems = compare_results(ra, rb, rtol=rtol, atol=atol, channels=chans,
+                                              monitors=monitors)
     except (MbsimError, KeyError, ValueError, OSError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else UsageError(_key_message(exc)))
     for p in problems:
@@ -674,8 +678,13 @@ def compare(a, b, rtol, atol, channels, worst):
         for d in show[:worst]:
             click.echo(f"{d.channel.replace('/', '.'):<40} {d.time:>10.5g} {d.a:>14.7g} "
                        f"{d.b:>14.7g} {d.abs_err:>10.3g} {d.scaled:>8.3g}")
-    click.echo(f"{'agree' if ok else 'DIFFER'}: {len(bad)} of {len(diffs)} channels outside "
-               f"rtol={rtol:g}, atol={atol:g}")
+    atol_text = f"atol={atol:g}" if atol is not None else "atol=rtol x range"
+    timing = [p for p in problems if p.startswith("time axes differ")]
+    if timing and not diffs:  # nothing comparable: say why, not "0 of 0 channels"
+        click.echo(f"DIFFER: {timing[0]}; run both with the same t_start, t_end and step")
+    else:
+        click.echo(f"{'agree' if ok else 'DIFFER'}: {len(bad)} of {len(diffs)} channels outside "
+                   f"rtol={rtol:g}, {atol_text}")
     sys.exit(EXIT_OK if ok else EXIT_FAILED)
 
 
