@@ -339,7 +339,29 @@ def _describe_estimate(key, v) -> str:
             f"CPU){note}")
 
 
+SUMMARY_INTERNALS = ("sparse", "equations", "formulation", "t_reached", "row_changes")
+SUMMARY_DIGITS = 4  # significant digits of the numbers a summary prints (the file keeps all)
+
+
+def _value_text(v) -> str:
+    """A summary value for the terminal: floats to SUMMARY_DIGITS significant digits."""
+    if isinstance(v, (bool, type(None), str, int)):
+        return str(v)
+    if isinstance(v, (float, np.floating)):
+        return f"{v:.{SUMMARY_DIGITS}g}"
+    if isinstance(v, (complex, np.complexfloating)):
+        return f"{v.real:.{SUMMARY_DIGITS}g}{v.imag:+.{SUMMARY_DIGITS}g}j"
+    if isinstance(v, (list, tuple)):
+        if len(v) > 8:
+            return f"[{len(v)} values]"
+        return "[" + ", ".join(_value_text(x) for x in v) + "]"
+    return str(v)
+
+
 def _summary(result, out) -> None:
+    """The run's findings, rounded; internals (solver switches, empty lists, None, counters
+    that stayed 0) only with -v."""
+    verbose = logging.getLogger("mbsim").isEnabledFor(logging.INFO)
     nt = len(result.t)
     span = f"t = {result.t[0]:.6g} .. {result.t[-1]:.6g} s, {nt} outputs" if nt else "no outputs"
     click.echo(f"{result.mode}: {result.status}; {span}; wall {result.wall_time:.3g} s -> {out}")
@@ -347,16 +369,18 @@ def _summary(result, out) -> None:
         _linear_table(result)
         return
     for k, v in result.summary.items():
+        empty = v is None or v is False or (isinstance(v, (list, tuple, dict)) and not v)
+        if not verbose and (k in SUMMARY_INTERNALS or empty):
+            continue
         if k in ("error_estimate", "accuracy") and isinstance(v, dict):
             click.echo(f"  {k}: {_describe_estimate(k, v)}")
             continue
         if isinstance(v, dict):
             v = f"({len(v)} entries, stored in the file's summary attribute)"
-        elif isinstance(v, (list, tuple)) and len(v) > 8:
-            v = f"[{len(v)} values]"
-        click.echo(f"  {k}: {v}")
-    if result.counters:
-        click.echo("  " + ", ".join(f"{k} {v}" for k, v in result.counters.items()))
+        click.echo(f"  {k}: {_value_text(v)}")
+    counters = {k: v for k, v in result.counters.items() if verbose or v}
+    if counters:
+        click.echo("  " + ", ".join(f"{k} {_value_text(v)}" for k, v in counters.items()))
 
 
 def _linear_table(result) -> None:
