@@ -409,25 +409,13 @@ def _linear_table(result) -> None:
 
 
 def _default_plot(result, path: Path, quiet: bool = False) -> None:
-    from mbsim.output import plot_channels, save_figure
+    """--plot: the quick look of mbsim.output.quicklook (by mode), saved as PNG."""
+    from mbsim.output import save_figure
+    from mbsim.output.quicklook import quick_look
 
-    if result.mode == "linear":  # the eigenvalues in the complex plane
-        from mbsim.output.locus import eigenvalue_plot
-
-        save_figure(eigenvalue_plot(result, f"linear: {Path(result.deck_file).name}, "
-                                            f"{result.summary.get('stability')}"), path)
-        if not quiet:
-            click.echo(f"  plot -> {path}")
+    fig = quick_look(result)
+    if fig is None:
         return
-
-    names = [n for n in result.channels if n.startswith(("drivers/", "points/"))
-             and n.endswith(("torque", "force", "position"))]
-    if not names:
-        names = [n for n in result.channels if n.startswith("bodies/") and n.endswith("/r")]
-        names = [n for n in names if not n.startswith("bodies/ground")][:4]
-    if not names:
-        return
-    fig = plot_channels(result, names[:6], title=f"{result.mode}: {Path(result.deck_file).name}")
     save_figure(fig, path)
     if not quiet:
         click.echo(f"  plot -> {path}")
