@@ -254,7 +254,8 @@ class Scene:
 def read_scene(result) -> Scene:
     """The :class:`Scene` of a :class:`~mbsim.result.Result` read from a file.  A file written
     before shapes were stored (no ``shapes/layout``) gets the default shapes of the deck text it
-    holds."""
+    holds.  A body whose ``r`` or ``p`` channel the file lacks (``outputs: only:``) has no mesh:
+    it is not drawn rather than drawn at the origin."""
     names = list(result.names.get("bodies", []))
     arrays = result.arrays
     if "shapes/layout" not in arrays and result.deck_text:
@@ -274,7 +275,8 @@ def read_scene(result) -> Scene:
     meshes = {}
     for b in names:
         key = f"shapes/{b}/"
-        if key + "faces" in arrays:
+        recorded = f"bodies/{b}/r" in result.channels and f"bodies/{b}/p" in result.channels
+        if key + "faces" in arrays and recorded:  # a body `outputs: only:` left out: not drawn
             meshes[b] = tuple(np.asarray(arrays[key + q][0]) for q in ("vertices", "faces",
                                                                         "colors"))  # fmt: skip
     return Scene(names, np.asarray(result.t, float), r, p, meshes, lay)

@@ -201,3 +201,16 @@ def test_shapes_and_layout_reach_the_result_file(tmp_path):
     assert scene.layout["bodies"]["arm"]["shape"] == "deck"
     assert [j["name"] for j in scene.layout["joints"]] == ["pin"]
     assert scene.r.shape == (3, 2, 3)
+
+
+def test_a_body_without_recorded_pose_is_not_drawn(tmp_path):
+    """`outputs: only:` may leave a body's r or p out of the file: no mesh, not one at the
+    origin."""
+    from mbsim.api import load_model, run_model
+
+    (tmp_path / "deck.yaml").write_text(DECK.replace("{shape}", "shape: {type: box, size: "
+                                                     "[1, 0.1, 0.1]}"))  # fmt: skip
+    _, model = load_model(tmp_path / "deck.yaml")
+    res = run_model(model, "dynamic", {"t_end": 0.1, "step": 0.05, "error_estimate": False})
+    del res.channels["bodies/arm/p"]
+    assert "arm" not in geometry.read_scene(res).meshes
