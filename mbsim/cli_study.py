@@ -14,6 +14,7 @@ import click
 
 from mbsim.cli import EXIT_FAILED, _fail, _warn
 from mbsim.errors import MbsimError, UsageError
+from mbsim.progress import Progress, format_duration
 
 VIEWS = ("iso", "xy", "xz", "yz")
 
@@ -110,18 +111,21 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
         sys.exit(EXIT_FAILED)
 
 
-def _frame_progress():
-    """A progress line for the frames of an animation (on a terminal only):
-    ``animate  frame 40/126  31%  25 frames/s  ETA 0:03``."""
-    from mbsim.progress import Progress, format_duration, terminal_progress
+class FrameProgress(Progress):
+    """The animation's progress line: ``animate  frame 40/126  32%  95 frames/s  ETA 0:01``
+    (a :class:`mbsim.progress.Progress` whose line counts frames, not simulated seconds)."""
 
-    class FrameProgress(Progress):
-        def line(self, t: float, t_end: float, now: float) -> str:
-            elapsed = now - self.wall_first
-            rate = (self.steps - 1) / elapsed if elapsed > 0 else float("nan")
-            eta = (t_end - t) / rate if rate > 0 else float("nan")
-            return (f"animate  frame {t:.0f}/{t_end:.0f}  {100 * t / t_end:3.0f}%  "
-                    f"{rate:.3g} frames/s  ETA {format_duration(eta)}")
+    def line(self, t: float, t_end: float, now: float) -> str:
+        elapsed = now - self.wall_first
+        rate = (self.steps - 1) / elapsed if elapsed > 0 else float("nan")
+        eta = (t_end - t) / rate if rate > 0 else float("nan")
+        return (f"animate  frame {t:.0f}/{t_end:.0f}  {100 * t / t_end:3.0f}%  "
+                f"{rate:.3g} frames/s  ETA {format_duration(eta)}")
+
+
+def _frame_progress():
+    """A :class:`FrameProgress` on stderr when it is a terminal, else None."""
+    from mbsim.progress import terminal_progress
 
     bar = terminal_progress()
     return None if bar is None else FrameProgress(bar.stream, tty=bar.tty)

@@ -242,3 +242,23 @@ def test_mode_shape_animation(tmp_path):
     assert out.exit_code == 0, out.output
     out = runner.invoke(main, ["animate", str(tmp_path / "lin.h5"), "--mode-shape", "9"])
     assert out.exit_code == 2 and "modes 1 to 4" in out.output
+
+
+def test_animation_reports_progress_per_frame(slider_result, tmp_path):
+    """Issue 26: a progress line while frames are drawn: progress(done, total) once a frame,
+    and the terminal line counts frames."""
+    import io
+
+    from mbsim.cli_study import FrameProgress
+
+    calls = []
+    animate_result(slider_result, tmp_path / "m.gif", every=2, dpi=30, size=2,
+                   progress=lambda done, total: calls.append((done, total)))  # fmt: skip
+    assert calls == [(float(k), 6.0) for k in range(1, 7)]  # outputs 0, 2, ..., 10
+    clock = iter(range(100)).__next__
+    stream = io.StringIO()
+    bar = FrameProgress(stream, tty=False, clock=lambda: float(clock()))
+    bar.min_interval = 0.0
+    for k in range(1, 4):
+        bar(float(k), 6.0)
+    assert stream.getvalue().splitlines()[-1].startswith("animate  frame 3/6   50%  1 frames/s")

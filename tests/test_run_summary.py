@@ -34,3 +34,13 @@ def test_verbose_summary_shows_everything(tmp_path):
               tmp_path / "g.h5")
     assert res.exit_code == 0, res.output
     assert "sparse: False" in res.output and "rejected_steps 0" in res.output
+
+
+def test_value_text_rounds_numbers_in_lists_and_complex():
+    from mbsim.cli import _value_text
+
+    assert _value_text(0.018695745999999902) == "0.0187"
+    assert _value_text([-0.47684712345, 6.537881234]) == "[-0.4768, 6.538]"
+    assert _value_text(complex(-0.476847123, 6.53788123)) == "-0.4768+6.538j"
+    assert _value_text(list(range(20))) == "[20 values]"
+    assert _value_text(True) == "True" and _value_text(3) == "3"
