@@ -28,3 +28,11 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     _os.environ.setdefault(_var, "1")
 
 __version__ = "0.1.0"
+
+
+def read(path):
+    """A result file for analysis in Python: ``mbsim.read('gov.h5').frame('bodies/collar')``
+    is a pandas DataFrame indexed by time (mbsim.output.frame.ResultFile; docs/hdf5.md)."""
+    from mbsim.output.frame import ResultFile
+
+    return ResultFile(path)

@@ -1,6 +1,11 @@
-"""Animations of a result: the mechanism drawn moving, written as a GIF.
+"""Animations of a result: the mechanism drawn moving, written as a GIF or MP4.
 
-The drawing comes from the deck stored in the result file (``/deck``), recompiled with the
+Two styles.  ``3d`` (the default): the bodies' shapes (the deck's ``shape:``, or shapes
+derived from inertia and joints), shaded, with joints, springs and a ground grid, drawn by
+mbsim.view.render from the file's ``shapes/`` group; GIF, or MP4 where ffmpeg is found.
+``sketch``: the 2D line drawing below (GIF only).
+
+The sketch comes from the deck stored in the result file (``/deck``), recompiled with the
 scene and ``--set`` overrides stored in its ``settings``: every joint, driver and force
 point, in body coordinates, is attached to its body.  Each frame draws
 
@@ -246,6 +251,9 @@ def sketch_from_result(result: Result):
     return sketch_of(spec)
 
 
+STYLES = ("3d", "sketch")
+
+
 def animate_result(
     result: Result,
     path: str | Path,
@@ -257,21 +265,30 @@ def animate_result(
     sketch: Sketch | None = None,
     title: str | None = None,
     labels: bool = False,
+    style: str = "3d",
+    progress=None,
 ) -> tuple[Path, int]:
-    """Write a GIF of `result` to `path`; returns (path, number of frames).
+    """Write a GIF (or MP4, style 3d, where an encoder is found) of `result` to `path`;
+    returns (path, number of frames).
 
     Parameters
     ----------
     result : a result with ``bodies/<name>/r`` and ``p`` channels.
-    path : the GIF file.
-    fps : frames per second of the GIF (real time when ``fps * every * step = 1``).
+    path : the GIF or MP4 file; checked before any frame is drawn.
+    fps : frames per second (real time when ``fps * every * step = 1``).
     view : ``iso`` | ``xy`` | ``xz`` | ``yz``.
     every : draw every n-th output time.
-    dpi, size : resolution and size (inches, square) of a frame.
-    sketch : what to draw (default: from the deck stored in the result).
+    dpi, size : resolution and size (inches, square) of a frame: ``dpi * size`` pixels.
+    sketch : style sketch: what to draw (default: from the deck stored in the result).
     title : default: the deck's title and the mode.
     labels : write each body's name at its centroid.
+    style : ``3d``: the bodies' shapes shaded in 3D (mbsim.view.render, from the file's
+        ``shapes/``); ``sketch``: the 2D line drawing of the module docstring (matplotlib).
+    progress : ``progress(done, total)`` after each frame (mbsim.progress contract).
     """
+    if style == "3d":
+        return _animate_3d(result, path, fps, view, every, round(dpi * size), title, labels,
+                           progress)  # fmt: skip
     from matplotlib.animation import FuncAnimation, PillowWriter
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -433,11 +450,40 @@ def animate_file(file: str | Path, path: str | Path, mode_shape: int | None = No
     """Read a results file and write its animation (see :func:`animate_result`); with
     ``mode_shape`` (a linear analysis' file) that mode oscillating."""
     from mbsim.output import read_result
+    from mbsim.view.render import check_target
 
+    if kwargs.get("style", "3d") == "3d":
+        check_target(path)  # before reading or drawing anything
     result = read_result(file)
     if mode_shape is not None:
-        result, title = mode_shape_result(result, mode_shape)
-        sketch = kwargs.get("sketch") or sketch_from_result(result)
-        kwargs.setdefault("title", f"{Path(result.deck_file).stem}\n{title}")
-        kwargs["sketch"] = sketch
+        moving, title = mode_shape_result(result, mode_shape)
+        moving.names, moving.arrays = result.names, result.arrays  # shapes/ for the 3D style
+        result = moving
+        if kwargs.get("style", "3d") == "sketch":
+            kwargs["sketch"] = kwargs.get("sketch") or sketch_from_result(result)
+        kwargs.setdefault("title", f"{Path(result.deck_file).stem}: {title}")
     return animate_result(result, path, **kwargs)
+
+
+def _animate_3d(result: Result, path, fps, view, every, pixels, title, labels, progress):
+    """Style 3d of :func:`animate_result` (mbsim.view.render)."""
+    from mbsim.errors import UsageError
+    from mbsim.view.geometry import read_scene
+    from mbsim.view.render import check_target, render_frames, write_animation
+
+    path = check_target(path)
+    scene = read_scene(result)
+    if not scene.meshes and not scene.layout:
+        raise UsageError("the results file holds no shapes (shapes/) and no deck text to "
+                         "derive them from; run the analysis again with this mbsim")
+    if not len(scene.t):
+        raise ValueError("the result has no output times to draw")
+    if title is None:
+        deck_title = (result.deck_text.split("title:", 1)[1].splitlines()[0].strip()
+                      if "title:" in result.deck_text else Path(result.deck_file).stem)
+        title = f"{deck_title} ({result.mode})"
+    frames = list(range(0, len(scene.t), every))
+    images = render_frames(scene, frames, view, scene.layout.get("gravity"), pixels, title,
+                           "phase t" if result.mode == "linear-mode" else "t", labels,
+                           progress)  # fmt: skip
+    return path, write_animation(images, path, fps)

@@ -79,6 +79,9 @@ def run_model(model, mode: str, options: dict | None = None) -> Result:
     except (ValueError, FloatingPointError, ArithmeticError) as exc:
         _overflow(mode, exc)
     _apply_only(model, result)
+    from mbsim.view.geometry import scene_arrays  # shapes/...: what viewers draw (docs/hdf5.md)
+
+    result.arrays.update(scene_arrays(getattr(model, "spec", None)))
     if not result.wall_time:
         result.wall_time = time.perf_counter() - t0
     log.info("%s: %s in %.3g s; %s", mode, result.status, result.wall_time,

@@ -209,6 +209,7 @@ class LazyGroup(click.Group):
         "sweep": ("mbsim.cli_sweep", "sweep_command"),
         "study": ("mbsim.cli_study", "study_command"),
         "animate": ("mbsim.cli_study", "animate_command"),
+        "view": ("mbsim.cli_view", "view_command"),
     }
 
     def list_commands(self, ctx):
@@ -375,7 +376,29 @@ def _describe_estimate(key, v) -> str:
             f"CPU){note}")
 
 
+SUMMARY_INTERNALS = ("sparse", "equations", "formulation", "t_reached", "row_changes")
+SUMMARY_DIGITS = 4  # significant digits of the numbers a summary prints (the file keeps all)
+
+
+def _value_text(v) -> str:
+    """A summary value for the terminal: floats to SUMMARY_DIGITS significant digits."""
+    if isinstance(v, (bool, type(None), str, int)):
+        return str(v)
+    if isinstance(v, (float, np.floating)):
+        return f"{v:.{SUMMARY_DIGITS}g}"
+    if isinstance(v, (complex, np.complexfloating)):
+        return f"{v.real:.{SUMMARY_DIGITS}g}{v.imag:+.{SUMMARY_DIGITS}g}j"
+    if isinstance(v, (list, tuple)):
+        if len(v) > 8:
+            return f"[{len(v)} values]"
+        return "[" + ", ".join(_value_text(x) for x in v) + "]"
+    return str(v)
+
+
 def _summary(result, out) -> None:
+    """The run's findings, rounded; internals (solver switches, empty lists, None, counters
+    that stayed 0) only with -v."""
+    verbose = logging.getLogger("mbsim").isEnabledFor(logging.INFO)
     nt = len(result.t)
     span = f"t = {result.t[0]:.6g} .. {result.t[-1]:.6g} s, {nt} outputs" if nt else "no outputs"
     click.echo(f"{result.mode}: {result.status}; {span}; wall {result.wall_time:.3g} s -> {out}")
@@ -383,18 +406,19 @@ def _summary(result, out) -> None:
         _linear_table(result)
         return
     for k, v in result.summary.items():
-        if k == "warnings":  # on standard error already
+        empty = v is None or v is False or (isinstance(v, (list, tuple, dict)) and not v)
+        if k == "warnings" or (not verbose and (k in SUMMARY_INTERNALS or empty)):
+            continue  # warnings: on standard error already
             continue
         if k in ("error_estimate", "accuracy") and isinstance(v, dict):
             click.echo(f"  {k}: {_describe_estimate(k, v)}")
             continue
         if isinstance(v, dict):
             v = f"({len(v)} entries, stored in the file's summary attribute)"
-        elif isinstance(v, (list, tuple)) and len(v) > 8:
-            v = f"[{len(v)} values]"
-        click.echo(f"  {k}: {v}")
-    if result.counters:
-        click.echo("  " + ", ".join(f"{k} {v}" for k, v in result.counters.items()))
+        click.echo(f"  {k}: {_value_text(v)}")
+    counters = {k: v for k, v in result.counters.items() if verbose or v}
+    if counters:
+        click.echo("  " + ", ".join(f"{k} {_value_text(v)}" for k, v in counters.items()))
 
 
 def _linear_table(result) -> None:
@@ -424,25 +448,13 @@ def _linear_table(result) -> None:
 
 
 def _default_plot(result, path: Path, quiet: bool = False) -> None:
-    from mbsim.output import plot_channels, save_figure
+    """--plot: the quick look of mbsim.output.quicklook (by mode), saved as PNG."""
+    from mbsim.output import save_figure
+    from mbsim.output.quicklook import quick_look
 
-    if result.mode == "linear":  # the eigenvalues in the complex plane
-        from mbsim.output.locus import eigenvalue_plot
-
-        save_figure(eigenvalue_plot(result, f"linear: {Path(result.deck_file).name}, "
-                                            f"{result.summary.get('stability')}"), path)
-        if not quiet:
-            click.echo(f"  plot -> {path}")
+    fig = quick_look(result)
+    if fig is None:
         return
-
-    names = [n for n in result.channels if n.startswith(("drivers/", "points/"))
-             and n.endswith(("torque", "force", "position"))]
-    if not names:
-        names = [n for n in result.channels if n.startswith("bodies/") and n.endswith("/r")]
-        names = [n for n in names if not n.startswith("bodies/ground")][:4]
-    if not names:
-        return
-    fig = plot_channels(result, names[:6], title=f"{result.mode}: {Path(result.deck_file).name}")
     save_figure(fig, path)
     if not quiet:
         click.echo(f"  plot -> {path}")
@@ -610,7 +622,12 @@ def plot(args, ys, x, output, labels, title, list_only, units, data_file):
             fig = plot_channels(results[0], list(ys), x=x, title=title, units=shown)
         else:
             labs = list(labels) or [case_label(r, Path(f).stem) for f, r in zip(files, results)]
-            fig = plot_results(list(zip(labs, results)), ys[0], x=x, title=title, units=shown)
+            cases = list(zip(labs, results))
+            if not labels:  # `DIR/*.h5` comes in string order (k=10, k=200, k=50): by value
+                from mbsim.view.page import natural_key
+
+                cases.sort(key=lambda case: natural_key(case[0]))
+            fig = plot_results(cases, ys[0], x=x, title=title, units=shown)
         save_figure(fig, output)
         if data_file:
             export_plot_data(fig, data_file)
@@ -685,10 +702,13 @@ def list_(what):
 @click.argument("a", type=click.Path(exists=True, dir_okay=False))
 @click.argument("b", type=click.Path(exists=True, dir_okay=False))
 @click.option("--rtol", type=float, default=1e-9, show_default=True)
-@click.option("--atol", type=float, default=0.0, show_default=True)
+@click.option("--atol", type=float, default=None,
+              help="Absolute tolerance (default: rtol x each channel's range in B).")
 @click.option("--channels", help="Comma-separated channels to compare (default: all).")
+@click.option("--monitors", is_flag=True,
+              help="Also compare monitors.* and error.* (step sizes, violations, estimates).")
 @click.option("-n", "--worst", default=10, show_default=True, help="Rows in the table.")
-def compare(a, b, rtol, atol, channels, worst):
+def compare(a, b, rtol, atol, channels, monitors, worst):
     """Compare results A against reference B: exit 0 if they agree, 1 if not.
 
     Example: mbsim compare new.h5 golden.h5 --rtol 1e-6 --atol 1e-9
@@ -700,7 +720,8 @@ def compare(a, b, rtol, atol, channels, worst):
     try:
         ra, rb = read_result(a), read_result(b)
         chans = [c.strip().replace(".", "/") for c in channels.split(",")] if channels else None
-        ok, diffs, problems = compare_results(ra, rb, rtol=rtol, atol=atol, channels=chans)
+        ok, diffs, problems = compare_results(ra, rb, rtol=rtol, atol=atol, channels=chans,
+                                              monitors=monitors)
     except (MbsimError, KeyError, ValueError, OSError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else UsageError(_key_message(exc)))
     for p in problems:
@@ -712,8 +733,13 @@ def compare(a, b, rtol, atol, channels, worst):
         for d in show[:worst]:
             click.echo(f"{d.channel.replace('/', '.'):<40} {d.time:>10.5g} {d.a:>14.7g} "
                        f"{d.b:>14.7g} {d.abs_err:>10.3g} {d.scaled:>8.3g}")
-    click.echo(f"{'agree' if ok else 'DIFFER'}: {len(bad)} of {len(diffs)} channels outside "
-               f"rtol={rtol:g}, atol={atol:g}")
+    atol_text = f"atol={atol:g}" if atol is not None else "atol=rtol x range"
+    timing = [p for p in problems if p.startswith("time axes differ")]
+    if timing and not diffs:  # nothing comparable: say why, not "0 of 0 channels"
+        click.echo(f"DIFFER: {timing[0]}; run both with the same t_start, t_end and step")
+    else:
+        click.echo(f"{'agree' if ok else 'DIFFER'}: {len(bad)} of {len(diffs)} channels outside "
+                   f"rtol={rtol:g}, {atol_text}")
     sys.exit(EXIT_OK if ok else EXIT_FAILED)
 
 
@@ -722,25 +748,37 @@ def compare(a, b, rtol, atol, channels, worst):
 @click.option("--csv", "csv_path", is_flag=False, flag_value="", default=None,
               help="CSV file to write; --csv alone (or no option) writes FILE.csv.")
 @click.option("--channels", help="Comma-separated channels (default: all).")
-def export(file, csv_path, channels):
-    """Export a results file to CSV for spreadsheets.
+@click.option("--vtk", "vtk_dir", default=None, metavar="DIR",
+              help="ParaView time series in DIR: <stem>_shapes.pvd, <stem>_points.pvd.")
+@click.option("--parquet", is_flag=False, flag_value="", default=None,
+              help="Parquet file (pandas columns); --parquet alone writes FILE.parquet.")
+def export(file, csv_path, channels, vtk_dir, parquet):
+    """Export a results file to CSV for spreadsheets, VTK for ParaView, Parquet for pandas.
 
     Example: mbsim export gov.h5 --csv gov.csv --channels bodies.collar.r
     """
     from mbsim.output import export_csv, read_result
 
     _results_file(file)
+    lines = []
+    want_csv = csv_path is not None or (vtk_dir is None and parquet is None)
     target = Path(csv_path or Path(file).with_suffix(".csv"))
-    if not target.is_dir():  # a folder takes <deck stem>.csv (export_csv)
+    if want_csv and not target.is_dir():  # a folder takes <deck stem>.csv (export_csv)
         check_output(target, "--csv")
     try:
-        res = read_result(file)
-        chans = [c.strip() for c in channels.split(",")] if channels else None
-        paths = export_csv(res, target, channels=chans)
+        if vtk_dir is not None or parquet is not None:  # mbsim/cli_view.py
+            from mbsim.cli_view import export_exchange
+
+            lines = export_exchange(file, vtk_dir, parquet)
+        if want_csv:
+            res = read_result(file)
+            chans = [c.strip() for c in channels.split(",")] if channels else None
+            paths = export_csv(res, target, channels=chans)
+            lines += [f"csv -> {p}" for p in paths]
     except (MbsimError, KeyError, IndexError, ValueError, OSError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else UsageError(_key_message(exc)))
-    for p in paths:
-        click.echo(f"csv -> {p}")
+    for line in lines:
+        click.echo(line)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -14,6 +14,7 @@ import click
 
 from mbsim.cli import EXIT_FAILED, _fail, _warn, check_output
 from mbsim.errors import MbsimError, UsageError
+from mbsim.progress import Progress, format_duration
 
 VIEWS = ("iso", "xy", "xz", "yz")
 
@@ -116,9 +117,30 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
         sys.exit(EXIT_FAILED)
 
 
+class FrameProgress(Progress):
+    """The animation's progress line: ``animate  frame 40/126  32%  95 frames/s  ETA 0:01``
+    (a :class:`mbsim.progress.Progress` whose line counts frames, not simulated seconds)."""
+
+    def line(self, t: float, t_end: float, now: float) -> str:
+        elapsed = now - self.wall_first
+        rate = (self.steps - 1) / elapsed if elapsed > 0 else float("nan")
+        eta = (t_end - t) / rate if rate > 0 else float("nan")
+        return (f"animate  frame {t:.0f}/{t_end:.0f}  {100 * t / t_end:3.0f}%  "
+                f"{rate:.3g} frames/s  ETA {format_duration(eta)}")
+
+
+def _frame_progress():
+    """A :class:`FrameProgress` on stderr when it is a terminal, else None."""
+    from mbsim.progress import terminal_progress
+
+    bar = terminal_progress()
+    return None if bar is None else FrameProgress(bar.stream, tty=bar.tty)
+
+
 @click.command("animate")
 @click.argument("file", type=click.Path(exists=True, dir_okay=False))
-@click.option("-o", "--output", default=None, help="GIF file (default: FILE with .gif).")
+@click.option("-o", "--output", default=None,
+              help="GIF or MP4 file (default: FILE with .gif); checked before drawing.")
 @click.option("--fps", type=float, default=20, show_default=True, help="Frames per second.")
 @click.option(
     "--view",
@@ -137,9 +159,12 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
 @click.option("--mode-shape", "mode_shape", type=int, default=None,
               help="File of --mode linear: draw mode K (as numbered in its table) oscillating.")
 @click.option("--labels", "labels", is_flag=True, help="Write body names at their centroids.")
-def animate_command(file, output, fps, view, every, dpi, size, mode_shape, labels):
-    """Draw the mechanism of a results FILE moving: bodies as lines between their joint
-    points, massless links dashed, springs dotted, ground points fixed, a time stamp.
+@click.option("--style", type=click.Choice(["3d", "sketch"]), default="3d", show_default=True,
+              help="3d: the bodies' shapes, shaded; sketch: the 2D line drawing (GIF only).")
+def animate_command(file, output, fps, view, every, dpi, size, mode_shape, labels, style):
+    """Draw the mechanism of a results FILE moving: in 3D, the bodies' shapes with joints,
+    springs and a ground grid (or, --style sketch, bodies as lines between their joint
+    points), a time stamp; a progress line on a terminal.
 
     Example: mbsim animate slider.h5 -o slider.gif --view iso --every 2
     """
@@ -150,8 +175,14 @@ def animate_command(file, output, fps, view, every, dpi, size, mode_shape, label
         _fail(UsageError("--every must be >= 1 and --fps > 0"))
     check_output(out, "-o")  # before rendering: a bad -o costs nothing
     try:
-        path, nframes = animate_file(file, out, fps=fps, view=view, every=every, dpi=dpi,
-                                     size=size, mode_shape=mode_shape, labels=labels)
+        bar = _frame_progress()
+        try:
+            path, nframes = animate_file(file, out, fps=fps, view=view, every=every, dpi=dpi,
+                                         size=size, mode_shape=mode_shape, labels=labels,
+                                         style=style, progress=bar)
+        finally:
+            if bar is not None:
+                bar.close()
     except (MbsimError, KeyError, ValueError, OSError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else UsageError(str(exc).strip("'\"")))
     click.echo(f"animation: {nframes} frames at {fps:g} fps -> {path}")

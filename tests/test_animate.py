@@ -1,5 +1,5 @@
-"""Animations (mbsim/animate.py, ``mbsim animate``): the sketch taken from the deck, the
-projections, the frames' geometry and the GIF."""
+"""Animations (mbsim/animate.py, ``mbsim animate``): the 3D frames (mbsim.view.render), the
+sketch taken from the deck, the projections, the frames' geometry, GIF and MP4."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from mbsim.animate import animate_result, frames, projection, sketch_from_result
 from mbsim.api import load_model, run_model
 from mbsim.cli import main
 from mbsim.deck import load_deck
+from mbsim.errors import UsageError
 from mbsim.output import write_result
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
@@ -73,13 +74,59 @@ def test_frames_put_joint_points_together(slider_result):
         assert f["ground"].shape == (2, 2)
 
 
-def test_gif_has_one_frame_per_drawn_output(slider_result, tmp_path):
-    path, n = animate_result(slider_result, tmp_path / "m.gif", every=3, dpi=40, size=3)
+@pytest.mark.parametrize("style", ["3d", "sketch"])
+def test_gif_has_one_frame_per_drawn_output(slider_result, tmp_path, style):
+    path, n = animate_result(slider_result, tmp_path / "m.gif", every=3, dpi=40, size=3,
+                             style=style)  # fmt: skip
     assert n == 4  # outputs 0, 3, 6, 9 of 11
     with Image.open(path) as im:
         assert im.n_frames == 4 and im.size == (120, 120)
     with pytest.raises(ValueError, match=r"name it \*\.gif"):
-        animate_result(slider_result, tmp_path / "m.mp4")
+        animate_result(slider_result, tmp_path / "m.mp4", style="sketch")
+    with pytest.raises(UsageError, match=r"name it \*\.gif or \*\.mp4"):
+        animate_result(slider_result, tmp_path / "m.avi")
+
+
+def test_3d_frames_show_the_shapes_moving(slider_result, tmp_path):
+    """The crank turns: frames differ; every frame has shaded body pixels (many colours)."""
+    from mbsim.view.geometry import read_scene
+    from mbsim.view.render import render_frames
+
+    write_result(slider_result, tmp_path / "r.h5")
+    from mbsim.output import read_result
+
+    scene = read_scene(read_result(tmp_path / "r.h5"))
+    a, b = (np.asarray(im, int) for im in render_frames(scene, [0, 5], pixels=160))
+    assert (np.abs(a - b).sum(axis=2) > 60).mean() > 0.005
+    for img in (a, b):
+        assert len(np.unique(img.reshape(-1, 3), axis=0)) > 30
+
+
+def test_mp4_where_an_encoder_is_found(slider_result, tmp_path):
+    from mbsim.view.render import mp4_encoder
+
+    if mp4_encoder() is None:
+        with pytest.raises(UsageError, match="no MP4 encoder"):
+            animate_result(slider_result, tmp_path / "m.mp4")
+        assert not (tmp_path / "m.mp4").exists()
+        return
+    path, n = animate_result(slider_result, tmp_path / "m.mp4", every=5, dpi=40, size=3)
+    assert n == 3 and path.stat().st_size > 0
+
+
+def test_animate_checks_the_output_before_drawing(slider_result, tmp_path, monkeypatch):
+    """A bad -o fails at once (exit 2, one line), before a frame is drawn."""
+    import mbsim.view.render as render
+
+    write_result(slider_result, tmp_path / "r.h5")
+    drawn = []
+    monkeypatch.setattr(render, "render_frames", lambda *a, **k: drawn.append(1) or iter(()))
+    res = CliRunner().invoke(main, ["animate", str(tmp_path / "r.h5"), "-o",
+                                    str(tmp_path / "nofolder" / "a.gif")])  # fmt: skip
+    assert res.exit_code == 2 and not drawn
+    assert res.output.strip().splitlines() == [
+        f"error: output {tmp_path / 'nofolder' / 'a.gif'}: the folder "
+        f"{tmp_path / 'nofolder'} does not exist"]
 
 
 def test_sketch_comes_from_the_stored_deck_with_its_scene(tmp_path):
@@ -114,8 +161,11 @@ def test_cli_animate(slider_result, tmp_path):
     assert res.exit_code == 0, res.output
     assert "animation: 3 frames at 10 fps" in res.output
     assert (tmp_path / "r.gif").exists()
-    write_result(dataclasses.replace(slider_result, deck_text=""), tmp_path / "nodeck.h5")
+    bare = dataclasses.replace(slider_result, deck_text="", arrays={})
+    write_result(bare, tmp_path / "nodeck.h5")
     res = runner.invoke(main, ["animate", str(tmp_path / "nodeck.h5")])
+    assert res.exit_code == 2 and "holds no shapes" in res.output
+    res = runner.invoke(main, ["animate", str(tmp_path / "nodeck.h5"), "--style", "sketch"])
     assert res.exit_code == 2 and "holds no deck text" in res.output
     res = runner.invoke(main, ["animate", str(tmp_path / "r.h5"), "--every", "0"])
     assert res.exit_code == 2
@@ -192,3 +242,23 @@ def test_mode_shape_animation(tmp_path):
     assert out.exit_code == 0, out.output
     out = runner.invoke(main, ["animate", str(tmp_path / "lin.h5"), "--mode-shape", "9"])
     assert out.exit_code == 2 and "modes 1 to 4" in out.output
+
+
+def test_animation_reports_progress_per_frame(slider_result, tmp_path):
+    """Issue 26: a progress line while frames are drawn: progress(done, total) once a frame,
+    and the terminal line counts frames."""
+    import io
+
+    from mbsim.cli_study import FrameProgress
+
+    calls = []
+    animate_result(slider_result, tmp_path / "m.gif", every=2, dpi=30, size=2,
+                   progress=lambda done, total: calls.append((done, total)))  # fmt: skip
+    assert calls == [(float(k), 6.0) for k in range(1, 7)]  # outputs 0, 2, ..., 10
+    clock = iter(range(100)).__next__
+    stream = io.StringIO()
+    bar = FrameProgress(stream, tty=False, clock=lambda: float(clock()))
+    bar.min_interval = 0.0
+    for k in range(1, 4):
+        bar(float(k), 6.0)
+    assert stream.getvalue().splitlines()[-1].startswith("animate  frame 3/6   50%  1 frames/s")

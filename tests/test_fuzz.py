@@ -118,8 +118,8 @@ def _textual(rng: random.Random, text: str) -> str:
         return text[:pos] + rng.choice(["\x00", "\x07", "\ufffe", "{", "]", ":", "&a", "*a",
                                         "!!binary ", "%", "'"]) + text[pos:]  # fmt: skip
     elif op == "tag":
-        return text.replace("title:", 'title: !!python/object/apply:os.system ["true"]\n'
-                            "old_title:", 1)  # fmt: skip
+        return text.replace("title:", "title: !!python/object/apply:os.system "
+                            f'["true {rng.randrange(10**6)}"]\nold_title:', 1)  # fmt: skip
     else:  # a key at the top level that is not a key: a huge flow list
         n = rng.choice([10, 5000, 100_001])  # the last one over MBSIM_MAX_ITEMS
         lines.append("zz: [" + ", ".join("1" for _ in range(n)) + "]")

@@ -167,6 +167,16 @@ def work_precision(model, integrators=None, tolerances=TOLERANCES, steps=STEPS, 
     return bench
 
 
+ERROR_UNITS = {"r": "m", "position": "m", "rd": "m/s", "velocity": "m/s", "omega": "rad/s",
+               "omega_local": "rad/s", "p": "-"}  # fmt: skip  # last segment of an output
+
+
+def _error_unit(outputs) -> str:
+    """The unit of the benchmarked outputs' error (their channels' unit), when they share one."""
+    units = {ERROR_UNITS.get(o.rstrip("/").split("/")[-1], "?") for o in outputs}
+    return units.pop() if len(units) == 1 and "?" not in units else "output units"
+
+
 def work_precision_figure(bench: Bench, title: str = ""):
     """Log-log error against wall time per simulated second, one line per integrator
     (a matplotlib Figure, no pyplot)."""
@@ -181,9 +191,10 @@ def work_precision_figure(bench: Bench, title: str = ""):
                 and np.isfinite(r.error) and r.error > 0]
         if rows:
             ax.loglog([r.wall for r in rows], [r.error for r in rows], "o-", label=name)
-    ax.set_xlabel("wall time per simulated second (s)")
-    ax.set_ylabel("max error of " + (", ".join(bench.outputs[:3])
-                                     + (" ..." if len(bench.outputs) > 3 else "")))
+    ax.set_xlabel("wall time per simulated second [s/s]")
+    ax.set_ylabel("max error of " + (", ".join(o.replace("/", ".") for o in bench.outputs[:3])
+                                     + (" ..." if len(bench.outputs) > 3 else ""))
+                  + f" [{_error_unit(bench.outputs)}]")
     ax.set_title(title or f"work-precision: {bench.deck} (t_end = {bench.t_end:g} s)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize="small")

@@ -22,6 +22,7 @@ import numpy as np
 
 from mbsim import rotations
 from mbsim.deck import limits, schema
+from mbsim.deck import shapes as _shapes
 from mbsim.deck.schema import FIELD_DIMENSIONS as DIM
 from mbsim.deck.spec import (
     BodySpec,
@@ -326,6 +327,7 @@ def _body(rd: Reader, name: str, node: Node, where: Where) -> BodySpec:
         name=name, mass=mass, inertia=inertia, r=vec.get("r", np.zeros(3)),
         p=_orientation(rd, got), rdot=vec.get("rdot"), omega=vec.get("omega"),
         omega_local=vec.get("omega_local"), ground=ground, where=where,
+        shapes=_shapes.read_shapes(rd, *got["shape"]) if "shape" in got else None,
     )  # fmt: skip
 
 

@@ -16,7 +16,7 @@ TOP_KEYS = (
 )  # fmt: skip
 BODY_KEYS = (
     "ground", "mass", "inertia", "r", "p", "euler_deg", "axis_angle", "omega", "omega_local",
-    "rdot", "active",
+    "rdot", "active", "shape",
 )  # fmt: skip
 ORIENTATION_KEYS = ("p", "euler_deg", "axis_angle")  # at most one per body
 AXIS_ANGLE_KEYS = ("axis", "angle")

@@ -35,6 +35,22 @@ class FunctionSpec:
 
 
 @dataclass
+class ShapeSpec:
+    """One piece of a body's drawn shape (mbsim.deck.shapes; docs/deck.md#shapes).
+
+    kind: 'box' | 'cylinder' | 'sphere' | 'capsule' | 'mesh'; data: its dimensions in SI
+    ('size' (3,), 'radius', 'length', 'axis' 'x'|'y'|'z'; a mesh's 'vertices' (nv, 3) in the
+    file's units, 'faces' (nf, 3) int and 'scale'); offset: (3,) centre in the body frame, m.
+    """
+
+    kind: str
+    data: dict[str, Any]
+    offset: np.ndarray
+    color: str = ""  # '#rrggbb', '' for the viewer's choice
+    where: Where = field(default_factory=Where)
+
+
+@dataclass
 class BodySpec:
     name: str
     mass: float
@@ -46,6 +62,7 @@ class BodySpec:
     omega_local: np.ndarray | None  # (3,) angular velocity, body frame (None: not given)
     ground: bool = False  # True: the ground body, fixed by a 6-equation ground constraint
     where: Where = field(default_factory=Where)
+    shapes: list[ShapeSpec] | None = None  # `shape:` (None: derived from joints and inertia)
 
 
 @dataclass

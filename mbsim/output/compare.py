@@ -94,12 +94,29 @@ def _check_time(a: Result, b: Result, rtol: float, atol: float) -> str | None:
     return None
 
 
+MONITORS = ("monitors/", "error/")  # step sizes, violations, error estimates: they differ
+# between two tolerances of the same motion; compared only when asked (monitors=True)
+
+
+def channel_atol(b: np.ndarray, rtol: float) -> float:
+    """The default absolute tolerance of a channel: rtol times its range in the reference
+    (max - min over all its components; its largest magnitude when it is constant), so that
+    round-off about zero (2e-21 in a channel that spans 0.2) does not count."""
+    b = np.asarray(b, dtype=float)
+    finite = b[np.isfinite(b)]
+    if not finite.size:
+        return 0.0
+    span = float(np.ptp(finite))
+    return rtol * (span if span > 0 else float(np.abs(finite).max()))
+
+
 def compare_results(
     a: Result,
     b: Result,
     rtol: float = 1e-9,
-    atol: float = 0.0,
+    atol: float | None = 0.0,
     channels: list[str] | None = None,
+    monitors: bool = True,
 ) -> tuple[bool, list[Difference], list[str]]:
     """Compare result `a` with the reference result `b`, element by element.
 
@@ -110,9 +127,12 @@ def compare_results(
     b : Result
         The reference (golden) result; relative errors are taken against its values.
     rtol, atol : float
-        Tolerances of ``|a - b| <= atol + rtol |b|``; both 0 means exact equality.
+        Tolerances of ``|a - b| <= atol + rtol |b|``; both 0 means exact equality.  ``atol``
+        None: each channel's own, :func:`channel_atol` (``mbsim compare``'s default).
     channels : list of str, optional
         Channel names (dots or slashes) to compare; default the channels of both results.
+    monitors : bool
+        Compare the ``monitors/`` and ``error/`` channels too (when ``channels`` is None).
 
     Returns
     -------
@@ -125,16 +145,18 @@ def compare_results(
         Structural mismatches: a channel missing in one result, different shapes,
         different time axes, different status.
     """
-    if rtol < 0 or atol < 0:
+    if rtol < 0 or (atol is not None and atol < 0):
         raise ValueError(f"tolerances must be >= 0, got rtol={rtol}, atol={atol}")
     problems: list[str] = []
     if a.status != b.status:
         problems.append(f"status differs: a is {a.status!r}, b is {b.status!r}")
-    time_problem = _check_time(a, b, rtol, atol)
+    time_problem = _check_time(a, b, rtol, 0.0 if atol is None else atol)
     if time_problem:
         problems.append(time_problem)
     if channels is None:
         names = list(b.channels) + [n for n in a.channels if n not in b.channels]
+        if not monitors:
+            names = [n for n in names if not n.startswith(MONITORS)]
     else:
         names = list(dict.fromkeys(c.replace(".", "/").strip("/") for c in channels))
     tb = np.asarray(b.t, dtype=float).reshape(-1)
@@ -153,7 +175,8 @@ def compare_results(
         if da.shape != db.shape:
             problems.append(f"channel {name!r}: shape {da.shape} in a, {db.shape} in b")
             continue
-        worst = _worst(name, tb, da, db, rtol, atol)
+        tol = channel_atol(db, rtol) if atol is None else atol
+        worst = _worst(name, tb, da, db, rtol, tol)
         if worst is not None:
             differences.append(worst)
     differences.sort(key=lambda d: (d.scaled, d.abs_err), reverse=True)
@@ -185,10 +208,12 @@ def compare_files(
     path_a: str | Path,
     path_b: str | Path,
     rtol: float = 1e-9,
-    atol: float = 0.0,
+    atol: float | None = 0.0,
     channels: list[str] | None = None,
+    monitors: bool = True,
 ) -> tuple[bool, list[Difference], list[str]]:
     """:func:`compare_results` on two HDF5 result files (`path_b` the reference)."""
     from mbsim.output.hdf5 import read_result
 
-    return compare_results(read_result(path_a), read_result(path_b), rtol, atol, channels)
+    return compare_results(read_result(path_a), read_result(path_b), rtol, atol, channels,
+                           monitors)

@@ -43,7 +43,7 @@ class OutputError(MbsimError):
 
     exit_code = 1
 
-RESERVED = ("time", "deck", "names", "linear")  # top-level names that channels may not use
+RESERVED = ("time", "deck", "names", "linear", "shapes")  # top-level names that channels may not use
 COMPRESS_MIN_SIZE = 1000  # datasets with more elements are chunked and gzip-compressed
 GZIP_LEVEL = 4
 CHUNK_ELEMENTS = 65536  # target elements per chunk (chunks span whole rows, cut along time)

@@ -298,6 +298,8 @@ def export_plot_data(fig: Figure, path: str | Path) -> Path:
     form (``curve, x, y``)."""
     import csv
 
+    from mbsim.output.export import header_name
+
     data = getattr(fig, "mbsim_data", None)
     if not data:
         raise ValueError("the figure holds no plotted data (not made by mbsim.output.plots)")
@@ -307,8 +309,8 @@ def export_plot_data(fig: Figure, path: str | Path) -> Path:
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         if same:
-            w.writerow([data[0]["xlabel"]] + [f"{d['label'].replace('/', '.')} [{d['unit']}]"
-                                              for d in data])
+            w.writerow([data[0]["xlabel"]] + [header_name(d["label"], d["unit"])
+                                              for d in data])  # as export_csv names them
             for k in range(len(data[0]["x"])):
                 w.writerow([repr(float(data[0]["x"][k]))] + [repr(float(d["y"][k]))
                                                               for d in data])

@@ -187,3 +187,56 @@ def test_cli_bad_input_exit_2(golden, tmp_path):
     text.write_text("not HDF5")
     assert compare_cli(text, golden[0]).exit_code == 2
     assert compare_cli(golden[1], golden[0], "--rtol", "-1").exit_code == 2
+
+
+# -- issue 26: defaults that find real differences ----------------------------------------------
+
+
+def _cli(*args):
+    from click.testing import CliRunner
+
+    from mbsim.cli import main
+
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def test_default_atol_ignores_round_off_about_zero_and_finds_a_centimetre(tmp_path):
+    """b: z = 0 exactly; a: z = 2e-21 (round-off) and the torque 0.01 N m off at one output.
+    With atol 0 the round-off is the worst row (scaled ~1e12 x); with the default (rtol x the
+    channel's range: 2e-9 m for r, which spans 2 m) it passes and the torque is found."""
+    a, b = make_result(), make_result()
+    b.channels["bodies/crank/r"].data[:, 2] = 0.0
+    a.channels["bodies/crank/r"].data[:, 2] = 2e-21
+    a.channels["drivers/crank/torque"].data[50] += 0.01
+    ok, diffs, _ = compare_results(a, b, rtol=1e-9, atol=0.0)
+    assert not ok and diffs[0].channel == "bodies/crank/r" and diffs[0].abs_err == 2e-21
+    ok, diffs, _ = compare_results(a, b, rtol=1e-9, atol=None)
+    assert not ok
+    assert [d.channel for d in diffs if d.failed] == ["drivers/crank/torque"]
+    assert diffs[0].abs_err == pytest.approx(0.01)
+    pa, pb = write_result(a, tmp_path / "a.h5"), write_result(b, tmp_path / "b.h5")
+    res = _cli("compare", pa, pb)
+    assert res.exit_code == 1
+    assert "drivers.crank.torque" in res.output.splitlines()[1]
+    assert "DIFFER: 1 of 2 channels outside rtol=1e-09, atol=rtol x range" in res.output
+
+
+def test_monitors_are_compared_only_when_asked(tmp_path):
+    a, b = make_result(), make_result()
+    for r, h in ((a, 1e-3), (b, 2e-3)):  # two tolerances: different steps, same motion
+        r.add("monitors/step_size", np.full(len(r.t), h), "s")
+    pa, pb = write_result(a, tmp_path / "a.h5"), write_result(b, tmp_path / "b.h5")
+    res = _cli("compare", pa, pb)
+    assert res.exit_code == 0 and "agree: 0 of 2 channels" in res.output
+    res = _cli("compare", pa, pb, "--monitors")
+    assert res.exit_code == 1 and "monitors.step_size" in res.output
+
+
+def test_different_time_axes_are_refused_with_the_reason(tmp_path):
+    pa = write_result(make_result(201), tmp_path / "a.h5")
+    pb = write_result(make_result(401), tmp_path / "b.h5")
+    res = _cli("compare", pa, pb)
+    assert res.exit_code == 1
+    assert "0 of 0" not in res.output
+    assert ("DIFFER: time axes differ: 201 samples in a, 401 in b; run both with the same "
+            "t_start, t_end and step") in res.output

@@ -153,7 +153,8 @@ def test_export_plot_data(tmp_path):
     r = make_result()
     fig = plot_channels(r, ["drivers.crank.torque", "bodies.crank.r.x"], units=["mm"])
     rows = list(csv.reader(open(export_plot_data(fig, tmp_path / "d.csv"))))
-    assert rows[0] == ["time [s]", "drivers.crank.torque [N m]", "bodies.crank.r.x [mm]"]
+    # named as export_csv names columns (issue 26: one channel naming in every export)
+    assert rows[0] == ["time [s]", "drivers/crank/torque [N m]", "bodies/crank/r/x [mm]"]
     assert float(rows[11][2]) == pytest.approx(1000 * np.cos(0.1))
     cases = [("a", make_result(1.0)), ("b", make_result(2.0))]
     rows = list(csv.reader(open(export_plot_data(plot_results(cases, "drivers.crank.torque"),

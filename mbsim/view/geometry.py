@@ -1,0 +1,292 @@
+"""Body shapes as triangle meshes, and the drawing of a mechanism stored with its results.
+
+Every shape (mbsim.deck.shapes: box, cylinder, sphere, capsule, mesh) becomes triangles in
+its body's frame here, once, when a run's result is made (:func:`scene_arrays`, called by
+mbsim.api.run_model); the HDF5 file then holds everything the viewer, the animation and the
+VTK export draw (docs/hdf5.md, "Shapes"), so they need only the ``.h5``:
+
+    shapes/<body>/vertices  (nv, 3) float64  body frame, m
+    shapes/<body>/faces     (nf, 3) int32    vertex indices, counter-clockwise seen from outside
+    shapes/<body>/colors    (nv, 3) float64  RGB in [0, 1]
+    shapes/layout           (1,) string      JSON: bodies, joints, forces, points (below)
+
+A body without ``shape:`` gets one derived from its inertia and its joints
+(:func:`default_shapes`): the box of uniform density with the body's mass and principal
+moments, in its principal axes, plus a rod from the centroid to every joint or force point
+that lies outside that box.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mbsim.deck.spec import DeckSpec, ShapeSpec
+
+SEGMENTS = 32  # around a cylinder, capsule or sphere
+RINGS = 16  # pole to pole of a sphere
+PALETTE = ("#4e79a7", "#f28e2b", "#59a14f", "#e15759", "#76b7b2", "#edc948", "#b07aa1",
+           "#ff9da7", "#9c755f", "#bab0ac")  # fmt: skip  (Tableau 10)
+ROD_RADIUS = 0.025  # rods of a default shape: radius / the body's size
+MIN_EDGE = 0.05  # edges of an inertia box: at least this fraction of the body's size
+_AXIS = {"z": np.eye(3), "x": np.array([[0.0, 1, 0], [0, 0, 1], [1, 0, 0]]),
+         "y": np.array([[0.0, 0, 1], [1, 0, 0], [0, 1, 0]])}  # fmt: skip  # v @ M: z -> axis
+
+
+def triangulate(shape: ShapeSpec) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (nv, 3) in the body frame, faces (nf, 3)) of one shape piece."""
+    d = shape.data
+    if shape.kind == "box":
+        v, f = box(np.asarray(d["size"], float))
+    elif shape.kind == "sphere":
+        v, f = capsule(d["radius"], 0.0)
+    elif shape.kind == "cylinder":
+        v, f = cylinder(d["radius"], d["length"])
+        v = v @ _AXIS[d.get("axis", "z")]
+    elif shape.kind == "capsule":
+        v, f = capsule(d["radius"], d["length"])
+        v = v @ _AXIS[d.get("axis", "z")]
+    else:  # mesh
+        v, f = np.asarray(d["vertices"], float) * d.get("scale", 1.0), np.asarray(d["faces"])
+    return v + np.asarray(shape.offset, float), f.astype(np.int32)
+
+
+def box(size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A box centred at the origin, edges ``size`` along x y z; 4 vertices a face (flat)."""
+    h = np.asarray(size, float) / 2
+    verts, faces = [], []
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            u, w = (axis + 1) % 3, (axis + 2) % 3
+            if sign < 0:
+                u, w = w, u  # keep the winding outward
+            n = len(verts)
+            for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+                p = np.zeros(3)
+                p[axis], p[u], p[w] = sign * h[axis], a * h[u], b * h[w]
+                verts.append(p)
+            faces += [[n, n + 1, n + 2], [n, n + 2, n + 3]]
+    return np.array(verts), np.array(faces)
+
+
+def cylinder(radius: float, length: float, n: int = SEGMENTS) -> tuple[np.ndarray, np.ndarray]:
+    """A closed cylinder along z centred at the origin."""
+    a = 2 * np.pi * np.arange(n) / n
+    ring = np.c_[radius * np.cos(a), radius * np.sin(a), np.zeros(n)]
+    top, bot = ring + [0, 0, length / 2], ring - [0, 0, length / 2]
+    k = np.arange(n)
+    k1 = (k + 1) % n
+    side = np.r_[np.c_[k, k1, n + k1], np.c_[k, n + k1, n + k]]  # bot 0..n-1, top n..2n-1
+    caps_v = np.r_[[[0, 0, -length / 2]], bot, [[0, 0, length / 2]], top]
+    c0, c1 = 2 * n, 3 * n + 1  # centres of the bottom and the top cap
+    caps = np.r_[np.c_[np.full(n, c0), c0 + 1 + k1, c0 + 1 + k],
+                 np.c_[np.full(n, c1), c1 + 1 + k, c1 + 1 + k1]]  # fmt: skip
+    return np.r_[bot, top, caps_v], np.r_[side, caps]
+
+
+def capsule(radius: float, length: float, n: int = SEGMENTS, rings: int = RINGS):
+    """A capsule along z (cap centres at z = +-length/2); a sphere when ``length`` is 0."""
+    rings += rings % 2  # an equator ring, doubled below, splits the two caps
+    theta = np.pi * np.arange(rings + 1) / rings  # from the north pole
+    a = 2 * np.pi * np.arange(n) / n
+    rows = []
+    for i, th in enumerate(theta):
+        z = radius * np.cos(th)
+        row = np.c_[radius * np.sin(th) * np.cos(a), radius * np.sin(th) * np.sin(a), np.full(n, z)]
+        if 2 * i <= rings:
+            rows.append(row + [0, 0, length / 2])
+        if 2 * i >= rings:
+            rows.append(row - [0, 0, length / 2])
+    v = np.concatenate(rows)
+    k = np.arange(n)
+    k1 = (k + 1) % n
+    faces = []
+    for r in range(len(rows) - 1):
+        top, bot = r * n, (r + 1) * n
+        faces.append(np.c_[top + k, bot + k, bot + k1])
+        faces.append(np.c_[top + k, bot + k1, top + k1])
+    return v, np.concatenate(faces)
+
+
+def inertia_box(mass: float, inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(edges (3,), axes (3, 3) columns) of the uniform box with this mass and inertia:
+    I_x = m (b^2 + c^2) / 12, ..., so a^2 = 6 (I_y + I_z - I_x) / m.  Edges the moments
+    cannot give (a thin rod's) come out 0."""
+    moments, axes = np.linalg.eigh(np.asarray(inertia, float))
+    s = moments.sum()
+    edges = np.sqrt(np.clip(6 * (s - 2 * moments) / mass, 0, None))
+    return edges, axes
+
+
+def attachment_points(spec: DeckSpec) -> dict[str, list[np.ndarray]]:
+    """Body name -> the points (body frame) where its joints, drivers and forces act."""
+    pts: dict[str, list[np.ndarray]] = {b: [] for b in spec.bodies}
+    for item in (*spec.joints.values(), *spec.drivers.values(), *spec.forces.values()):
+        for body, ps in item.points.items():
+            if body in pts:
+                pts[body].append(np.asarray(ps.P, float))
+    for out in spec.outputs.values():
+        pts[out.body].append(np.asarray(out.point, float))
+    return pts
+
+
+def default_shapes(spec: DeckSpec, name: str, points: list[np.ndarray]) -> list[ShapeSpec]:
+    """A body's shape when the deck gives none: its inertia box (principal axes), edges kept
+    between MIN_EDGE and 1 times the body's size (the distance to its farthest joint or force
+    point; the box's largest edge when it has none), and rods from the centroid to the points
+    outside it."""
+    body = spec.bodies[name]
+    if body.ground:
+        return []
+    edges, axes = inertia_box(body.mass, body.inertia)
+    reach = max((float(np.linalg.norm(p)) for p in points), default=0.0)
+    size = reach if reach > 0 else float(edges.max()) or 0.1
+    edges = np.clip(edges, MIN_EDGE * size, size)
+    v, f = box(edges)
+    pieces = [ShapeSpec("mesh", {"vertices": v @ axes.T, "faces": f}, np.zeros(3))]
+    radius = ROD_RADIUS * size
+    local = np.abs(np.array(points).reshape(-1, 3) @ axes) if points else np.zeros((0, 3))
+    for p, lp in zip(points, local):
+        length = float(np.linalg.norm(p))
+        if np.all(lp <= edges / 2) or length < radius:
+            continue
+        rv, rf = capsule(radius, length, n=12, rings=6)
+        pieces.append(ShapeSpec("mesh", {"vertices": rv @ _rotation_z_to(p / length).T,
+                                         "faces": rf}, p / 2))  # fmt: skip
+    return pieces
+
+
+def _rotation_z_to(u: np.ndarray) -> np.ndarray:
+    """A rotation matrix taking the z axis onto the unit vector u."""
+    z = np.array([0.0, 0, 1])
+    c = float(z @ u)
+    if c < -1 + 1e-12:
+        return np.diag([1.0, -1, -1])
+    k = np.cross(z, u)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + K + K @ K / (1 + c)
+
+
+def _rgb(color: str) -> np.ndarray:
+    return np.array([int(color[i : i + 2], 16) / 255 for i in (1, 3, 5)])
+
+
+def body_mesh(pieces: list[ShapeSpec], color: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All pieces of a body in one mesh: (vertices (nv, 3), faces (nf, 3), colors (nv, 3))."""
+    vs, fs, cs, n = [], [], [], 0
+    for piece in pieces:
+        v, f = triangulate(piece)
+        vs.append(v)
+        fs.append(f + n)
+        cs.append(np.tile(_rgb(piece.color or color), (len(v), 1)))
+        n += len(v)
+    if not vs:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int32), np.zeros((0, 3))
+    return np.concatenate(vs), np.concatenate(fs).astype(np.int32), np.concatenate(cs)
+
+
+def layout(spec: DeckSpec) -> dict:
+    """What the viewer draws besides the shapes: joints (their points P on each body and the
+    axis P -> Q where the joint has one), force elements and output points, all in body frames."""
+    def pointset(ps):
+        d = {"P": np.asarray(ps.P, float).tolist()}
+        if ps.Q is not None:
+            d["Q"] = np.asarray(ps.Q, float).tolist()
+        return d
+
+    def items(group):
+        return [{"name": it.name, "type": it.type, "bodies": [b for b in it.points],
+                 "points": [pointset(ps) for ps in it.points.values()]}
+                for it in group.values()]  # fmt: skip
+
+    return {
+        "gravity": np.asarray(spec.gravity, float).tolist(),  # m/s^2: the views' 'up' opposes it
+        "bodies": {b.name: {"ground": bool(b.ground), "mass": float(b.mass)}
+                   for b in spec.bodies.values()},
+        "joints": items(spec.joints),
+        "drivers": items(spec.drivers),
+        "forces": items(spec.forces),
+        "points": [{"name": o.name, "body": o.body, "point": np.asarray(o.point).tolist()}
+                   for o in spec.outputs.values()],  # fmt: skip
+    }
+
+
+def scene_arrays(spec: DeckSpec | None) -> dict[str, tuple[np.ndarray, dict]]:
+    """The ``shapes/...`` arrays of a result (module docstring) for ``Result.arrays``."""
+    if spec is None:
+        return {}
+    out: dict[str, tuple[np.ndarray, dict]] = {}
+    points = attachment_points(spec)
+    lay = layout(spec)
+    for i, (name, body) in enumerate(spec.bodies.items()):
+        derived = body.shapes is None
+        pieces = default_shapes(spec, name, points[name]) if derived else body.shapes
+        v, f, c = body_mesh(pieces, PALETTE[i % len(PALETTE)])
+        lay["bodies"][name]["shape"] = "derived" if derived else "deck"
+        if len(f):
+            out[f"shapes/{name}/vertices"] = (v, {"unit": "m", "frame": "body"})
+            out[f"shapes/{name}/faces"] = (f, {})
+            out[f"shapes/{name}/colors"] = (c, {})
+    out["shapes/layout"] = (np.array([json.dumps(lay)]), {"format": "JSON, docs/hdf5.md"})
+    return out
+
+
+@dataclass
+class Scene:
+    """A result file's mechanism over time, as the viewer, the animation and the VTK export
+    read it (:func:`read_scene`).
+
+    names: body names (model order); t: (nt,) s; r: (nt, nb, 3) centroids, global;
+    p: (nt, nb, 4) Euler parameters; meshes: body name -> (vertices, faces, colors);
+    layout: :func:`layout`'s dict.
+    """
+
+    names: list[str]
+    t: np.ndarray
+    r: np.ndarray
+    p: np.ndarray
+    meshes: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
+    layout: dict = field(default_factory=dict)
+
+
+def read_scene(result) -> Scene:
+    """The :class:`Scene` of a :class:`~mbsim.result.Result` read from a file.  A file written
+    before shapes were stored (no ``shapes/layout``) gets the default shapes of the deck text it
+    holds.  A body whose ``r`` or ``p`` channel the file lacks (``outputs: only:``) has no mesh:
+    it is not drawn rather than drawn at the origin."""
+    names = list(result.names.get("bodies", []))
+    arrays = result.arrays
+    if "shapes/layout" not in arrays and result.deck_text:
+        arrays = {**arrays, **_arrays_from_deck(result.deck_text)}
+    lay = json.loads(str(arrays["shapes/layout"][0][0])) if "shapes/layout" in arrays else {}
+    if not names:
+        names = list(lay.get("bodies", {}))
+    nt = len(result.t)
+    r = np.zeros((nt, len(names), 3))
+    p = np.zeros((nt, len(names), 4))
+    p[..., 0] = 1.0
+    for k, b in enumerate(names):
+        if f"bodies/{b}/r" in result.channels:
+            r[:, k] = result.channels[f"bodies/{b}/r"].data
+        if f"bodies/{b}/p" in result.channels:
+            p[:, k] = result.channels[f"bodies/{b}/p"].data
+    meshes = {}
+    for b in names:
+        key = f"shapes/{b}/"
+        recorded = f"bodies/{b}/r" in result.channels and f"bodies/{b}/p" in result.channels
+        if key + "faces" in arrays and recorded:  # a body `outputs: only:` left out: not drawn
+            meshes[b] = tuple(np.asarray(arrays[key + q][0]) for q in ("vertices", "faces",
+                                                                        "colors"))  # fmt: skip
+    return Scene(names, np.asarray(result.t, float), r, p, meshes, lay)
+
+
+def _arrays_from_deck(text: str) -> dict:
+    from mbsim.deck import load_deck_text
+    from mbsim.errors import MbsimError
+
+    try:
+        return scene_arrays(load_deck_text(text))
+    except MbsimError:  # a deck that needs its mesh files or its --set values: no shapes
+        return {}
