@@ -347,12 +347,6 @@ def _build_result(model, prep, opt, tr, est):
                 status, message = STATUS_INCOMPLETE, (f"t = {tr.t[k]:.6g} s: evaluating the "
                                                       f"outputs failed: {exc}")
                 break
-            conflict = _dropped_rows_conflict(model, tr.systems[k], tr.t[k], tr.q[k], ph,
-                                              float(opt["tol"]), dropped)
-            if conflict is not None:  # the outputs before it are right; this one is not
-                status, message = STATUS_INCOMPLETE, conflict
-                break
-            lam.append(la)
             if np.abs(ph).max(initial=0.0) > drift_limit:  # drift the method did not hold
                 row = int(np.argmax(np.abs(ph)))
                 status, message = STATUS_INCOMPLETE, (
@@ -362,6 +356,12 @@ def _build_result(model, prep, opt, tr, est):
                     f"has left the mechanism (baumgarte: keep its drift bound; or tighten rtol)")
                 conflict = message
                 break
+            conflict = _dropped_rows_conflict(model, tr.systems[k], tr.t[k], tr.q[k], ph,
+                                              float(opt["tol"]), dropped)
+            if conflict is not None:  # the outputs before it are right; this one is not
+                status, message = STATUS_INCOMPLETE, conflict
+                break
+            lam.append(la)
             pos.append(float(np.abs(ph).max(initial=0.0)))
             vel.append(float(np.abs(v).max(initial=0.0)))
             rec.add(tr.t[k], tr.q[k], tr.qd[k], qdd)

@@ -43,12 +43,14 @@ def test_without_the_bound_the_run_leaves_the_mechanism_and_says_so():
     t = 0.297 s (the rows open to 1e-5, 1e5 times the tolerance) and follows the drifted
     constraint set onto the other branch (the motion 7 mm off at 0.32 s).  That is never a
     silent result: the run ends at the first output past the drift limit (1000 x the
-    tolerance), naming it, and the outputs before it are the mechanism's motion (within 1e-8
-    m of the exact reduction: the first passage at 0.083 s costs 2.6e-9 m without the
-    bound)."""
+    tolerance) or where the redundant rows stop holding, naming it, and the outputs before
+    it are the mechanism's motion (within 1e-8 m of the exact reduction: the first passage
+    at 0.083 s costs 2.6e-9 m without the bound)."""
     pb, res = run(False)
     assert not res.complete
-    assert "constraint drift" in res.message
+    # either check may see it first: the drift over 1000 x the tolerance, or the redundant
+    # rows no longer holding where the independent ones do (both: left the mechanism)
+    assert "constraint drift" in res.message or "no longer hold" in res.message, res.message
     assert 0.28 < res.t[-1] < 0.31  # the output of t = 0.30 s is past the limit
     assert res.channel("monitors/position_violation").data.max() <= 1e3 * (RTOL + 1e-2 * RTOL)
     assert R.position_error(res, pb.reference(res.t)).max() <= 1e-8
