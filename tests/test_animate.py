@@ -125,7 +125,7 @@ def test_animate_checks_the_output_before_drawing(slider_result, tmp_path, monke
                                     str(tmp_path / "nofolder" / "a.gif")])  # fmt: skip
     assert res.exit_code == 2 and not drawn
     assert res.output.strip().splitlines() == [
-        f"error: output {tmp_path / 'nofolder' / 'a.gif'}: the folder "
+        f"error: -o: output {tmp_path / 'nofolder' / 'a.gif'}: the folder "
         f"{tmp_path / 'nofolder'} does not exist"]
 
 
