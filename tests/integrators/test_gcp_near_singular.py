@@ -23,7 +23,8 @@ def exact_state(model, th, thd):
     return M.parallel_fourbar_motion(model, th, thd, -GRAV * np.cos(th) / MASS)
 
 
-def setup(theta_ref):
+# not named setup: pytest 7 calls a module-level setup(module) as a nose fixture
+def prepared(theta_ref):
     """The four-bar's System on its independent rows and a gcp-rk45 integrator whose partition
     is the tangent one at theta_ref."""
     pb = M.reference_problem("parallel_fourbar")
@@ -54,7 +55,7 @@ def test_tangent_coordinates_exact_away_from_singular():
     Newton, the velocity equations and the reduced equations reproduce the exact state and
     accelerations (to 1e-11 of |qdd|, measured 2e-14), and the power Q.qd is the rate of the
     reduction's kinetic energy."""
-    model, _, integ, part = setup(0.3)
+    model, _, integ, part = prepared(0.3)
     thd = 20.0
     q, qd, qdd_exact = exact_state(model, 0.5, thd)
     qq, qqd, qdd, power = stage(integ, part, q, qd, 0)
@@ -71,7 +72,7 @@ def test_tangent_coordinates_near_flat_position(delta):
     4e-11 and 4e-9), where the coordinate partition's v'' (a crank's Euler parameter, Schur
     complement) is off by more than 1e-6 (measured 1e-5 and 3e-2 relative: round-off in u
     amplified along the soft directions, and at 1e-4 the pivot floor)."""
-    model, system, integ, part = setup(-1e-2 + delta)
+    model, system, integ, part = prepared(-1e-2 + delta)
     q, qd, qdd_exact = exact_state(model, delta, 20.0)
     coords = Partition(integ.part.iv, integ.part.iu, 1.0)
     for p, ok in ((part, True), (coords, False)):
@@ -88,7 +89,7 @@ def test_pivot_ratio_tracks_the_flat_position():
     the policy's switch within 5e-3 rad, and a gcp partition there is the tangent one."""
     from mbsim.integrators import changepoints as cp
 
-    model, system, integ, _ = setup(0.5)
+    model, system, integ, _ = prepared(0.5)
     ratios, schur = [], []
     for delta in (1e-1, 1e-2, 1e-3):
         q, qd, _ = exact_state(model, delta, 20.0)

@@ -181,13 +181,22 @@ def test_cli_accuracy_on_the_deck(tmp_path):
     assert 0.1 <= estimate / err <= 10, (estimate, err)
 
 
+PASSAGE_ROUNDOFF = 3e-9
+"""m: the round-off floor of the four cranks' fast passages, measured 2.3e-11 ... 2.5e-9 m
+over starts perturbed by 4 ulps and the OpenBLAS kernels Haswell, SkylakeX and Prescott
+(test_changepoints.py's module doc), 1.5e-9 m with numpy 2.0 / scipy 1.13; the fault the
+test below guards against left 5.8e-9 m."""
+
+
 @pytest.mark.parametrize("rtol", [1e-11, 1e-12])
 def test_gcp_below_the_issue_tolerances(rtol):
     """gcp-dop853 past the issue's rtol range, where a fixed switch of 1e-3 let the
     coordinate accelerations' round-off (eps s^-3, changepoints.Policy) into the steps:
     5.8e-9 and 4.7e-10 m at rtol 1e-11 and 1e-12.  With the policy's switch (1.3e-2 at
-    1e-10, 6e-2 at 1e-12): 4.6e-10 and 4.2e-11 m, within the same bound 10 rtol + 1e-9 m."""
+    1e-10, 6e-2 at 1e-12): 4.6e-10 and 4.2e-11 m here, 1.5e-9 m at 1e-11 with numpy 2.0 and
+    scipy 1.13.  Below rtol 1e-10 the passages' round-off decides, not the tolerance: the
+    bound is 10 rtol + PASSAGE_ROUNDOFF."""
     res, err = run("gcp-dop853", rtol)
     assert res.complete, res.message
-    assert err <= 10 * rtol + 1e-9, f"position error {err:.3g} m"
+    assert err <= 10 * rtol + PASSAGE_ROUNDOFF, f"position error {err:.3g} m"
 
