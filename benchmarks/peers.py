@@ -67,7 +67,9 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+# benchmarks/ for common.py and work_precision.py; the checkout's root first, so that the
+# mbsim measured is this tree's even where another one is installed
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]
 
 import numpy as np  # noqa: E402
 from common import (  # noqa: E402
@@ -431,7 +433,8 @@ def fourbar_case(a):
         ex, notes = exudyn_method_ladders(build, err_exudyn, EXUDYN_IMPLICIT, t_end, a,
                                           "exudyn (ignoreSingularJacobian) ",
                                           ignore_singular=True)
-    return {"case": "fourbar40", "title": title, "mbsim": mb, "exudyn": ex, "notes": notes}
+    return {"case": f"fourbar{a.loops}", "title": title, "mbsim": mb, "exudyn": ex,
+            "notes": notes}
 
 
 # ------------------------------------------------------------------ a run as a user runs it
