@@ -657,11 +657,22 @@ def main(argv=None):
           flush=True)
     t0 = time.perf_counter()
     results = []
+
+    def save(rows=None):
+        """The JSON so far (rewritten after each case, so a stopped run keeps its figures)."""
+        if a.json:
+            Path(a.json).write_text(json.dumps(
+                {"load_start": load_avg, "load_end": os.getloadavg(), "argv": sys.argv[1:],
+                 "exudyn": a.exudyn, "summary": rows, "results": results}, indent=1,
+                default=str))
+
     for case in cases:
         if case in ("governor", "slider_crank"):
             results.append(deck_case(case, a))
         elif case == "chain":
-            results += [chain_case(n, a) for n in sizes]
+            for n in sizes:
+                results.append(chain_case(n, a))
+                save()
         elif case == "fourbar40":
             results.append(fourbar_case(a))
         elif case == "user":
@@ -670,15 +681,12 @@ def main(argv=None):
             results.append(compiled_share(a))
         elif case == "startup":
             results.append(startup(a))
+        save()
     rows = summary(results, a.exudyn)
     load_end = os.getloadavg()
     print(f"\nwall {time.perf_counter() - t0:.0f} s; load average at the end "
           f"{load_end[0]:.2f} {load_end[1]:.2f} {load_end[2]:.2f}")
-    if a.json:
-        Path(a.json).write_text(json.dumps(
-            {"load_start": load_avg, "load_end": load_end, "argv": sys.argv[1:],
-             "exudyn": a.exudyn, "summary": rows, "results": results}, indent=1,
-            default=str))
+    save(rows)
     return 0
 
 
