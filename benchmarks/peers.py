@@ -91,7 +91,7 @@ from common import (  # noqa: E402
 TARGETS = (1e-3, 1e-6)
 STOP = 0.1  # a ladder stops once its error is below STOP x the smallest target
 RTOLS = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
-FIXED_STEPS = (250, 500, 1000, 2000, 4000, 8000, 16000, 32000, 64000)  # implicit, per run
+FIXED_STEPS = (250, 500, 1000, 2000, 4000, 8000, 16000, 32000, 64000, 128000, 256000)  # implicit
 EXPLICIT_STEPS = (25, 50, 100, 200, 400, 800, 1600, 3200, 6400, 12800)  # RK44 / RK67, per run
 ADAPTIVE_TOLS = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11)
 REFERENCE = {"integrator": "projection-dop853", "rtol": 1e-12, "atol": 1e-14}
