@@ -102,7 +102,10 @@ KT_IMPLICIT_MAX_LINKS = 16
 """ObjectKinematicTree under Exudyn's implicit solvers only up to this size: at N = 4 and 16
 they cost 10-40x its explicit solvers at every error (their Jacobian of the tree is dense
 and computed by differences), so they are never its best beyond."""
-DENSE_MAX_NQ = 600  # Cartesian twin: dense linear solvers tried up to this many coordinates
+DENSE_MAX_NQ = 200
+"""Cartesian twin: dense linear solvers tried up to this many coordinates (chains to N = 16,
+nq = 119): at N = 16 EigenSparse with modified Newton is already the fastest, and a dense
+factorization grows as nq^3 (the EXUdense full-Newton trial alone took minutes at N = 64)."""
 CASES = ("governor", "slider_crank", "chain", "fourbar40", "user", "share", "startup")
 
 
