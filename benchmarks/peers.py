@@ -149,7 +149,9 @@ def ladder_cost(points, target):
         return (math.nan,) * 3 + (False,)
     out = [cost_at([(f(p["cpu"]), p["error"]) for p in ok], target)
            for f in (np.median, min, max)]
-    return out[0][0], out[1][0], out[2][0], out[0][1]
+    # the min and max ladders may cross the target on different segments: order the range
+    costs = [c for c, _ in out]
+    return costs[0], min(costs), max(costs), out[0][1]
 
 
 def best(ladders, target):
