@@ -604,7 +604,7 @@ def summary(results, exudyn):
             if mx:
                 mtxt = "estimate " + mtxt
             if not exudyn:
-                etxt, ratio = "exudyn not installed", ""
+                etxt, ratio = "exudyn not run (not installed or --no-exudyn)", ""
             elif elab is None:
                 etxt, ratio = "not reached", ""
             else:
