@@ -152,8 +152,16 @@ def ladder_cost(points, target):
     ok = [p for p in points if not p["note"] and np.isfinite(p["error"]) and p["error"] > 0]
     if not ok:
         return (math.nan,) * 3 + (False,)
-    out = [cost_at([(f(p["cpu"]), p["error"]) for p in ok], target)
-           for f in (np.median, min, max)]
+    out = []
+    for f in (np.median, min, max):
+        pts = [(float(f(p["cpu"])), p["error"]) for p in ok]
+        cost, extrapolated = cost_at(pts, target)
+        # never above the cheapest run that meets the target: an implicit solver's cost can
+        # fall with more steps (fewer Newton iterations), so a ladder need not be monotone
+        met = [c for c, e in pts if e <= target]
+        if met and not cost <= min(met):
+            cost, extrapolated = min(met), False
+        out.append((cost, extrapolated))
     # the min and max ladders may cross the target on different segments: order the range
     costs = [c for c, _ in out]
     return costs[0], min(costs), max(costs), out[0][1]
