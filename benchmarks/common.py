@@ -221,3 +221,138 @@ def exudyn_run(model, q, qd, steps, t_end, points, sparse=True, omegas=()):
         out[f"{b}.omega"] = np.array(mbs.GetObjectOutputBody(
             items[b], exu.OutputVariableType.AngularVelocity, localPosition=[0, 0, 0]))
     return out, wall, cpu
+
+
+# ------------------------------------------------------------------ Exudyn: every solver
+# Exudyn 1.13's dynamic solvers (exudyn.DynamicSolverType) by what they accept: the implicit
+# ones take constrained (index-3 / index-2) systems, the explicit ones only systems without
+# algebraic variables ("explicit integrator detected node ... which contains algebraic
+# variables"), i.e. the minimal-coordinate ObjectKinematicTree of an open chain.
+EXUDYN_IMPLICIT = ("GeneralizedAlpha", "TrapezoidalIndex2")
+EXUDYN_FIXED = ("RK44", "RK67")  # explicit, fixed step
+EXUDYN_ADAPTIVE = ("DOPRI5", "ODE23", "DVERK6")  # explicit, error-controlled step
+EXUDYN_LINEAR = ("EXUdense", "EigenDense", "EigenSparse")  # EigenSparseSymmetric: "not available"
+
+
+class ExudynSolver:
+    """One Exudyn solver configuration: method (a DynamicSolverType name), linear solver (a
+    LinearSolverType name), modified Newton (implicit methods: the Jacobian kept over steps).
+    ``setting`` of a run is the number of fixed steps, or the tolerance of an adaptive one.
+    ignore_singular: linearSolverSettings.ignoreSingularJacobian (Exudyn's switch for
+    redundant constraints)."""
+
+    def __init__(self, method, linear="EXUdense", modified_newton=False, ignore_singular=False):
+        self.method, self.linear, self.modified_newton = method, linear, bool(modified_newton)
+        self.ignore_singular = bool(ignore_singular)
+
+    @property
+    def adaptive(self):
+        return self.method in EXUDYN_ADAPTIVE
+
+    @property
+    def label(self):
+        newton = (", modified Newton" if self.modified_newton else ", full Newton") \
+            if self.method in EXUDYN_IMPLICIT else ""
+        return f"{self.method} ({self.linear}{newton})"
+
+    def settings(self, exu, t_end, setting):
+        ss = _exudyn_settings(exu, 100 if self.adaptive else int(setting), t_end, sparse=False)
+        try:
+            ss.linearSolver.solverType = getattr(exu.LinearSolverType, self.linear)
+        except AttributeError:  # before 1.12
+            ss.linearSolverType = getattr(exu.LinearSolverType, self.linear)
+        ss.timeIntegration.newton.useModifiedNewton = self.modified_newton
+        ss.linearSolverSettings.ignoreSingularJacobian = self.ignore_singular
+        if self.adaptive:
+            ti = ss.timeIntegration
+            ti.automaticStepSize = True
+            ti.absoluteTolerance = ti.relativeTolerance = float(setting)
+            ti.minimumStepSize = 1e-12
+        return ss
+
+    def variants(self, implicit_newton=True):
+        """This method with every linear solver (and both Newton variants if implicit)."""
+        newton = (False, True) if self.method in EXUDYN_IMPLICIT and implicit_newton else (False,)
+        return [ExudynSolver(self.method, lin, m, self.ignore_singular) for lin in EXUDYN_LINEAR
+                for m in newton]
+
+
+class quiet_stdout:
+    """Silence file descriptor 1 (Exudyn's C++ core prints failure banners there)."""
+
+    def __enter__(self):
+        import sys
+
+        sys.stdout.flush()
+        self.saved = os.dup(1)
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 1)
+        os.close(null)
+        return self
+
+    def __exit__(self, *exc):
+        os.dup2(self.saved, 1)
+        os.close(self.saved)
+        return False
+
+
+def exudyn_solve(mbs, solver, t_end, setting):
+    """Solve `mbs` from its initial state with `solver` (ExudynSolver); returns (CPU s, None)
+    or (CPU s, the error message) when Exudyn refuses or fails."""
+    import exudyn as exu
+
+    ss = solver.settings(exu, t_end, setting)
+    c0 = time.process_time()
+    try:
+        with quiet_stdout():
+            ok = mbs.SolveDynamic(ss, solverType=getattr(exu.DynamicSolverType, solver.method))
+        message = None if ok else "solver failed"
+    except Exception as exc:  # Exudyn raises RuntimeError/ValueError with its message
+        message = " ".join(str(exc).split())[:200]
+    return time.process_time() - c0, message
+
+
+def exudyn_chain_tree(model, n, g=9.81):
+    """The spherical chain of chain_spec as Exudyn's minimal-coordinate ObjectKinematicTree:
+    each spherical joint is three revolutes (about z, x, y of a frame turned by the link's
+    initial rotation relative to its parent, so q = 0 is the initial state and the
+    gimbal-lock of the middle axis is 90 degrees of bending away), the first two on massless
+    links.  Returns (SystemContainer, mbs, tip sensor): the sensor reads the last link's
+    bottom point (0, -0.5, 0) from the joint, global (the same point as chain_tip)."""
+    import exudyn as exu
+    import exudyn.itemInterface as eii
+
+    Q = model.q0.reshape(-1, 7)
+    names = list(model.body_names)
+    A = [rot_A(Q[names.index(f"link{i}"), 3:]) for i in range(n)]
+    jtypes, parents, frames, offsets, inertias, coms, masses = [], [], [], [], [], [], []
+    axes = (exu.JointType.RevoluteZ, exu.JointType.RevoluteX, exu.JointType.RevoluteY)
+    for i in range(n):
+        rel = A[i] if i == 0 else A[i - 1].T @ A[i]
+        for k, axis in enumerate(axes):
+            jtypes.append(axis)
+            parents.append(len(jtypes) - 2)
+            frames.append(rel if k == 0 else np.eye(3))
+            offsets.append([0.0, -0.5 if (k == 0 and i > 0) else 0.0, 0.0])  # link frame at its top
+            real = k == 2
+            inertias.append(np.diag([1 / 48, 1e-4, 1 / 48]) if real else np.zeros((3, 3)))
+            coms.append([0.0, -0.25 if real else 0.0, 0.0])
+            masses.append(1.0 if real else 0.0)
+    SC = exu.SystemContainer()
+    mbs = SC.AddSystem()
+    nq = 3 * n
+    node = mbs.AddNode(eii.NodeGenericODE2(referenceCoordinates=[0.0] * nq,
+                                           initialCoordinates=[0.0] * nq,
+                                           initialCoordinates_t=[0.0] * nq,
+                                           numberOfODE2Coordinates=nq))
+    tree = mbs.AddObject(eii.ObjectKinematicTree(
+        nodeNumber=node, gravity=[0.0, -g, 0.0], jointTypes=jtypes, linkParents=parents,
+        jointTransformations=exu.Matrix3DList(frames), jointOffsets=exu.Vector3DList(offsets),
+        linkInertiasCOM=exu.Matrix3DList(inertias), linkCOMs=exu.Vector3DList(coms),
+        linkMasses=masses))
+    tip = mbs.AddSensor(eii.SensorKinematicTree(
+        objectNumber=tree, linkNumber=nq - 1, localPosition=[0.0, -0.5, 0.0],
+        outputVariableType=exu.OutputVariableType.Position, writeToFile=False,
+        storeInternal=True))
+    mbs.Assemble()
+    return SC, mbs, tip
