@@ -24,6 +24,13 @@ def cli(*args):
     return res
 
 
+
+def small_sweep(out):
+    """`mbsim sweep` of two short kinematic cases of the slider-crank on one process."""
+    return cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3,0.27",
+               "--t-end", "0.02", "-j", "1", "-o", out)
+
+
 def one_error(res, code: int, *needles: str) -> str:
     """Exit ``code``, exactly one ``error:`` line on stderr (other lines only warnings),
     holding every needle; returns it."""
@@ -113,20 +120,7 @@ def test_sweep_whose_index_cannot_be_written_keeps_the_case_files(tmp_path, monk
 
     monkeypatch.setattr(mbsim.sweep, "_atomic", full)
     out = tmp_path / "sw"
-    res = cli(
-        "sweep",
-        SLIDER,
-        "--mode",
-        "kinematic",
-        "--param",
-        "ell=0.3,0.27",
-        "--t-end",
-        "0.02",
-        "-j",
-        "1",
-        "-o",
-        out,
-    )
+    res = small_sweep(out)
     one_error(res, 1, "cannot write the index", os.strerror(code), "2 case file(s) written")
     assert sorted(p.name for p in out.glob("*.h5")) == ["ell=0.27.h5", "ell=0.3.h5"]
 
@@ -144,20 +138,7 @@ def test_sweep_into_a_folder_that_takes_no_file_runs_nothing(tmp_path, monkeypat
 
     monkeypatch.setattr(builtins, "open", refuse)
     out = tmp_path / "sw"
-    res = cli(
-        "sweep",
-        SLIDER,
-        "--mode",
-        "kinematic",
-        "--param",
-        "ell=0.3,0.27",
-        "--t-end",
-        "0.02",
-        "-j",
-        "1",
-        "-o",
-        out,
-    )
+    res = small_sweep(out)
     one_error(res, 2, f"output folder {out}", os.strerror(code))
     assert not list(out.glob("*.h5"))
 
@@ -581,37 +562,11 @@ def test_a_second_sweep_into_a_folder_in_use_is_refused(tmp_path):
     out = tmp_path / "sw"
     out.mkdir()
     _plant_lock(out / "sweep.lock", os.getpid())
-    res = cli(
-        "sweep",
-        SLIDER,
-        "--mode",
-        "kinematic",
-        "--param",
-        "ell=0.3,0.27",
-        "--t-end",
-        "0.02",
-        "-j",
-        "1",
-        "-o",
-        out,
-    )
+    res = small_sweep(out)
     one_error(res, 2, f"sweep folder {out} is in use", f"process {os.getpid()}")
     assert not list(out.glob("*.h5"))
     _plant_lock(out / "sweep.lock", _dead_pid())
-    res = cli(
-        "sweep",
-        SLIDER,
-        "--mode",
-        "kinematic",
-        "--param",
-        "ell=0.3,0.27",
-        "--t-end",
-        "0.02",
-        "-j",
-        "1",
-        "-o",
-        out,
-    )
+    res = small_sweep(out)
     assert res.exit_code == 0, res.output
     assert "no longer runs" in res.stderr
     assert len(list(out.glob("ell=*.h5"))) == 2 and not (out / "sweep.lock").exists()
@@ -627,20 +582,7 @@ def test_sweep_whose_folder_fills_before_the_cases_run_ends_in_one_line(tmp_path
 
     monkeypatch.setattr(mbsim.sweep.tempfile, "TemporaryDirectory", full)
     out = tmp_path / "sw"
-    res = cli(
-        "sweep",
-        SLIDER,
-        "--mode",
-        "kinematic",
-        "--param",
-        "ell=0.3,0.27",
-        "--t-end",
-        "0.02",
-        "-j",
-        "1",
-        "-o",
-        out,
-    )
+    res = small_sweep(out)
     one_error(res, 1, f"sweep into {out} stopped after 0 of 2 case(s)", os.strerror(errno.ENOSPC))
     assert not list(out.glob("ell=*.h5")) and not (out / "sweep.lock").exists()
     assert [r["status"] for r in read_index(out / "index.csv")] == ["cancelled"] * 2
@@ -656,18 +598,5 @@ def test_sweep_into_a_folder_that_cannot_be_made_runs_nothing(tmp_path, monkeypa
 
     monkeypatch.setattr(Path, "mkdir", read_only)
     out = tmp_path / "sw"
-    res = cli(
-        "sweep",
-        SLIDER,
-        "--mode",
-        "kinematic",
-        "--param",
-        "ell=0.3,0.27",
-        "--t-end",
-        "0.02",
-        "-j",
-        "1",
-        "-o",
-        out,
-    )
+    res = small_sweep(out)
     one_error(res, 2, f"output folder {out}", os.strerror(errno.EROFS))
