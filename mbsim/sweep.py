@@ -814,12 +814,11 @@ class SweepWriteError(AnalysisError):
 def prepare_out_dir(out_dir: Path) -> Path:
     """Make the sweep's folder and check that it takes a new file, before any case runs:
     a folder that cannot be made or written is a SweepError (exit 2) naming it."""
+    from mbsim.output.hdf5 import probe_write
+
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
-        probe = out_dir / f".write-probe-{os.getpid()}"
-        with open(probe, "wb"):
-            pass
-        probe.unlink()
+        probe_write(out_dir / f".write-probe-{os.getpid()}")
     except OSError as exc:
         raise SweepError(f"output folder {out_dir}: cannot write there: "
                          f"{exc.strerror or exc}") from None

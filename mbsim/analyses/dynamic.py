@@ -52,6 +52,7 @@ import time as _time
 
 import numpy as np
 
+from mbsim.analyses import redundancy
 from mbsim.analyses.common import Recorder, rank_and_redundant, singular_rows
 from mbsim.analyses.kinematic import output_times
 from mbsim.errors import DeckError, Where
@@ -286,12 +287,10 @@ def _output_row(model, system, t, q, qd):
 
 def _dropped_rows_conflict(model, system, t, q, ph, tol, cache):
     """The message when the rows this system dropped as redundant do not hold where its
-    active rows do, else None (mbsim.analyses.redundancy: |Phi[red]| within (1 + |C|) x
-    POSITION_FACTOR x the larger of the active rows' violation and the Newton tolerance).
-    ``cache``: {id(system): (red, C, row norms of C)}: C is found once per row set and found
-    again at q before a violation is reported (the dependency turns with the mechanism)."""
-    from mbsim.analyses import redundancy
-
+    active rows do, else None (redundancy.position_bound, at the larger of the active rows'
+    violation and the Newton tolerance).  ``cache``: {id(system): (red, C, row norms of
+    C)}: C is found once per row set and found again at q before a violation is reported
+    (the dependency turns with the mechanism)."""
     rows = system.rows
     if rows.size == model.m:
         return None
@@ -299,7 +298,7 @@ def _dropped_rows_conflict(model, system, t, q, ph, tol, cache):
 
     def worst(C, cnorm):
         r = np.abs(ph[red])
-        bound = (1.0 + cnorm) * redundancy.POSITION_FACTOR * level
+        bound = redundancy.position_bound(cnorm, level)
         return (None, r) if np.all(r <= bound) else (int(np.argmax(r / bound)), r)
 
     key = id(system)
@@ -334,8 +333,9 @@ def _build_result(model, prep, opt, tr, est):
     lam, pos, vel = [], [], []
     n = len(tr)
     dropped: dict = {}
-    conflict = None
-    drift_limit = _drift_limit(model, opt, tr)
+    stopped = None  # the message of a stop found while the outputs are recorded
+    span = _motion_span(model, tr)
+    drift_limit = DRIFT_FACTOR * (float(opt["rtol"]) * max(1.0, span) + float(opt["atol"]))
     try:
         for k in range(n):
             try:
@@ -354,12 +354,12 @@ def _build_result(model, prep, opt, tr, est):
                     f"({model.row_label[row]}) is over {DRIFT_FACTOR:g} x the tolerance "
                     f"({drift_limit:.3g}): {cls.name} did not hold the constraints, the motion "
                     f"has left the mechanism (baumgarte: keep its drift bound; or tighten rtol)")
-                conflict = message
+                stopped = message
                 break
-            conflict = _dropped_rows_conflict(model, tr.systems[k], tr.t[k], tr.q[k], ph,
-                                              float(opt["tol"]), dropped)
-            if conflict is not None:  # the outputs before it are right; this one is not
-                status, message = STATUS_INCOMPLETE, conflict
+            stopped = _dropped_rows_conflict(model, tr.systems[k], tr.t[k], tr.q[k], ph,
+                                             float(opt["tol"]), dropped)
+            if stopped is not None:  # the outputs before it are right; this one is not
+                status, message = STATUS_INCOMPLETE, stopped
                 break
             lam.append(la)
             pos.append(float(np.abs(ph).max(initial=0.0)))
@@ -371,7 +371,7 @@ def _build_result(model, prep, opt, tr, est):
     n = len(rec)
     if n < len(tr):
         tr.trim(n)
-    if not tr.complete and not tr.interrupted and conflict is None:
+    if not tr.complete and not tr.interrupted and stopped is None:
         message = _explain(model, run.system, run.solver, message)
     res = rec.result("dynamic")
     if n:
@@ -408,7 +408,6 @@ def _build_result(model, prep, opt, tr, est):
                     "t_reached": float(run.solver.t)})
     cpu_run = prep.cpu + tr.cpu + _time.process_time() - cpu0
     summary["cpu"] = cpu_run
-
     if est is not None:
         est = dict(est)
         est["relative_cost"] = est.get("cpu", 0.0) / max(cpu_run, 1e-9)
@@ -421,8 +420,6 @@ def _build_result(model, prep, opt, tr, est):
             res.attrs["error_estimate_reason"] = str(est.get("reason") or est.get("method"))
         else:
             res.attrs["error_estimate"] = float(est["position"])
-            Qa = np.array(tr.q).reshape(n, model.nb, 7)[:, :, :3]
-            span = float(np.max(np.ptp(Qa, axis=0), initial=0.0))
             if est["position"] > 0.01 * max(span, 1e-3) or est["orientation"] > 0.05:
                 summary.setdefault("warnings", []).append(
                     f"the estimated error is large (position {est['position']:.3g} m against "
@@ -442,14 +439,13 @@ the motion past it is not the mechanism's (baumgarte without its bound on the fo
 cranks: 1.2e-5 at the flat position of t = 0.297 s, the motion 7 mm off at 0.32 s)."""
 
 
-def _drift_limit(model, opt, tr):
-    """The largest constraint violation a run may show (DRIFT_FACTOR)."""
+def _motion_span(model, tr):
+    """m: the largest range of any body's centroid coordinate over the outputs of ``tr``."""
     n = len(tr)
     if n == 0:
-        return math.inf
-    span = float(np.max(np.ptp(np.array(tr.q[:n]).reshape(n, model.nb, 7)[:, :, :3], axis=0),
-                        initial=0.0))
-    return DRIFT_FACTOR * (float(opt["rtol"]) * max(1.0, span) + float(opt["atol"]))
+        return 0.0
+    Q = np.array(tr.q[:n]).reshape(n, model.nb, 7)[:, :, :3]
+    return float(np.max(np.ptp(Q, axis=0), initial=0.0))
 
 
 class Stepper:

@@ -45,7 +45,8 @@ modes (rigid-body motions, free spins, cyclic coordinates); each is named by the
 directions it moves.  Free spins are also recognised from the model's structure
 (:func:`free_spins`: a body's turn about a principal axis that the constraints allow and no
 load depends on) and their eigenvalues set to exactly 0, whatever the finite differences'
-noise divided by a slender body's axial inertia would make of them.  ``unstable``: some other eigenvalue has Re lambda > ``re_tol`` *
+noise divided by a slender body's axial inertia would make of them.  ``unstable``: some
+other eigenvalue has Re lambda > ``re_tol`` *
 max(1, max |lambda|); else ``neutral`` if there are neutral modes, else ``stable``
 (undamped oscillations, Re = 0, count as stable: bounded).  ``stable`` = not unstable.
 Frequencies: omega_n = |lambda| (rad/s), f = omega_n / 2 pi (Hz), omega_d = |Im lambda|;

@@ -32,8 +32,6 @@ import numpy as np
 
 from mbsim.errors import AnalysisError, ModelError
 
-EPS = np.finfo(float).eps
-
 CONSISTENT_REL = 1e-6
 """Largest residual of a dropped row at velocity or acceleration level, relative to the size
 of its terms, that is still consistent.  Consistent redundancy leaves eps x cond(Phi_q) x
@@ -47,6 +45,12 @@ tolerance: Newton stops with |Phi[act]| < tol, and Phi[red] = C Phi[act] + O(|Ph
 DEPENDENCY_CUT = 1e-8
 """Coefficients of C below this fraction of a row's largest take no part in the conflict
 that row names (round-off of the least-squares fit of C)."""
+
+
+def position_bound(cnorm, level):
+    """(nred,) largest |Phi[red]| that is consistent where the kept rows hold to ``level``
+    (cnorm: (nred,) row sums of |C|; POSITION_FACTOR)."""
+    return (1.0 + cnorm) * POSITION_FACTOR * level
 
 
 class InconsistentConstraintsError(AnalysisError):
@@ -108,8 +112,7 @@ def check(model, J, red, act, t, *, phi=None, tol=1e-10, qd=None, nu=None, qdd=N
     cnorm = np.abs(C).sum(axis=1)  # (nred,) infinity norm of each row of C
     levels = []
     if phi is not None:
-        bound = (1.0 + cnorm) * POSITION_FACTOR * tol
-        levels.append(("position", np.abs(phi[red]), bound, None))
+        levels.append(("position", np.abs(phi[red]), position_bound(cnorm, tol), None))
     for name, x, rhs in (("velocity", qd, nu), ("acceleration", qdd, gamma)):
         if x is None or rhs is None:
             continue

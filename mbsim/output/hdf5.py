@@ -293,6 +293,13 @@ def remove_stale_temporaries(folder: str | Path) -> list[Path]:
     return removed
 
 
+def probe_write(path: Path) -> None:
+    """Create and remove the file ``path``: OSError where its folder takes no new file."""
+    with open(path, "wb"):
+        pass
+    path.unlink()
+
+
 def prepare_output(path: str | Path) -> Path:
     """Check before an analysis that ``path`` can be written: not a folder, its folder exists
     and takes a new file (tried by creating and removing the temporary file); removes stale
@@ -306,11 +313,8 @@ def prepare_output(path: str | Path) -> Path:
         raise UsageError(f"output {path}: the folder {folder} does not exist")
     if not folder.is_dir():
         raise UsageError(f"output {path}: {folder} is a file, not a folder")
-    tmp = _tmp_name(path)
     try:
-        with open(tmp, "wb"):
-            pass
-        tmp.unlink()
+        probe_write(_tmp_name(path))
     except OSError as exc:
         raise UsageError(f"output {path}: cannot create a file in {folder}: "
                          f"{exc.strerror or exc}") from None
