@@ -297,20 +297,22 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         _check_settings(deck, mode, spec, opts, {"t_end": "--t-end", "step": "--step",
                         "rtol": "--rtol", "atol": "--atol", "accuracy": "--accuracy"})
         prepare_output(out)  # before the analysis: a bad -o costs nothing
-        # one writer per file: a second run to the same -o is refused (exit 2) while this
-        # one holds OUT.lock (released below, also on errors and Ctrl-C)
-        lock = OutputLock(lock_path(out), f"output {out}").acquire()
-        _warn(lock.warnings)
-        prog = terminal_progress(sys.stderr, False if quiet and progress is None else progress,
-                                 label=mode)
-        if prog is not None:
-            opts["progress"] = prog  # progress(t, t_end) per output step (mbsim.progress)
-        try:
-            with _sigterm_as_interrupt():
-                result = run_model(model, mode, opts)
-        finally:
+        # SIGTERM as Ctrl-C from before the lock is taken: a kill at any point after it
+        # goes through the finally below, never leaving the lock behind
+        with _sigterm_as_interrupt():
+            # one writer per file: a second run to the same -o is refused (exit 2) while
+            # this one holds OUT.lock (released below, also on errors and Ctrl-C)
+            lock = OutputLock(lock_path(out), f"output {out}").acquire()
+            _warn(lock.warnings)
+            prog = terminal_progress(sys.stderr, False if quiet and progress is None
+                                     else progress, label=mode)
             if prog is not None:
-                prog.close()
+                opts["progress"] = prog  # progress(t, t_end) per output (mbsim.progress)
+            try:
+                result = run_model(model, mode, opts)
+            finally:
+                if prog is not None:
+                    prog.close()
         result.settings.pop("progress", None)  # an analysis that stored it as a setting
         result.settings.setdefault("overrides", _parse_sets(sets))
         if scene:

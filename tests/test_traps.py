@@ -502,6 +502,8 @@ def test_two_processes_writing_one_output(tmp_path):
     import sys
     import time
 
+    import threading
+
     out, lock = tmp_path / "r.h5", tmp_path / "r.h5.lock"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     first = subprocess.Popen(
@@ -509,6 +511,7 @@ def test_two_processes_writing_one_output(tmp_path):
             sys.executable,
             "-m",
             "mbsim",
+            "-v",  # logs "assembly at t = ..." once the analysis runs
             "run",
             str(SLIDER),
             "-m",
@@ -525,11 +528,22 @@ def test_two_processes_writing_one_output(tmp_path):
         stderr=subprocess.PIPE,
         text=True,
     )
+    lines, assembled = [], threading.Event()
+
+    def read_stderr():  # the SIGTERM below must reach the analysis, not its start-up
+        for line in first.stderr:
+            lines.append(line)
+            if "assembly at t =" in line:
+                assembled.set()
+
+    reader = threading.Thread(target=read_stderr, daemon=True)
+    reader.start()
     try:
         end = time.monotonic() + 60
         while not lock.exists() and first.poll() is None and time.monotonic() < end:
             time.sleep(0.05)
         assert lock.exists(), "the first run did not take the lock"
+        assert assembled.wait(60), "".join(lines)
         second = subprocess.run(
             [
                 sys.executable,
@@ -553,8 +567,9 @@ def test_two_processes_writing_one_output(tmp_path):
         assert f"process {first.pid} on host" in second.stderr and "Traceback" not in second.stderr
     finally:
         first.send_signal(signal.SIGTERM)
-        first.communicate(timeout=120)
-    assert first.returncode == 1  # interrupted, outputs kept
+        first.wait(timeout=120)
+        reader.join(timeout=10)
+    assert first.returncode == 1, "".join(lines)  # interrupted, outputs kept
     assert out.is_file() and not lock.exists()
 
 
