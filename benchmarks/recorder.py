@@ -19,6 +19,7 @@ from pathlib import Path
 
 import mbsim.analyses.common as common
 import mbsim.analyses.dynamic as dynamic
+import mbsim.analyses.trajectory as trajectory
 import numpy as np
 
 from mbsim.api import load_model
@@ -46,7 +47,7 @@ def main() -> None:
             super().__init__(m)
             kept.append(self)
 
-    dynamic.Recorder = Keep
+    trajectory.Recorder = Keep
     res = dynamic.dynamic(model, {})
     rec = kept[-1]
     print(f"vehicle lane change 1: {len(rec)} outputs, {model.nb} bodies, "

@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mbsim.analyses.dynamic import dynamic, integrator_class
+from mbsim.analyses.dynamic import dynamic
+from mbsim.analyses.trajectory import integrator_class
 from mbsim.integrators import INTEGRATORS
 
 TOLERANCES = (1e-3, 1e-5, 1e-7, 1e-9, 1e-11)

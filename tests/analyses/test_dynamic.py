@@ -109,7 +109,7 @@ def test_failure_keeps_data_and_names_time_and_joints(crank):
 def test_ctrl_c_keeps_the_finished_outputs(crank, monkeypatch):
     """A KeyboardInterrupt in the 40th step ends the run as incomplete with every output
     reached so far, each with its monitors (all channels the same length)."""
-    from mbsim.analyses import dynamic as dyn
+    from mbsim.analyses import trajectory as dyn
 
     model, q, qd = crank
     cls = dyn.integrator_class("projection-dop853")

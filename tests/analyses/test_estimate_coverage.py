@@ -11,12 +11,13 @@ import math
 from pathlib import Path
 
 import h5py
-import numpy as np
 import pytest
 
-from mbsim.analyses import dynamic as dyn
+from mbsim.analyses import estimate as est_mod
+from mbsim.analyses import trajectory
 from mbsim.analyses.inverse import states_from_result
 from mbsim.api import load_model, run_model
+from mbsim.integrators import DEFAULT
 from mbsim.output import write_result
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
@@ -33,7 +34,7 @@ def stop_companions(monkeypatch, how, methods=None):
     """Companion runs of ``methods`` (class names; None: all) stop at their first step:
     ``how`` 'interrupt' raises KeyboardInterrupt (Ctrl-C), 'fail' returns a step failure as
     an integrator does.  Companions are told apart by a mark on their options."""
-    options, step = dyn._companion_options, dyn.Stepper.step
+    options, step = est_mod.companion_options, trajectory.Stepper.step
 
     def marked(cls, opt):
         copt, factor, method = options(cls, opt)
@@ -46,8 +47,8 @@ def stop_companions(monkeypatch, how, methods=None):
             return False, f"t = {self.solver.t:.6g} s: step size fell below h_min (test)"
         return step(self)
 
-    monkeypatch.setattr(dyn, "_companion_options", marked)
-    monkeypatch.setattr(dyn.Stepper, "step", stopping)
+    monkeypatch.setattr(est_mod, "companion_options", marked)
+    monkeypatch.setattr(trajectory.Stepper, "step", stopping)
 
 
 def test_interrupted_companion_gives_no_estimate(governor, monkeypatch, tmp_path):
@@ -83,7 +84,7 @@ def governor_reference(governor):
 
 def true_error(model, res, ref):
     q, qd, _ = states_from_result(model, res)
-    return float(dyn.state_differences(model, q, qd, ref[0], ref[1])["position"].max())
+    return float(est_mod.state_differences(model, q, qd, ref[0], ref[1])["position"].max())
 
 
 @pytest.mark.parametrize("failing, used", [
@@ -94,7 +95,7 @@ def test_companion_failing_at_t0_is_replaced(governor, governor_reference, monke
                                               failing, used):
     """The run's own companion fails at its first step; another companion reaches every
     output, and its estimate is honest: within [0.1, 10] of the true error."""
-    step = dyn.Stepper.step
+    step = trajectory.Stepper.step
 
     def stopping(self):  # companions run below the run's rtol; the first at exactly rtol/5
         name, rtol = self.cls.name, float(self.opt["rtol"])
@@ -103,7 +104,7 @@ def test_companion_failing_at_t0_is_replaced(governor, governor_reference, monke
             return False, f"t = {self.solver.t:.6g} s: step size fell below h_min (test)"
         return step(self)
 
-    monkeypatch.setattr(dyn.Stepper, "step", stopping)
+    monkeypatch.setattr(trajectory.Stepper, "step", stopping)
     res = run_model(governor, "dynamic", dict(OPTIONS))
     est = res.summary["error_estimate"]
     assert est["position"] is not None
@@ -133,20 +134,20 @@ def test_accuracy_falls_back_from_the_decks_integrator(governor, monkeypatch):
     fails at its first step, as gcp-dop853 did at rtol 3e-11 on a seven-body loop), the
     default does and the summary says so; an integrator asked for by the caller is a
     requirement: its failure is the result."""
-    original = dyn.Stepper.step
+    original = trajectory.Stepper.step
 
     def step(self):
         if self.cls.name == "projection":
             return False, f"t = {self.solver.t:.6g} s: step size fell below h_min (test)"
         return original(self)
 
-    monkeypatch.setattr(dyn.Stepper, "step", step)
+    monkeypatch.setattr(trajectory.Stepper, "step", step)
     spec = governor.spec
     monkeypatch.setitem(spec.analysis, "dynamic",
                         dict(spec.analysis.get("dynamic", {}), integrator="projection"))
     res = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6))
     acc = res.summary["accuracy"]
-    assert res.complete and acc["integrator"] == dyn.DEFAULT and acc["met"]
+    assert res.complete and acc["integrator"] == DEFAULT and acc["met"]
     assert acc["estimate"] <= 1e-6
     assert "the deck's integrator projection could not deliver" in acc["fallback"]
     assert any("--accuracy" in w for w in res.summary["warnings"])

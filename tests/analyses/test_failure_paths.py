@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from mbsim.analyses import diagnosis, trajectory
 from mbsim.analyses import dynamic as dyn
 from mbsim.cli import main
 from mbsim.errors import DeckError
@@ -99,7 +100,7 @@ def _free_body_run(options, monkeypatch=None, fail_after=None, fail_dense=False)
     qd = np.zeros(7)
     qd[3:] = omega_local_to_pd(q[3:], np.array([0.4, 0.2, 1.0]))
     if fail_after is not None:
-        real = dyn.make_system
+        real = trajectory.make_system
 
         def failing_system(model, rows, sparse=None):
             system = real(model, rows, sparse)
@@ -121,7 +122,7 @@ def _free_body_run(options, monkeypatch=None, fail_after=None, fail_dense=False)
             system.generalized_forces = generalized_forces
             return system
 
-        monkeypatch.setattr(dyn, "make_system", failing_system)
+        monkeypatch.setattr(trajectory, "make_system", failing_system)
     opts = {"t_end": 1.0, "step": 0.05, "q0": q, "qd0": qd, "error_estimate": False}
     opts.update(options)
     return dyn.dynamic(model, opts)
@@ -211,13 +212,13 @@ def test_smooth_forces_are_not_blamed():
     model = compile_model(spec([body("ground", ground=True), body("b", 2.0, (1.0, 2.0, 3.0))],
                                forces=[M.tsda("spring", "ground", "b", k=1e7, c=1e3, L0=0.5)],
                                gravity=(0, 0, -9.81)))
-    system = dyn.make_system(model, np.arange(model.m))
+    system = trajectory.make_system(model, np.arange(model.m))
     q = model.q0.copy()
     q[7:10] = (0.3, 0.4, 0.2)
     qd = np.zeros(model.nq)
     qd[7:10] = (10.0, -3.0, 2.0)
     assert len(model.forces) == 1
-    assert dyn._switching_forces(model, system, q, qd, 0.0) == []
+    assert diagnosis.switching_forces(model, system, q, qd, 0.0) == []
     # the same probe sees a load that does switch: a spring force only while stretching
     spring = model.forces[0]
 
@@ -231,4 +232,4 @@ def test_smooth_forces_are_not_blamed():
     model = dataclasses.replace(model, forces=(spring, Valve()))
     q[7:10] = (0.3, 0.0, 0.0)
     qd[7:10] = (0.0, 1.0, 0.0)  # moving across the spring: its length rate is 0 here
-    assert dyn._switching_forces(model, system, q, qd, 0.0) == ["valve"]
+    assert diagnosis.switching_forces(model, system, q, qd, 0.0) == ["valve"]

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from mbsim.analyses.common import rank_and_redundant
-from mbsim.analyses.dynamic import _jac, make_system
+from mbsim.analyses.diagnosis import jacobian as _jac
+from mbsim.analyses.trajectory import make_system
 from mbsim.integrators import INTEGRATORS
 from mbsim.integrators.gcp import Partition
 from tests.integrators import models as M

@@ -29,7 +29,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from mbsim.analyses.common import rank_and_redundant
-from mbsim.analyses.dynamic import _jac, dynamic, make_system
+from mbsim.analyses.diagnosis import jacobian as _jac
+from mbsim.analyses.dynamic import dynamic
+from mbsim.analyses.trajectory import make_system
 from mbsim.expr import parse_expression
 from mbsim.integrators import INTEGRATORS, gcp
 from mbsim.integrators import changepoints as cp

@@ -1,0 +1,268 @@
+"""Global error estimate of a dynamic run (on by default, option ``error_estimate``).
+
+After the run, a *companion* integration of the same model with the same method repeats
+it more accurately: an adaptive method at the tolerances divided by ``estimate_ratio``
+(rho, default 5), a fixed-step method at half the step.  The difference of the two at the
+output times estimates the global error of the run (Shampine 1985, "global error
+estimation by reintegration"; Hairer, Norsett & Wanner I, Sec. II.12):
+
+- adaptive: err ~ |y - y_c|; the companion's own error is about rho^-0.9 of the run's
+  (tolerance proportionality), so the estimate is low by at most that fraction; a method
+  whose error grows as rtol^kappa with kappa < 1 (generalized-alpha, HHT: 2/3) has a
+  companion only rho^kappa more accurate: err ~ |y - y_c| / (1 - rho^-kappa);
+- fixed step h, method of order p: err ~ |y - y_c| 2^p / (2^p - 1) (Richardson).
+
+It costs one more integration (about rho^(1/(p+1)) of the run's steps for an adaptive
+method of order p: 1.2x for DOP853, 1.3x for Dormand-Prince 5(4); 2x for a fixed step),
+without output post-processing.  It can be wrong where the error does not shrink with the
+tolerance: steps limited by h_max or by stability rather than accuracy, chaotic motion over
+long times, a solution that jumps branch at a bifurcation.
+
+An estimate covers every output of the run or it is none (:func:`estimate`).  Channels
+written: ``error/position``, ``error/orientation``, ``error/velocity``,
+``error/angular_velocity``: the estimated global error at each output time (max over
+bodies and output points).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time as _time
+
+import numpy as np
+
+from mbsim.analyses.trajectory import Stepper, Trajectory, trajectory
+from mbsim.integrators import INTEGRATORS
+from mbsim.integrators.base import NUMERICAL_ERRORS
+from mbsim.result import STATUS_INCOMPLETE
+
+log = logging.getLogger(__name__)
+
+ESTIMATE_STEPS = 10  # the companion run may take at most this x the run's steps (+100)
+
+ERROR_UNITS = {
+    "position": ("m", "estimated global error of positions (bodies, output points)"),
+    "orientation": ("rad", "estimated global error of orientations (rotation angle)"),
+    "velocity": ("m/s", "estimated global error of centroid and point velocities"),
+    "angular_velocity": ("rad/s", "estimated global error of angular velocities")}
+
+
+def companion_options(cls, opt):
+    """(options, Richardson factor, description) of the companion run of a run with
+    ``opt`` (module doc)."""
+    copt = dict(opt)
+    copt["h0"] = None
+    rho = float(opt.get("estimate_ratio", 5.0))
+    if opt.get("h") is not None:  # fixed step: half of it, Richardson's factor
+        copt["h"] = 0.5 * float(opt["h"])
+        factor = 2.0 ** cls.order / (2.0 ** cls.order - 1.0)
+        method = (f"companion run at h/2 = {copt['h']:.3g} s, Richardson factor "
+                  f"2^p/(2^p - 1) = {factor:.3g} (p = {cls.order})")
+    else:
+        copt["rtol"] = max(float(opt["rtol"]) / rho, 2.5e-14)
+        copt["atol"] = max(float(opt["atol"]) / rho, 1e-300)
+        kappa = cls.tolerance_exponent
+        # error ~ rtol^kappa: the companion's own error is rho^-kappa of the run's, and
+        # |y - y_c| ~ (1 - rho^-kappa) err.  For tolerance-proportional methods (kappa = 1)
+        # the difference is taken as it is: measured est/err 0.8-2.7 (benchmarks/accuracy.py)
+        factor = 1.0 if kappa >= 1.0 else 1.0 / (1.0 - rho ** -kappa)
+        method = (f"companion run at rtol/{rho:g} = {copt['rtol']:.3g}, "
+                  f"atol/{rho:g} = {copt['atol']:.3g}")
+        if factor != 1.0:
+            method += (f", times 1/(1 - {rho:g}^-kappa) = {factor:.3g} (error ~ "
+                       f"rtol^kappa, kappa = {kappa:.3g})")
+    return copt, factor, method
+
+
+def estimate(model, prep, opt, tr, companion=None):
+    """The global error estimate of the run ``tr`` (module doc): a companion integration
+    (or the given one, a Trajectory at the companion's options) and the differences at the
+    output times.  Returns a dict for the summary, with the companion as ``_companion``.
+
+    An estimate covers every output of the run or it is none: a companion that stops
+    before the run's last output (where the run went on) is integrated again with another
+    method (:func:`fallback_companion`); if that stops too, the dict has ``position`` None
+    and the ``reason``, and no partial figures."""
+    cpu0 = _time.process_time()
+    copt, factor, method = companion_options(prep.cls, opt)
+    times = np.asarray(tr.t, float)
+    spent = 0.0  # CPU of a companion computed before (a promoted run's: its own)
+    if companion is None:
+        limit = companion_step_limit(opt, tr)
+        try:
+            run = Stepper(model, prep.cls, copt, float(times[0]), prep.q0.copy(),
+                          prep.qd0.copy(), float(times[-1]), prep.rows)
+            companion = trajectory(run, times, prep.q0, prep.qd0, limit)
+        except NUMERICAL_ERRORS as exc:
+            companion = failed_trajectory(times, f"could not start ({exc})")
+        if companion.interrupted:
+            return {"method": method, "position": None, "cpu": _time.process_time() - cpu0,
+                    "reason": "the companion run was interrupted (Ctrl-C) before it finished"}
+    else:
+        spent = companion.cpu
+    first = None
+    if len(companion) < len(tr):  # stopped where the run did not: another method
+        first = companion.message or "it stopped early"
+        alt = fallback_companion(model, prep, opt, tr)
+        if alt is not None:
+            companion, copt, factor, method = alt
+            method += f" (the companion at the run's method stopped: {first})"
+    n = min(len(companion), len(tr))
+    out = {"method": method, "cpu": spent + _time.process_time() - cpu0,
+           "steps": int(companion.run.all_counters()["steps"]) if companion.run else 0,
+           "_companion": companion, "_copt": copt}
+    if n < len(tr):
+        out["position"] = None
+        out["reason"] = (f"the companion run stopped at t = "
+                         f"{times[n - 1] if n else times[0]:.6g} s before the run's last "
+                         f"output t = {times[len(tr) - 1]:.6g} s ({companion.message or first})"
+                         "; an estimate that does not cover the run is not given")
+        log.info("error estimate: none (%s)", out["reason"])
+        return out
+    err = state_differences(model, np.array(tr.q[:n]), np.array(tr.qd[:n]),
+                            np.array(companion.q[:n]), np.array(companion.qd[:n]))
+    out["channels"] = {key: factor * err[key] for key in ERROR_UNITS}
+    for key in ERROR_UNITS:
+        out[key] = float(np.max(out["channels"][key]))
+    log.info("error estimate: position %.3g m, orientation %.3g rad (%s)", out["position"],
+             out["orientation"], method)
+    return out
+
+
+def companion_step_limit(opt, tr):
+    return min(int(opt["max_steps"]),
+               ESTIMATE_STEPS * int(tr.run.all_counters().get("steps", 0)) + 100)
+
+
+def failed_trajectory(times, message):
+    tr = Trajectory()
+    tr.status, tr.message = STATUS_INCOMPLETE, f"t = {times[0]:.6g} s: {message}"
+    return tr
+
+
+FALLBACK_COMPANIONS = ("projection-dop853", "gcp-dop853", "projection", "gcp-rk45")
+"""Other methods tried, in this order, for a companion whose run's own method stopped early
+(after the run's method at rtol/2): the default first (index-1 with projection: no partition
+to lose near a singular position), then the other formulation of the same order, then the
+lower-order pairs, each at FALLBACK_TIGHTER x the companion's tolerance."""
+FALLBACK_TIGHTER = 1e-2
+"""Another method's error at the same tolerance is not the run's method's: on the governor
+at rtol 1e-6 projection-dop853 is 1.1e-11 m off, gcp-dop853 7.3e-9 m and Dormand-Prince 5(4)
+2.9e-9 m.  At 100x the companion's tolerance (error ~ rtol for these tolerance-proportional
+methods) their own error is at most about the run's, so the difference bounds the run's
+error within a factor of about 2 rather than measuring the companion."""
+FALLBACK_RATIO = 2.0
+"""The run's own method is tried again at rtol/2 first: a companion that failed for being
+too tight (h_min near round-off) often passes there.  Its difference is (1 - 2^-kappa) of
+the run's error, so it is multiplied by 1/(1 - 2^-kappa) (2 for kappa = 1)."""
+
+
+def fallback_companion(model, prep, opt, tr):
+    """(trajectory, options, factor, description) of a companion that reaches every output
+    of ``tr`` when the first one stopped: the run's method at rtol/FALLBACK_RATIO, then the
+    FALLBACK_COMPANIONS at FALLBACK_TIGHTER x the companion's tolerance; None when none
+    does.  Only for error-controlled runs: a fixed-step run's companion is its own method at
+    h/2 (Richardson), which another method cannot replace."""
+    if opt.get("h") is not None or not prep.cls.adaptive:
+        return None
+    copt, _, _ = companion_options(prep.cls, opt)
+    kappa = prep.cls.tolerance_exponent
+    tries = [(prep.cls, dict(copt, rtol=float(opt["rtol"]) / FALLBACK_RATIO,
+                             atol=float(opt["atol"]) / FALLBACK_RATIO),
+              1.0 / (1.0 - FALLBACK_RATIO ** -kappa))]
+    tighter = dict(copt, rtol=max(copt["rtol"] * FALLBACK_TIGHTER, 2.5e-14),
+                   atol=max(copt["atol"] * FALLBACK_TIGHTER, 1e-300))
+    tries += [(INTEGRATORS[n], tighter, 1.0) for n in FALLBACK_COMPANIONS
+              if INTEGRATORS[n] is not prep.cls]
+    times = np.asarray(tr.t, float)
+    for cls, o, factor in tries:
+        try:
+            run = Stepper(model, cls, o, float(times[0]), prep.q0.copy(), prep.qd0.copy(),
+                          float(times[-1]), prep.rows)
+            comp = trajectory(run, times, prep.q0, prep.qd0, companion_step_limit(opt, tr))
+        except NUMERICAL_ERRORS:
+            continue
+        if comp.interrupted:
+            return None
+        if len(comp) >= len(tr):
+            how = f", times {factor:.3g}" if factor != 1.0 else ""
+            return comp, o, factor, (f"companion run with {cls.name} at rtol {o['rtol']:.3g}, "
+                                     f"atol {o['atol']:.3g}{how}")
+    return None
+
+
+def error_channels(est, nt, n):
+    """(name, data, unit, description) of the error/* channels of an estimate over the n
+    outputs of a run of nt output times (only when the run and its companion both
+    reached every output: a partial estimate is in the summary only)."""
+    chans = est.get("channels") or {}
+    if n != nt or not chans:
+        return []
+    out = []
+    for key, (unit, desc) in ERROR_UNITS.items():
+        e = np.asarray(chans[key], float)
+        if e.size != n:
+            return []
+        out.append((f"error/{key}", e, unit, desc))
+    return out
+
+
+def state_differences(model, Q, QD, Qc, QDc):
+    """Per output time (nt,): max over bodies and output points of |r - r_c| (position, m),
+    the rotation angle between the orientations (rad), |velocity differences| (m/s) and
+    |omega - omega_c| (rad/s).  Q, QD, Qc, QDc: (nt, nq)."""
+    from mbsim.rotations import A as rot_A
+    from mbsim.rotations import E as rot_E
+
+    nt, nb = Q.shape[0], model.nb
+    X, V = Q.reshape(nt, nb, 7), QD.reshape(nt, nb, 7)
+    Xc, Vc = Qc.reshape(nt, nb, 7), QDc.reshape(nt, nb, 7)
+    r, p, rc, pc = X[..., :3], X[..., 3:], Xc[..., :3], Xc[..., 3:]
+    pos = np.linalg.norm(r - rc, axis=2).max(axis=1)
+    # rotation from the companion's orientation to the run's: vector part of conj(pc) (x) p
+    vec = (pc[..., :1] * p[..., 1:] - p[..., :1] * pc[..., 1:]
+           - np.cross(pc[..., 1:], p[..., 1:]))
+    s = np.linalg.norm(vec, axis=2) / np.maximum(
+        np.linalg.norm(p, axis=2) * np.linalg.norm(pc, axis=2), 1e-300)
+    ori = (2 * np.arcsin(np.clip(s, 0.0, 1.0))).max(axis=1)
+    pf, pcf = p.reshape(-1, 4), pc.reshape(-1, 4)
+    w = 2 * np.einsum("kij,kj->ki", rot_E(pf), V[..., 3:].reshape(-1, 4)).reshape(nt, nb, 3)
+    wc = 2 * np.einsum("kij,kj->ki", rot_E(pcf), Vc[..., 3:].reshape(-1, 4)).reshape(nt, nb, 3)
+    vel = np.linalg.norm(V[..., :3] - Vc[..., :3], axis=2).max(axis=1)
+    angv = np.linalg.norm(w - wc, axis=2).max(axis=1)
+    if model.outputs:
+        A = rot_A(pf).reshape(nt, nb, 3, 3)
+        Ac = rot_A(pcf).reshape(nt, nb, 3, 3)
+        for _, b, sl in model.outputs:
+            sg, sgc = A[:, b] @ sl, Ac[:, b] @ sl
+            pos = np.maximum(pos, np.linalg.norm(r[:, b] + sg - rc[:, b] - sgc, axis=1))
+            vp = V[:, b, :3] + np.cross(w[:, b], sg)
+            vpc = Vc[:, b, :3] + np.cross(wc[:, b], sgc)
+            vel = np.maximum(vel, np.linalg.norm(vp - vpc, axis=1))
+    return {"position": pos, "orientation": ori, "velocity": vel, "angular_velocity": angv}
+
+
+def attach_estimate(model, res, est, nt, span):
+    """Add the estimate ``est`` (a dict of :func:`estimate`) to the Result ``res`` of a run
+    of ``nt`` output times whose motion spans ``span`` m: the summary's
+    ``error_estimate`` (with its cost relative to the run's), the error/* channels when it
+    covers every output, the file attribute (NaN and the reason when there is none) and a
+    warning when it is large against the motion."""
+    summary = res.summary
+    est = dict(est)
+    est["relative_cost"] = est.get("cpu", 0.0) / max(summary["cpu"], 1e-9)
+    summary["error_estimate"] = {k: v for k, v in est.items()
+                                 if k != "channels" and not k.startswith("_")}
+    for name, data, unit, desc in error_channels(est, nt, len(res.t)):
+        res.add(name, data, unit, desc)
+    if est.get("position") is None:  # no estimate: NaN, and why, in the file
+        res.attrs["error_estimate"] = math.nan
+        res.attrs["error_estimate_reason"] = str(est.get("reason") or est.get("method"))
+    else:
+        res.attrs["error_estimate"] = float(est["position"])
+        if est["position"] > 0.01 * max(span, 1e-3) or est["orientation"] > 0.05:
+            summary.setdefault("warnings", []).append(
+                f"the estimated error is large (position {est['position']:.3g} m against "
+                f"a motion of {span:.3g} m, orientation {est['orientation']:.3g} rad): "
+                f"tighten --rtol, or ask for it with --accuracy")

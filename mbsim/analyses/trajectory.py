@@ -1,0 +1,389 @@
+"""The driver of a dynamic run: set-up, stepping, row re-selection and recording.
+
+- :class:`Prepared`: what every integration of one analysis shares (the method, the output
+  times, the consistent initial state, the independent rows at t_start);
+- :class:`Stepper`: the integrator on the independent rows, chosen again when a step fails
+  where that choice no longer holds;
+- :func:`integrate` / :func:`trajectory`: step to t_end and record the state at the output
+  times from the dense output (:class:`Trajectory`), so output sampling never constrains
+  the step size;
+- :func:`build_result`: the channels and monitors of a kept run at its outputs (the
+  accelerations and multipliers solved from the sampled (q, qd)), its counters and summary.
+
+Monitors written with the standard body and point channels:
+
+- ``monitors/position_violation``  max |Phi| (all rows)
+- ``monitors/velocity_violation``  max |Phi_q qd - nu|
+- ``monitors/energy``              T + V (gravity and conservative force elements)
+- ``monitors/work_nonconservative`` W_nc(t) = int (Q.qd - lam.nu) dt + V(t) - V(t0): the
+  work of damping, actuators, non-potential loads and drivers, so that energy - W_nc stays
+  constant (dT/dt = Q.qd - lam.nu along the exact motion)
+- ``monitors/step_size``           the step the integrator took across each output time
+  (at t_start: the first step it took)
+- ``constraints/lam``              (nt, m) Lagrange multipliers, one column per row
+  (components = row labels; zero on redundant rows)
+"""
+
+from __future__ import annotations
+
+import difflib
+import logging
+import time as _time
+
+import numpy as np
+
+from mbsim.analyses.common import Recorder, rank_and_redundant
+from mbsim.analyses.diagnosis import accelerations_lstsq, dropped_rows_conflict, explain, jacobian
+from mbsim.analyses.kinematic import output_times
+from mbsim.errors import DeckError, Where
+from mbsim.integrators import ALIASES, INTEGRATORS, System
+from mbsim.integrators.base import NUMERICAL_ERRORS, IntegratorFailure
+from mbsim.result import STATUS_INCOMPLETE
+
+log = logging.getLogger(__name__)
+
+
+def make_system(model, rows, sparse=None):
+    """The equations of motion the integrators call: :class:`mbsim.integrators.System`
+    (the C kernels of :mod:`mbsim.fast`)."""
+    return System(model, rows, sparse)
+
+
+def integrator_class(name: str):
+    """The integrator class for a name (or an alias); unknown names are a usage error."""
+    key = ALIASES.get(name, name)
+    if key not in INTEGRATORS:
+        hint = difflib.get_close_matches(name, list(INTEGRATORS) + list(ALIASES), n=2)
+        extra = f"; did you mean {' or '.join(hint)}?" if hint else ""
+        raise DeckError(f"unknown integrator {name!r}{extra} (known: {', '.join(INTEGRATORS)})")
+    return INTEGRATORS[key]
+
+
+class Trajectory:
+    """What one integration produced at the output times: t, q, qd, w (work of the
+    non-conservative forces), h (the step across each output) and the equations of motion
+    (the Stepper's system, i.e. its row set) in use there.  Recording only this during the
+    integration keeps a run that is not kept (the companion, a missed ``accuracy`` attempt)
+    cheap; the channels of the kept run are computed afterwards, vectorised where they can
+    be (:func:`_build_result`)."""
+
+    def __init__(self):
+        self.t, self.q, self.qd, self.w, self.h, self.systems = [], [], [], [], [], []
+        self.status, self.message, self.cpu = "complete", "", 0.0
+        self.interrupted = False
+        self.run = None  # the Stepper
+
+    def add(self, t, q, qd, w, h, system):
+        # the state first, t last: a Ctrl-C in between leaves lists of unequal length, which
+        # __len__ and trim() reduce to the complete outputs
+        self.q.append(np.array(q, float))
+        self.qd.append(np.array(qd, float))
+        self.w.append(float(w))
+        self.h.append(float(h))
+        self.systems.append(system)
+        self.t.append(float(t))
+
+    def __len__(self):
+        return min(len(self.t), len(self.q), len(self.qd), len(self.systems))
+
+    def trim(self, n=None):
+        n = len(self) if n is None else n
+        for v in (self.t, self.q, self.qd, self.w, self.h, self.systems):
+            del v[n:]
+
+    @property
+    def complete(self):
+        return self.status == "complete"
+
+
+def trajectory(run, times, q0, qd0, max_steps, progress=None):
+    """Integrate ``run`` (a :class:`Stepper`) over ``times`` recording a
+    :class:`Trajectory`; a Ctrl-C ends it as incomplete with what was computed."""
+    cpu0 = _time.process_time()
+    tr = Trajectory()
+    tr.run = run
+    t1 = float(times[-1])
+
+    def record(t, q, qd, w, h):
+        tr.add(t, q, qd, w, h, run.system)
+        if progress is not None:
+            progress(t, t1)
+
+    try:
+        record(times[0], q0, qd0, 0.0, np.nan)
+        tr.status, tr.message = integrate(run, times, record, max_steps)
+    except KeyboardInterrupt:  # Ctrl-C: keep what was computed, marked incomplete
+        tr.status, tr.interrupted = STATUS_INCOMPLETE, True
+        tr.message = (f"t = {run.solver.t:.6g} s: interrupted (Ctrl-C) before "
+                      f"t_end = {t1:g} s")
+    tr.trim()
+    if len(tr.h) > 1 and not np.isfinite(tr.h[0]):  # the step across t_start: the first one
+        tr.h[0] = run.first_step or 0.0
+    tr.cpu = _time.process_time() - cpu0
+    return tr
+
+
+class Prepared:
+    """What every integration of one dynamic analysis shares: the method, the output
+    times, the consistent initial state and the independent rows chosen at t_start."""
+
+    def __init__(self, model, opt):
+        self.cpu0 = _time.process_time()
+        self.cls = integrator_class(str(opt["integrator"]))
+        t0, t1 = float(opt["t_start"]), float(opt["t_end"])
+        self.times = output_times(t0, t1, float(opt["step"]))
+        self.q0, self.qd0, self.summary = initial_conditions(model, t0, opt)
+        self.rank, self.red = rank_and_redundant(model, jacobian(model, self.q0, t0))
+        self.rows = np.setdiff1d(np.arange(model.m), self.red)
+        self.cpu = _time.process_time() - self.cpu0
+
+    def stepper(self, model, opt):
+        t0 = float(self.times[0])
+        try:
+            return Stepper(model, self.cls, opt, t0, self.q0.copy(), self.qd0.copy(),
+                           float(self.times[-1]), self.rows)
+        except NUMERICAL_ERRORS as exc:
+            raise DeckError(f"the equations of motion cannot be solved at t_start = {t0:g} s "
+                            f"({self.cls.name}): {exc}", Where(model.file, "bodies")) from exc
+
+
+def main_trajectory(model, prep, opt, progress=None):
+    """The run's own integration with options ``opt`` over ``prep``'s output times."""
+    run = prep.stepper(model, opt)
+    return trajectory(run, prep.times, prep.q0, prep.qd0, int(opt["max_steps"]), progress)
+
+
+def initial_conditions(model, t0, opt):
+    """(q, qd, summary) from options q0/qd0 or the initial-condition analysis."""
+    if opt.get("q0") is not None:
+        q = np.array(opt["q0"], dtype=float)
+        qd = np.zeros(model.nq) if opt.get("qd0") is None else np.array(opt["qd0"], float)
+        return q, qd, {"initial": "given"}
+    from mbsim.analyses.initial import initial_state
+
+    q, qd, _, _, info = initial_state(model, t0, tol=float(opt["tol"]))
+    summary = {"initial": "deck"}
+    if info.get("warnings"):
+        summary["warnings"] = list(info["warnings"])
+    return q, qd, summary
+
+
+def output_row(model, system, t, q, qd):
+    """(qdd, lam over all rows, Phi (m,), Phi_q qd - nu (m,)) at one output."""
+    try:
+        qdd, lam, _ = system.accelerations(q, qd, t)
+    except NUMERICAL_ERRORS:  # exactly at a singular position: least squares
+        qdd, lam = accelerations_lstsq(model, system, q, qd, t)
+    ph, v = system.residuals(q, qd, t)
+    return qdd, system.full_lam(lam), ph, v
+
+
+def build_result(model, prep, opt, tr, span):
+    """The Result of a run: the standard channels and monitors at the outputs of ``tr``
+    and its summary (the error estimate is added by
+    :func:`mbsim.analyses.estimate.attach_estimate`).  ``span``: :func:`motion_span` of
+    ``tr``, m."""
+    cpu0 = _time.process_time()
+    cls, run = prep.cls, tr.run
+    status, message = tr.status, tr.message
+    counters = run.all_counters()  # before the outputs' own evaluations
+    rec = Recorder(model)
+    lam, pos, vel = [], [], []
+    n = len(tr)
+    dropped: dict = {}
+    stopped = None  # the message of a stop found while the outputs are recorded
+    drift_limit = DRIFT_FACTOR * (float(opt["rtol"]) * max(1.0, span) + float(opt["atol"]))
+    try:
+        for k in range(n):
+            try:
+                qdd, la, ph, v = output_row(model, tr.systems[k], tr.t[k], tr.q[k], tr.qd[k])
+            except NUMERICAL_ERRORS as exc:
+                if k == 0:
+                    raise DeckError(f"the equations of motion cannot be solved at t_start = "
+                                    f"{tr.t[0]:g} s: {exc}", Where(model.file, "bodies")) from exc
+                status, message = STATUS_INCOMPLETE, (f"t = {tr.t[k]:.6g} s: evaluating the "
+                                                      f"outputs failed: {exc}")
+                break
+            if np.abs(ph).max(initial=0.0) > drift_limit:  # drift the method did not hold
+                row = int(np.argmax(np.abs(ph)))
+                status, message = STATUS_INCOMPLETE, (
+                    f"t = {tr.t[k]:.6g} s: constraint drift: |Phi| = {abs(ph[row]):.3g} "
+                    f"({model.row_label[row]}) is over {DRIFT_FACTOR:g} x the tolerance "
+                    f"({drift_limit:.3g}): {cls.name} did not hold the constraints, the motion "
+                    f"has left the mechanism (baumgarte: keep its drift bound; or tighten rtol)")
+                stopped = message
+                break
+            stopped = dropped_rows_conflict(model, tr.systems[k], tr.t[k], tr.q[k], ph,
+                                             float(opt["tol"]), dropped)
+            if stopped is not None:  # the outputs before it are right; this one is not
+                status, message = STATUS_INCOMPLETE, stopped
+                break
+            lam.append(la)
+            pos.append(float(np.abs(ph).max(initial=0.0)))
+            vel.append(float(np.abs(v).max(initial=0.0)))
+            rec.add(tr.t[k], tr.q[k], tr.qd[k], qdd)
+    except KeyboardInterrupt:  # Ctrl-C while the outputs are evaluated: keep those done
+        status = STATUS_INCOMPLETE
+        message = message or f"t = {tr.t[len(rec)]:.6g} s: interrupted (Ctrl-C)"
+    n = len(rec)
+    if n < len(tr):
+        tr.trim(n)
+    if not tr.complete and not tr.interrupted and stopped is None:
+        message = explain(model, run.system, run.solver, message)
+    res = rec.result("dynamic")
+    if n:
+        from mbsim.analyses.common import kinetic_energies, potential_energies
+
+        kin = rec.kinematics()
+        V = potential_energies(model, rec.q, kin)
+        energy = kinetic_energies(model, kin) + V
+        res.add("monitors/position_violation", pos, "", "max |Phi| over all rows")
+        res.add("monitors/velocity_violation", vel, "", "max |Phi_q qd - nu|")
+        res.add("monitors/energy", energy, "J", "kinetic + potential energy T + V")
+        res.add("monitors/work_nonconservative", np.array(tr.w) + V - V[0], "J",
+                "work of non-conservative forces and drivers; energy - work is conserved")
+        res.add("monitors/step_size", np.nan_to_num(np.array(tr.h), nan=0.0), "s",
+                "integrator step across each output (t_start: the first step)")
+        res.add("constraints/lam", lam, "", "Lagrange multipliers per constraint row",
+                model.row_label)
+    res.status, res.message = status, message
+    res.settings = {k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
+                        else v) for k, v in opt.items()
+                    if k not in ("q0", "qd0") and (v is None or np.isscalar(v))}
+    res.settings["integrator"] = cls.name
+    counters["output_evaluations"] = n
+    res.counters = counters
+    summary = dict(prep.summary)
+    rank, red = prep.rank, prep.red
+    summary.update({"integrator": cls.name, "formulation": cls.formulation,
+                    "rtol": float(opt["rtol"]), "atol": float(opt["atol"]),
+                    "h": None if opt.get("h") is None else float(opt["h"]),
+                    "dof": model.nq - rank, "rank": rank,
+                    "redundant": model.items_of_rows(red) if red.size else [],
+                    "row_changes": run.changes,
+                    "sparse": run.system.sparse, "equations": "C kernels (mbsim.fast)",
+                    "t_reached": float(run.solver.t)})
+    cpu_run = prep.cpu + tr.cpu + _time.process_time() - cpu0
+    summary["cpu"] = cpu_run
+    res.summary = summary
+    return res
+
+
+MAX_ROW_CHANGES = 20  # re-selections of the independent rows in one run
+DRIFT_FACTOR = 1e3
+"""A run whose constraint violation (all rows) exceeds this x (rtol x max(1 m, the motion's
+span) + atol) ends there, incomplete, naming the time and the row.  The methods hold the
+constraints to their Newton or projection tolerance, or (baumgarte with its drift bound)
+within 10 rtol: a violation 1000 x the tolerance is drift the method did not control, and
+the motion past it is not the mechanism's (baumgarte without its bound on the four parallel
+cranks: 1.2e-5 at the flat position of t = 0.297 s, the motion 7 mm off at 0.32 s)."""
+
+
+def motion_span(model, tr):
+    """m: the largest range of any body's centroid coordinate over the outputs of ``tr``."""
+    n = len(tr)
+    if n == 0:
+        return 0.0
+    Q = np.array(tr.q[:n]).reshape(n, model.nb, 7)[:, :, :3]
+    return float(np.max(np.ptp(Q, axis=0), initial=0.0))
+
+
+class Stepper:
+    """The integrator of a run with its equations of motion on the independent constraint
+    rows, and what to do when a step fails.
+
+    The redundant rows are found by QR with column pivoting of Phi_q at t_start and
+    removed.  When the integrator fails (or stalls) at a configuration where that choice no
+    longer holds (the rank of Phi_q changed, or another set of rows is now the independent
+    one), the rows are chosen again at the last accepted state and the integrator restarts
+    there with its last step size: ``changes`` lists when and which rows became redundant.
+    A failure with the same rows still independent is final."""
+
+    def __init__(self, model, cls, opt, t0, q, qd, t1, rows):
+        self.model, self.cls, self.opt, self.t1 = model, cls, opt, t1
+        self.rows = rows
+        self.system = make_system(model, rows, opt.get("sparse"))
+        self.solver = cls(self.system, t0, q, qd, t1, opt)
+        self.changes: list[dict] = []
+        self._retired: list[dict] = []  # counters of the integrators before a restart
+        self.first_step = None
+
+    def step(self):
+        ok, msg = self.solver.step()
+        if ok and self.first_step is None:
+            self.first_step = self.solver.h_last
+        return ok, msg
+
+    def restart(self, message) -> bool:
+        """Re-select the rows at the last accepted state; True when the run goes on."""
+        s, model = self.solver, self.model
+        if len(self.changes) >= MAX_ROW_CHANGES:
+            return False
+        try:
+            rank, red = rank_and_redundant(model, jacobian(model, s.q, s.t))
+        except NUMERICAL_ERRORS:
+            return False
+        rows = np.setdiff1d(np.arange(model.m), red)
+        if np.array_equal(rows, self.rows):
+            return False
+        opt = dict(self.opt, h0=s.h_last or None)
+        try:
+            system = make_system(model, rows, opt.get("sparse"))
+            solver = self.cls(system, s.t, s.q, s.qd, self.t1, opt)
+        except NUMERICAL_ERRORS:  # the new rows do not solve here either: the failure stands
+            return False
+        solver.w = s.w
+        self._retired.append(s.all_counters())
+        names = model.items_of_rows(red) if red.size else []
+        self.changes.append({"t": float(s.t), "rank": int(rank), "redundant": names,
+                             "after": message})
+        log.info("t = %.6g s: independent rows chosen again (rank %d; redundant: %s) after: %s",
+                 s.t, rank, ", ".join(names) or "none", message)
+        self.rows, self.system, self.solver = rows, system, solver
+        return True
+
+    def all_counters(self) -> dict:
+        out = self.solver.all_counters()
+        for old in self._retired:
+            for k, v in old.items():
+                out[k] = out.get(k, 0) + v
+        out["row_changes"] = len(self.changes)
+        return out
+
+
+def integrate(run, times, record, max_steps):
+    """Step ``run`` (a :class:`Stepper`) to times[-1], calling ``record(t, q, qd, w, h)`` at
+    times[1:].
+
+    Returns (status, message); every numerical failure (a step, the dense output, a stall)
+    ends as ('incomplete', message with the time), never as an exception."""
+    k, steps = 1, 0
+    while k < len(times):
+        ok, msg = run.step()
+        steps += 1
+        if not ok:
+            if run.restart(msg):
+                continue
+            return STATUS_INCOMPLETE, msg
+        solver = run.solver
+        eps = 1e-12 * max(1.0, abs(solver.t))
+        if times[k] <= solver.t + eps:
+            try:
+                dense = solver.dense_output_safe()
+                while k < len(times) and times[k] <= solver.t + eps:
+                    tk = min(times[k], solver.t)
+                    qk, qdk, wk = (solver.q, solver.qd, solver.w) if tk == solver.t else dense(tk)
+                    record(times[k], qk, qdk, wk, solver.h_last)
+                    k += 1
+            except IntegratorFailure as exc:
+                return STATUS_INCOMPLETE, str(exc)
+            except NUMERICAL_ERRORS as exc:  # the output's own accelerations, energies
+                return STATUS_INCOMPLETE, (f"t = {times[k]:.6g} s: evaluating the outputs "
+                                           f"failed: {exc}")
+        if steps >= max_steps and k < len(times):
+            return STATUS_INCOMPLETE, (f"t = {solver.t:.6g} s: max_steps = {max_steps} reached "
+                                       f"before t_end = {times[-1]:g} s (step size "
+                                       f"{solver.h_last:.3g} s)")
+    return "complete", ""
+
+
