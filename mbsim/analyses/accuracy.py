@@ -99,7 +99,7 @@ def accuracy_run(model, opt, progress, explicit):
             new["rtol"] = max(float(opt["rtol"]) * ratio, 1e-13)
             new["atol"] = max(float(opt["atol"]) * ratio, 1e-15)
         copt, comp = est["_copt"], est["_companion"]
-        promote = comp.complete and (new["h"] >= copt["h"] if fixed
+        promote = copt is not None and comp.complete and (new["h"] >= copt["h"] if fixed
                                      else new["rtol"] >= copt["rtol"])
         log.info("accuracy %.3g: estimate %.3g missed; %s", tol, e,
                  "the companion becomes the run" if promote else

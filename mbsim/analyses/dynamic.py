@@ -22,20 +22,22 @@ import time as _time
 import numpy as np
 
 from mbsim.analyses.accuracy import accuracy_with_fallback
-from mbsim.analyses.estimate import attach_estimate, estimate
+from mbsim.analyses.estimate import ESTIMATE_METHODS, attach_estimate, estimate
 from mbsim.analyses.trajectory import Prepared, build_result, main_trajectory, motion_span
 from mbsim.errors import DeckError, Where
 from mbsim.integrators import DEFAULT
 
 DEFAULTS = {"t_start": 0.0, "t_end": 1.0, "step": 0.01, "integrator": DEFAULT, "rtol": 1e-6,
             "atol": None, "h": None, "max_steps": 1_000_000, "tol": 1e-10, "sparse": None,
-            "error_estimate": True, "estimate_ratio": 5.0, "accuracy": None}
+            "error_estimate": True, "estimate_method": "coarse", "estimate_ratio": 5.0,
+            "accuracy": None}
 ATOL_PER_RTOL = 1e-2  # atol when not given: rtol / 100 (as mbsim bench's ladder)
 
 
 def check_tolerances(opt, file=None):
-    """rtol, atol, accuracy, estimate_ratio must be finite numbers in their ranges: a deck or
-    usage error otherwise (exit 2), never a run that hangs or a traceback."""
+    """rtol, atol, accuracy, estimate_ratio must be finite numbers in their ranges, and
+    estimate_method one of ESTIMATE_METHODS: a deck or usage error otherwise (exit 2), never
+    a run that hangs or a traceback."""
     def bad(key, v, want):
         opt_name = "--" + key.replace("_", "-")
         raise DeckError(f"expected {want}, got {v!r} (deck key or option {opt_name})",
@@ -64,6 +66,8 @@ def check_tolerances(opt, file=None):
         r = float("nan")
     if not (math.isfinite(r) and r > 1):
         bad("estimate_ratio", opt.get("estimate_ratio"), "a number > 1, e.g. 5")
+    if opt.get("estimate_method", "coarse") not in ESTIMATE_METHODS:
+        bad("estimate_method", opt.get("estimate_method"), " or ".join(ESTIMATE_METHODS))
     for key in ("step", "h", "h_max"):
         v = opt.get(key)
         if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):

@@ -35,11 +35,16 @@ import numpy as np
 from mbsim.analyses.trajectory import Stepper, Trajectory, trajectory
 from mbsim.integrators import INTEGRATORS
 from mbsim.integrators.base import NUMERICAL_ERRORS
+from mbsim.integrators.rk import RungeKuttaIntegrator
 from mbsim.result import STATUS_INCOMPLETE
 
 log = logging.getLogger(__name__)
 
 ESTIMATE_STEPS = 10  # the companion run may take at most this x the run's steps (+100)
+ESTIMATE_METHODS = ("coarse", "tighter")
+"""Option ``estimate_method``: 'coarse' (default) the companion on the run's mesh coarsened
+by two (:func:`coarse_estimate`) where it applies, else the companion at rtol / rho;
+'tighter' always the companion at rtol / rho."""
 
 ERROR_UNITS = {
     "position": ("m", "estimated global error of positions (bodies, output points)"),
@@ -75,6 +80,104 @@ def companion_options(cls, opt):
     return copt, factor, method
 
 
+COARSE_FAMILIES = ("projection-dop853", "gcp-dop853", "projection", "gcp-rk45")
+"""The error-controlled Runge-Kutta methods whose estimate is the coarse companion
+(:class:`CoarseStepper`): explicit one-step methods of a fixed order whose error on a mesh
+scales as its step to the power p.  The others (generalized-alpha and HHT, whose error
+grows as rtol^(2/3); Baumgarte, whose drift term does not scale with the step) keep the
+companion at rtol / rho."""
+
+
+COARSE_MIN_STEPS = 4  # fewer accepted steps: the companion at rtol / rho instead
+INTERRUPTED = {}  # coarse_estimate's mark of a companion stopped by Ctrl-C
+
+
+class CoarseStepper(Stepper):
+    """The run's method without error control on the run's own mesh coarsened by two
+    (``mesh``: every other step end of the run, t0 first, the run's last step end last)."""
+
+    def __init__(self, model, cls, opt, t0, q, qd, t1, rows, mesh):
+        self.mesh = np.asarray(mesh, float)
+        opt = dict(opt, h=float(self.mesh[1] - self.mesh[0]), h0=None)
+        super().__init__(model, cls, opt, t0, q, qd, t1, rows)
+
+    def step(self):
+        s = self.solver
+        eps = 1e-12 * max(1.0, abs(s.t))
+        k = int(np.searchsorted(self.mesh, s.t + eps, side="right"))
+        h = (self.mesh[k] if k < self.mesh.size else s.t_bound) - s.t
+        s.h_fixed = s.h_abs = h  # the next coarse step (the integrators' fixed step)
+        return super().step()
+
+
+def interpolant(solver):
+    """``f(t) -> (q, qd, w)`` over the last step of ``solver``: the method's own
+    interpolant, without the projection of each sample that the index-1 families add
+    (:meth:`mbsim.integrators.index1.Index1._dense_output_impl`); the companion's outputs
+    are compared, not kept, and a projection would cost as much as the interpolation."""
+    if isinstance(solver, RungeKuttaIntegrator):
+        return RungeKuttaIntegrator._dense_output_impl(solver)
+    return solver.dense_output()
+
+
+def coarse_estimate(model, prep, opt, tr):
+    """(channels, description) of the coarse estimate of the run ``tr``, or (None, why).
+
+    On a mesh h(t) = H theta(t) the global error of a method of order p is
+    H^p e(t) + O(H^(p+1)); the run's mesh coarsened by two (every other step end) gives
+    2^p times the run's error, so at the mesh points |y - y_coarse| / (2^p - 1) estimates
+    the run's error (Richardson extrapolation on the step-size sequence; Hairer, Norsett &
+    Wanner I, Sec. II.4 and II.12).  The companion takes half the run's steps, none
+    rejected, and its outputs are its interpolant's (:func:`interpolant`), compared with the
+    run's outputs as they are (the run's interpolation error, of the same order, is part of
+    the estimate).  Applies to complete runs of :data:`COARSE_FAMILIES` methods with at
+    least COARSE_MIN_STEPS steps; the companion must reach every output.  Returns
+    :data:`INTERRUPTED` when Ctrl-C stopped it."""
+    cls, run = prep.cls, tr.run
+    if cls.name not in COARSE_FAMILIES or opt.get("h") is not None:
+        return None, f"{cls.name} is not estimated on a coarse mesh"
+    if run is None or not tr.complete or len(run.step_ends) < COARSE_MIN_STEPS:
+        return None, "the run is incomplete or too short for a coarse mesh"
+    t0 = float(tr.t[0])
+    ends = [t0] + [e[0] for e in run.step_ends]
+    mesh = np.array(ends[::2] + ([ends[-1]] if (len(ends) - 1) % 2 else []))
+    times = np.asarray(tr.t, float)
+    comp = CoarseStepper(model, cls, opt, t0, prep.q0.copy(), prep.qd0.copy(),
+                         float(mesh[-1]), prep.rows, mesh)
+    n = len(times)
+    Qc, QDc = np.empty((n, model.nq)), np.empty((n, model.nq))
+    Qc[0], QDc[0] = prep.q0, prep.qd0
+    k, steps = 1, 0
+    try:
+        while k < n:
+            if steps > 2 * mesh.size + 100:
+                return None, "the coarse companion took more steps than its mesh has"
+            steps += 1
+            ok, msg = comp.step()
+            if not ok:
+                if comp.restart(msg):
+                    continue
+                return None, f"the coarse companion stopped: {msg}"
+            s = comp.solver
+            eps = 1e-12 * max(1.0, abs(s.t))
+            if times[k] <= s.t + eps:
+                dense = interpolant(s)
+                while k < n and times[k] <= s.t + eps:
+                    Qc[k], QDc[k] = (s.q, s.qd) if times[k] >= s.t else dense(times[k])[:2]
+                    k += 1
+    except NUMERICAL_ERRORS as exc:
+        return None, f"the coarse companion failed: {exc}"
+    except KeyboardInterrupt:  # Ctrl-C: no estimate, and no other companion either
+        return INTERRUPTED, "the companion run was interrupted (Ctrl-C) before it finished"
+    factor = 1.0 / (2.0 ** cls.order - 1.0)
+    diff = state_differences(model, np.array(tr.q), np.array(tr.qd), Qc, QDc)
+    channels = {key: factor * diff[key] for key in ERROR_UNITS}
+    method = (f"companion on the run's mesh coarsened by 2 ({mesh.size - 1} steps), "
+              f"difference / (2^p - 1) = {factor:.3g} (p = {cls.order})")
+    channels["_steps"] = comp.all_counters()["steps"]
+    return channels, method
+
+
 def estimate(model, prep, opt, tr, companion=None):
     """The global error estimate of the run ``tr`` (module doc): a companion integration
     (or the given one, a Trajectory at the companion's options) and the differences at the
@@ -88,6 +191,23 @@ def estimate(model, prep, opt, tr, companion=None):
     copt, factor, method = companion_options(prep.cls, opt)
     times = np.asarray(tr.t, float)
     spent = 0.0  # CPU of a companion computed before (a promoted run's: its own)
+    coarse, why = None, None
+    if companion is None and opt.get("estimate_method", "coarse") == "coarse":
+        coarse, why = coarse_estimate(model, prep, opt, tr)
+    if coarse is INTERRUPTED:
+        return {"method": "coarse companion", "position": None, "reason": why,
+                "cpu": _time.process_time() - cpu0}
+    if coarse is not None:
+        steps = coarse.pop("_steps")
+        out = {"method": why, "cpu": _time.process_time() - cpu0, "steps": int(steps),
+               "_companion": None, "_copt": None, "channels": coarse}
+        for key in ERROR_UNITS:
+            out[key] = float(np.max(coarse[key]))
+        log.info("error estimate: position %.3g m, orientation %.3g rad (%s)",
+                 out["position"], out["orientation"], why)
+        return out
+    if why is not None:
+        log.info("error estimate: no coarse companion (%s)", why)
     if companion is None:
         limit = companion_step_limit(opt, tr)
         try:

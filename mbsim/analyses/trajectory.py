@@ -307,11 +307,17 @@ class Stepper:
         self.changes: list[dict] = []
         self._retired: list[dict] = []  # counters of the integrators before a restart
         self.first_step = None
+        # t, q, qd at the end of every accepted step: the run's mesh and its states there
+        # (the coarse error estimate, mbsim.analyses.estimate.coarse_estimate)
+        self.step_ends: list[tuple[float, np.ndarray, np.ndarray]] = []
 
     def step(self):
         ok, msg = self.solver.step()
-        if ok and self.first_step is None:
-            self.first_step = self.solver.h_last
+        if ok:
+            if self.first_step is None:
+                self.first_step = self.solver.h_last
+            s = self.solver
+            self.step_ends.append((s.t, s.q.copy(), s.qd.copy()))
         return ok, msg
 
     def restart(self, message) -> bool:

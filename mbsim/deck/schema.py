@@ -109,7 +109,7 @@ ANALYSIS_SETTINGS: dict[str, tuple[str, ...]] = {
     "kinematic": (*_TIME_GRID, "tol", "max_iter", "cond_max"),
     "inverse": (*_TIME_GRID, "tol", "max_iter", "cond_max"),
     "dynamic": (*_TIME_GRID, "integrator", "rtol", "atol", "accuracy", "error_estimate",
-                "estimate_ratio", "h", "h_max", "max_steps", "tol", "sparse", *_INTEGRATOR_OWN),
+                "estimate_method", "estimate_ratio", "h", "h_max", "max_steps", "tol", "sparse", *_INTEGRATOR_OWN),
     "equilibrium": ("method", "tol", "max_iter", "max_step", "phi_tol", "fd_step", "t",
                     "t_start", "t_end", "step", "damping", "settle_tol", "from_rest", "body",
                     "bodies", "omega", "axis", "point", "integrator", "rtol", "atol",

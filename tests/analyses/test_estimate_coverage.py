@@ -33,7 +33,8 @@ def governor():
 def stop_companions(monkeypatch, how, methods=None):
     """Companion runs of ``methods`` (class names; None: all) stop at their first step:
     ``how`` 'interrupt' raises KeyboardInterrupt (Ctrl-C), 'fail' returns a step failure as
-    an integrator does.  Companions are told apart by a mark on their options."""
+    an integrator does.  Companions are told apart by a mark on their options, the coarse
+    companion (estimate.CoarseStepper) by its class."""
     options, step = est_mod.companion_options, trajectory.Stepper.step
 
     def marked(cls, opt):
@@ -41,7 +42,8 @@ def stop_companions(monkeypatch, how, methods=None):
         return dict(copt, test_companion=True), factor, method
 
     def stopping(self):
-        if self.opt.get("test_companion") and (methods is None or self.cls.name in methods):
+        companion = self.opt.get("test_companion") or isinstance(self, est_mod.CoarseStepper)
+        if companion and (methods is None or self.cls.name in methods):
             if how == "interrupt":
                 raise KeyboardInterrupt
             return False, f"t = {self.solver.t:.6g} s: step size fell below h_min (test)"
@@ -99,7 +101,7 @@ def test_companion_failing_at_t0_is_replaced(governor, governor_reference, monke
 
     def stopping(self):  # companions run below the run's rtol; the first at exactly rtol/5
         name, rtol = self.cls.name, float(self.opt["rtol"])
-        if (name in failing and rtol < RTOL) or (f"{name}@5" in failing
+        if isinstance(self, est_mod.CoarseStepper) or (name in failing and rtol < RTOL) or (f"{name}@5" in failing
                                                   and rtol == pytest.approx(RTOL / 5)):
             return False, f"t = {self.solver.t:.6g} s: step size fell below h_min (test)"
         return step(self)
