@@ -259,6 +259,10 @@ def potential_energies(model, q, kin) -> np.ndarray:
     """(nt,) V: gravity (vectorised) plus the force elements' potentials (per output)."""
     V = -np.einsum("b,tbi,i->t", model.mass, kin["r"], model.gravity)
     if any(True for _ in model.forces):
-        V = V + np.array([sum(el.potential(eq.State(model, qk)) for el in model.forces)
-                          for qk in q])
+        V = V + np.array([_potential(model, eq.State(model, qk)) for qk in q])
     return V
+
+
+def _potential(model, st) -> float:
+    """The force elements' potential at one state (one State shared by all elements)."""
+    return sum(el.potential(st) for el in model.forces)
