@@ -59,23 +59,27 @@ def run_model(model, mode: str, options: dict | None = None) -> Result:
     """Run one analysis. An MbsimError during the run becomes an incomplete Result only if the
     analysis itself did not already return one (analyses keep partial data themselves).
 
-    Settings are checked first: their names (mbsim.deck.schema.ANALYSIS_SETTINGS: a typo
-    such as ``t_ennd`` is a UsageError with a suggestion), tolerances in (0, 1), steps > 0,
-    the number of output times (mbsim.deck.limits), so a sweep or study case with
-    ``step: 0`` is a UsageError too."""
-    from mbsim.deck.limits import setting_problems
-    from mbsim.deck.schema import setting_name_problems
+    The settings are merged and checked here, once (:func:`mbsim.options.resolve_options`):
+    the analysis's defaults, the deck's ``analysis: <mode>:`` and ``options``; their names
+    (mbsim.deck.schema.ANALYSIS_SETTINGS: a typo such as ``t_ennd`` is a UsageError with a
+    suggestion), tolerances in (0, 1), steps > 0, the number of output times
+    (mbsim.deck.limits), so a sweep or study case with ``step: 0`` is a UsageError too
+    (``options`` already a :class:`~mbsim.options.RunOptions`: taken as they are).  The
+    analysis gets the merged RunOptions."""
+    from mbsim.options import RunOptions, resolve_options
 
     fn = analysis_function(mode)
-    for _key, message in setting_name_problems(mode, dict(options or {}), internal=True):
-        raise UsageError(message)
-    for key, message in setting_problems(dict(options or {}), analysis_defaults(mode)):
-        raise UsageError(f"analysis setting {key}: {message}")
+    if not isinstance(options, RunOptions):  # (resolved already by the CLI)
+        spec = getattr(model, "spec", None)
+        deck = spec.analysis.get(mode, {}) if spec is not None else {}
+        options = resolve_options(mode, deck, options, defaults=analysis_defaults(mode),
+                                  file=getattr(model, "file", None),
+                                  label="analysis setting {key}")
     t0 = time.perf_counter()
     log.info("%s analysis of %s: %d bodies, %d constraint equations", mode,
              getattr(model, "title", "") or "the model", model.nb, model.m)
     try:
-        result = fn(model, dict(options or {}))
+        result = fn(model, options)
     except (ValueError, FloatingPointError, ArithmeticError) as exc:
         _overflow(mode, exc)
     _apply_only(model, result)

@@ -16,7 +16,7 @@ import click
 import numpy as np
 
 from mbsim import __version__
-from mbsim.errors import DeckError, MbsimError, UsageError, Where
+from mbsim.errors import DeckError, MbsimError, UsageError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -41,22 +41,20 @@ def _fail(exc: Exception, deck: str | None = None) -> None:
     sys.exit(code)
 
 
-def _check_settings(deck, mode: str, spec, opts: dict, names: dict[str, str]) -> None:
-    """Tolerances, steps and the number of output times, before the analysis allocates:
-    a problem names the option when it came from the command line (``names``: setting ->
-    option), else the deck key (exit 2)."""
+def _check_settings(deck, mode: str, spec, opts: dict, names: dict[str, str]):
+    """The run's settings merged and checked once (mbsim.options.resolve_options): the
+    analysis's defaults, the deck's ``analysis: <mode>:``, the command line's ``opts``.  A
+    problem names the option when it came from the command line (``names``: setting ->
+    option), else the deck key (exit 2).  Returns the RunOptions for run_model."""
     from mbsim.api import analysis_defaults
-    from mbsim.deck.limits import setting_problems
-    from mbsim.deck.schema import setting_name_problems
+    from mbsim.options import resolve_options
 
-    for key, _ in setting_name_problems(mode, opts):
-        option = names.get(key, f"--{key.replace('_', '-')}")
-        _fail(UsageError(f"{option} does not apply to --mode {mode}"), deck)
-    given = {**spec.analysis.get(mode, {}), **opts}
-    for key, message in setting_problems(given, analysis_defaults(mode)):
-        where = names[key] if key in opts and key in names else f"analysis.{mode}.{key}"
-        _fail(UsageError(f"{where}: {message}") if key in opts else
-              DeckError(message, Where(str(deck), f"analysis.{mode}.{key}")), deck)
+    try:
+        return resolve_options(mode, spec.analysis.get(mode, {}), opts,
+                               defaults=analysis_defaults(mode), option_names=names,
+                               file=str(deck), internal=False)
+    except MbsimError as exc:
+        _fail(exc, deck)
 
 
 def check_output(path, option: str, figure: bool = False) -> Path:
@@ -294,8 +292,10 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
                 "atol": atol, "accuracy": accuracy, "error_estimate": error_estimate,
                 "method": method}
         opts = {k: v for k, v in opts.items() if v is not None}
-        _check_settings(deck, mode, spec, opts, {"t_end": "--t-end", "step": "--step",
-                        "rtol": "--rtol", "atol": "--atol", "accuracy": "--accuracy"})
+        opts = _check_settings(deck, mode, spec, opts, {
+            "t_end": "--t-end", "step": "--step", "rtol": "--rtol", "atol": "--atol",
+            "accuracy": "--accuracy", "integrator": "--integrator",
+            "error_estimate": "--error-estimate", "method": "--method"})
         prepare_output(out)  # before the analysis: a bad -o costs nothing
         # SIGTERM as Ctrl-C from before the lock is taken: a kill at any point after it
         # goes through the finally below, never leaving the lock behind
@@ -307,7 +307,7 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
             prog = terminal_progress(sys.stderr, False if quiet and progress is None
                                      else progress, label=mode)
             if prog is not None:
-                opts["progress"] = prog  # progress(t, t_end) per output (mbsim.progress)
+                opts = opts.replace(progress=prog)  # progress(t, t_end) per output
             try:
                 result = run_model(model, mode, opts)
             finally:

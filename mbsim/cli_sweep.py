@@ -89,12 +89,16 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
                "method": method}
     # the command line's tolerances and step are the same for every case: a bad one is a
     # usage error now (exit 2), not one failed case after another
-    from mbsim.deck.limits import OPEN_UNIT, setting_problems
-    from mbsim.errors import UsageError
+    from mbsim.deck.limits import OPEN_UNIT
+    from mbsim.deck.schema import ANALYSIS_SETTINGS
+    from mbsim.options import resolve_options
 
-    given = {k: v for k, v in options.items() if v is not None and k in (*OPEN_UNIT, "step")}
-    for key, message in setting_problems(given):
-        _fail(UsageError(f"--{key.replace('_', '-')}: {message}"), deck)
+    given = {k: v for k, v in options.items() if v is not None and k in (*OPEN_UNIT, "step")
+             and k in ANALYSIS_SETTINGS.get(mode, ())}
+    try:  # the values only: the deck and its cases are merged in each case's run_model
+        resolve_options(mode, None, given, defaults={}, internal=False)
+    except MbsimError as exc:
+        _fail(exc, deck)
     try:
         plan = plan_sweep(
             deck, mode, [parse_param(p) for p in params],

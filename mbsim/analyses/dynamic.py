@@ -16,69 +16,30 @@ their own modules:
 
 from __future__ import annotations
 
-import math
 import time as _time
 
 import numpy as np
 
 from mbsim.analyses.accuracy import accuracy_with_fallback
-from mbsim.analyses.estimate import ESTIMATE_METHODS, attach_estimate, estimate
+from mbsim.analyses.estimate import attach_estimate, estimate
 from mbsim.analyses.trajectory import Prepared, build_result, main_trajectory, motion_span
-from mbsim.errors import DeckError, Where
 from mbsim.integrators import DEFAULT
+from mbsim.options import RunOptions, resolve_options
 
 DEFAULTS = {"t_start": 0.0, "t_end": 1.0, "step": 0.01, "integrator": DEFAULT, "rtol": 1e-6,
             "atol": None, "h": None, "max_steps": 1_000_000, "tol": 1e-10, "sparse": None,
             "error_estimate": True, "estimate_method": "coarse", "estimate_ratio": 5.0,
             "accuracy": None}
-ATOL_PER_RTOL = 1e-2  # atol when not given: rtol / 100 (as mbsim bench's ladder)
-
-
-def check_tolerances(opt, file=None):
-    """rtol, atol, accuracy, estimate_ratio must be finite numbers in their ranges, and
-    estimate_method one of ESTIMATE_METHODS: a deck or usage error otherwise (exit 2), never
-    a run that hangs or a traceback."""
-    def bad(key, v, want):
-        opt_name = "--" + key.replace("_", "-")
-        raise DeckError(f"expected {want}, got {v!r} (deck key or option {opt_name})",
-                        Where(file or "<options>", f"analysis.dynamic.{key}"))
-
-    for key in ("rtol", "atol"):
-        v = opt.get(key)
-        if v is None:
-            continue
-        try:
-            x = float(v)
-        except (TypeError, ValueError):
-            bad(key, v, "a number")
-        if not (math.isfinite(x) and 0 < x < 1):
-            bad(key, v, "a number in (0, 1), e.g. 1e-6 (0 would ask for exact arithmetic)")
-    if opt.get("accuracy") is not None:
-        try:
-            x = float(opt["accuracy"])
-        except (TypeError, ValueError):
-            bad("accuracy", opt["accuracy"], "a position error in m")
-        if not (math.isfinite(x) and 0 < x < 1):
-            bad("accuracy", opt["accuracy"], "a position error in m (and rad) in (0, 1), e.g. 1e-6")
-    try:
-        r = float(opt.get("estimate_ratio", 5.0))
-    except (TypeError, ValueError):
-        r = float("nan")
-    if not (math.isfinite(r) and r > 1):
-        bad("estimate_ratio", opt.get("estimate_ratio"), "a number > 1, e.g. 5")
-    if opt.get("estimate_method", "coarse") not in ESTIMATE_METHODS:
-        bad("estimate_method", opt.get("estimate_method"), " or ".join(ESTIMATE_METHODS))
-    for key in ("step", "h", "h_max"):
-        v = opt.get(key)
-        if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            bad(key, v, "a positive time in s")
 
 
 def dynamic(model, options=None):
     """Run a dynamic analysis; returns a Result (status incomplete, with the data up to the
     failure, when the integrator fails).
 
-    options: t_start, t_end, step (output step, s), integrator (name, see
+    options: a :class:`~mbsim.options.RunOptions` (merged and checked where the run was
+    requested, :func:`mbsim.api.run_model`), or a dict merged here over the deck's
+    ``analysis: dynamic:`` and DEFAULTS and checked: t_start, t_end, step (output step, s),
+    integrator (name, see
     ``mbsim list integrators``), rtol, atol, h (fixed step: no error control; a fixed-step
     method without h steps at ``step``), h_max, max_steps, sparse (None: by size), q0/qd0 (a
     consistent initial state instead of the deck's), error_estimate (bool, default True),
@@ -88,19 +49,17 @@ def dynamic(model, options=None):
     (alpha, beta, rho_inf, repartition_ratio, jacobian, newton_tol).
     """
     wall0 = _time.perf_counter()
-    deck_opt = model.spec.analysis.get("dynamic", {}) if model.spec else {}
-    given = {k: v for k, v in (options or {}).items() if v is not None}
-    opt = dict(DEFAULTS, **deck_opt)
-    opt.update(given)
+    if not isinstance(options, RunOptions):  # a direct call: merged and checked here
+        deck = model.spec.analysis.get("dynamic", {}) if model.spec else {}
+        options = resolve_options("dynamic", deck, options, defaults=DEFAULTS,
+                                  file=model.file)
+    opt = dict(options)
     progress = opt.pop("progress", None)  # progress(t, t_end) per output (mbsim.progress)
-    check_tolerances(opt, model.file)
-    if opt.get("atol") is None:  # follows rtol: 1e-8 at the default rtol 1e-6 (m, rad, m/s)
-        opt["atol"] = ATOL_PER_RTOL * float(opt["rtol"])
     # NaN and overflow are detected and reported by the integrators (non-finite error norms,
     # states), so numpy's RuntimeWarning lines would only be noise on stderr
     with np.errstate(all="ignore"):
         if opt.get("accuracy") is not None:
-            res = accuracy_with_fallback(model, opt, progress, given, deck_opt)
+            res = accuracy_with_fallback(model, opt, progress, options.given, options.deck)
         else:
             res = _single_run(model, opt, progress)
     res.wall_time = _time.perf_counter() - wall0

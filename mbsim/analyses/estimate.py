@@ -54,6 +54,8 @@ from mbsim.result import STATUS_INCOMPLETE
 log = logging.getLogger(__name__)
 
 ESTIMATE_STEPS = 10  # the companion run may take at most this x the run's steps (+100)
+
+
 ESTIMATE_METHODS = ("coarse", "tighter")
 """Option ``estimate_method``: 'coarse' (default) the companion on the run's mesh coarsened
 by two (:func:`coarse_estimate`) where it applies, else the companion at rtol / rho;

@@ -47,6 +47,7 @@ from mbsim.deck.tree import (
 from mbsim.deck.values import NAME_RE, Reader, describe
 from mbsim.errors import DeckError, Where
 from mbsim.expr import FUNCTIONS, RESERVED
+from mbsim.options import resolve_options
 
 
 def load_deck(
@@ -582,8 +583,8 @@ def _analysis(rd: Reader, node: Node, where: Where) -> dict[str, dict]:
         wheres = {key: w for key, _, w in items}
         # Tolerances, steps and the number of output times, before any analysis allocates
         # (documented defaults t_start 0, step 0.01 s stand in for those not given).
-        for key, message in limits.setting_problems(out[mode], {"t_start": 0.0, "step": 0.01}):
-            raise rd.error(wheres.get(key, got[mode][1]), message)
+        resolve_options(mode, out[mode], defaults={"t_start": 0.0, "step": 0.01},
+                        where_of=lambda key, m=mode, w=wheres: w.get(key, got[m][1]))
     return out
 
 
@@ -684,8 +685,8 @@ def _study_case(rd: Reader, node: Node, where: Where, base: Node) -> dict:
         wheres = {key: w for key, _, w in rd.items(*got["options"])}
         for key, message in schema.setting_name_problems(case["mode"], case["options"]):
             raise rd.error(wheres[key], message)
-        for key, message in limits.setting_problems(case["options"]):
-            raise rd.error(wheres.get(key, got["options"][1]), message)
+        resolve_options(case["mode"], case["options"], defaults={},
+                        where_of=lambda key: wheres.get(key, got["options"][1]))
     return case
 
 

@@ -16,7 +16,7 @@ import math
 import pytest
 
 from mbsim.analyses.dynamic import dynamic
-from mbsim.errors import DeckError
+from mbsim.errors import UsageError
 from tests.integrators import models as M
 from tests.integrators import references as R
 
@@ -61,9 +61,9 @@ def test_coarse_companion_takes_half_the_steps():
 
 def test_tighter_companion_on_request():
     """estimate_method 'tighter': the companion at rtol / estimate_ratio, as before the
-    coarse one; another value is a deck error naming the key."""
+    coarse one; another value is a usage error naming the setting."""
     pb = M.reference_problem("pendulum")
     res = run(pb, rtol=1e-7, atol=1e-9, estimate_method="tighter")
     assert "at rtol/5" in res.summary["error_estimate"]["method"]
-    with pytest.raises(DeckError, match="estimate_method"):
+    with pytest.raises(UsageError, match="estimate-method"):
         run(pb, estimate_method="finer")

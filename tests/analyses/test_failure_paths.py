@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from mbsim.analyses import diagnosis, trajectory
 from mbsim.analyses import dynamic as dyn
 from mbsim.cli import main
-from mbsim.errors import DeckError
+from mbsim.errors import UsageError
 from mbsim.integrators.system import SolveError
 from mbsim.rotations import omega_local_to_pd
 from tests.integrators import models as M
@@ -175,11 +175,14 @@ def test_a_crawling_run_stops_with_a_diagnosis():
 
 
 def test_settings_are_checked_before_the_run():
-    """accuracy, estimate_ratio and steps out of range are deck errors (exit 2 at the CLI)."""
+    """accuracy, estimate_ratio and steps out of range are usage errors naming the setting
+    (exit 2 at the CLI; mbsim.options.resolve_options)."""
     for bad in ({"accuracy": 0.0}, {"accuracy": float("nan")}, {"estimate_ratio": 1.0},
                 {"atol": 0.0}, {"h_max": -1.0}):
-        with pytest.raises(DeckError):
+        key = next(iter(bad))
+        with pytest.raises(UsageError, match=f"--{key.replace('_', '-')}") as exc:
             _free_body_run(bad)
+        assert exc.value.exit_code == 2
 
 
 def test_a_sliding_mode_names_the_switching_forces(tmp_path):
