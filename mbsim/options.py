@@ -143,3 +143,17 @@ def dynamic_problems(opt: Mapping) -> list[tuple[str, str]]:
                                   and math.isfinite(v) and v > 0):
             out.append((key, f"expected a positive time in s, got {v!r}"))
     return out
+
+
+def analysis_options(mode: str, model, options, defaults: Mapping) -> RunOptions:
+    """The options of an analysis called with ``options``: as they are when resolved where
+    the run was requested (:func:`mbsim.api.run_model`, the CLI), else merged here over
+    the analysis's ``defaults`` and the deck's ``analysis: <mode>:`` and checked (direct
+    calls: scripts, tests, one analysis running another).  The one place an analysis reads
+    the deck's settings from the compiled model (``model.spec``), for those direct calls."""
+    if isinstance(options, RunOptions):
+        return options
+    spec = getattr(model, "spec", None)
+    deck = spec.analysis.get(mode, {}) if spec is not None else {}
+    return resolve_options(mode, deck, options, defaults=defaults,
+                           file=getattr(model, "file", None), label="analysis setting {key}")

@@ -24,7 +24,7 @@ from mbsim.analyses.accuracy import accuracy_with_fallback
 from mbsim.analyses.estimate import attach_estimate, estimate
 from mbsim.analyses.trajectory import Prepared, build_result, main_trajectory, motion_span
 from mbsim.integrators import DEFAULT
-from mbsim.options import RunOptions, resolve_options
+from mbsim.options import analysis_options
 
 DEFAULTS = {"t_start": 0.0, "t_end": 1.0, "step": 0.01, "integrator": DEFAULT, "rtol": 1e-6,
             "atol": None, "h": None, "max_steps": 1_000_000, "tol": 1e-10, "sparse": None,
@@ -49,10 +49,7 @@ def dynamic(model, options=None):
     (alpha, beta, rho_inf, repartition_ratio, jacobian, newton_tol).
     """
     wall0 = _time.perf_counter()
-    if not isinstance(options, RunOptions):  # a direct call: merged and checked here
-        deck = model.spec.analysis.get("dynamic", {}) if model.spec else {}
-        options = resolve_options("dynamic", deck, options, defaults=DEFAULTS,
-                                  file=model.file)
+    options = analysis_options("dynamic", model, options, DEFAULTS)
     opt = dict(options)
     progress = opt.pop("progress", None)  # progress(t, t_end) per output (mbsim.progress)
     # NaN and overflow are detected and reported by the integrators (non-finite error norms,

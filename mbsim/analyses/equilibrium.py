@@ -71,6 +71,7 @@ from mbsim.analyses.dynamic import dynamic
 from mbsim.analyses.reactions import add_reaction_channels
 from mbsim.errors import ConvergenceError, DeckError, ModelError
 from mbsim.forces.base import ForceElement
+from mbsim.options import analysis_options
 from mbsim.result import STATUS_INCOMPLETE, Result
 
 DEFAULTS = {
@@ -292,8 +293,7 @@ def stationary_point(prob: Problem, q0, opt) -> Stationary:
 
 
 def _options(model, options):
-    opt = dict(DEFAULTS, **(model.spec.analysis.get("equilibrium", {}) if model.spec else {}))
-    opt.update({k: v for k, v in (options or {}).items() if v is not None})
+    opt = dict(analysis_options("equilibrium", model, options, DEFAULTS))
     return opt
 
 

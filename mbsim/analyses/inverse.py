@@ -31,6 +31,7 @@ from mbsim.analyses.kinematic import DEFAULTS as KIN_DEFAULTS
 from mbsim.analyses.kinematic import kinematic
 from mbsim.analyses.reactions import add_reaction_channels
 from mbsim.errors import SingularJacobianError
+from mbsim.options import analysis_options
 from mbsim.result import STATUS_INCOMPLETE, Result
 from mbsim.rotations import G as rot_G
 
@@ -87,8 +88,7 @@ def inverse(model, options=None) -> Result:
     (lock-up, singular Jacobian) gives status 'incomplete', its message naming time and
     joints, with every channel kept up to the last good time.
     """
-    opt = dict(DEFAULTS, **(model.spec.analysis.get("inverse", {}) if model.spec else {}))
-    opt.update({k: v for k, v in (options or {}).items() if v is not None})
+    opt = dict(analysis_options("inverse", model, options, DEFAULTS))
     progress = opt.pop("progress", None)  # progress(t, t_end) per output step (mbsim.progress)
     wall0 = _time.perf_counter()
     asm = assemble(model, t=float(opt["t_start"]), tol=opt["tol"])

@@ -14,6 +14,7 @@ from mbsim.analyses import redundancy
 from mbsim.analyses.assembly import assemble, newton
 from mbsim.analyses.common import Recorder, require_dof_zero, singular_rows
 from mbsim.errors import AnalysisError, ConvergenceError, SingularJacobianError
+from mbsim.options import analysis_options
 from mbsim.result import STATUS_INCOMPLETE
 
 DEFAULTS = {"t_start": 0.0, "t_end": 1.0, "step": 0.01, "tol": 1e-10, "max_iter": 25,
@@ -46,8 +47,7 @@ def solve_square(model, J, rhs, t, what):
 
 def kinematic(model, options=None):
     """Run a kinematic analysis; returns a Result (status incomplete on failure)."""
-    opt = dict(DEFAULTS, **(model.spec.analysis.get("kinematic", {}) if model.spec else {}))
-    opt.update({k: v for k, v in (options or {}).items() if v is not None})
+    opt = dict(analysis_options("kinematic", model, options, DEFAULTS))
     progress = opt.pop("progress", None)  # progress(t, t_end) per output step (mbsim.progress)
     wall0 = _time.perf_counter()
     times = output_times(float(opt["t_start"]), float(opt["t_end"]), float(opt["step"]))

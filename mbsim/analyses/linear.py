@@ -67,6 +67,7 @@ from mbsim.analyses.common import Recorder
 from mbsim.errors import ConvergenceError, DeckError
 from mbsim.rotations import G as rot_G
 from mbsim.result import Result
+from mbsim.options import analysis_options
 
 log = logging.getLogger(__name__)
 
@@ -428,8 +429,7 @@ def modal_quantities(lam):
 
 
 def _options(model, options):
-    opt = dict(DEFAULTS, **(model.spec.analysis.get("linear", {}) if model.spec else {}))
-    opt.update({k: v for k, v in (options or {}).items() if v is not None})
+    opt = dict(analysis_options("linear", model, options, DEFAULTS))
     if opt.get("method"):  # `mbsim run --mode linear --method steady`
         opt["about"] = opt.pop("method")
     return opt

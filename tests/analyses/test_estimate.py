@@ -65,5 +65,5 @@ def test_tighter_companion_on_request():
     pb = M.reference_problem("pendulum")
     res = run(pb, rtol=1e-7, atol=1e-9, estimate_method="tighter")
     assert "at rtol/5" in res.summary["error_estimate"]["method"]
-    with pytest.raises(UsageError, match="estimate-method"):
+    with pytest.raises(UsageError, match="analysis setting estimate_method"):
         run(pb, estimate_method="finer")

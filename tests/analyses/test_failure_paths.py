@@ -180,7 +180,7 @@ def test_settings_are_checked_before_the_run():
     for bad in ({"accuracy": 0.0}, {"accuracy": float("nan")}, {"estimate_ratio": 1.0},
                 {"atol": 0.0}, {"h_max": -1.0}):
         key = next(iter(bad))
-        with pytest.raises(UsageError, match=f"--{key.replace('_', '-')}") as exc:
+        with pytest.raises(UsageError, match=f"analysis setting {key}") as exc:
             _free_body_run(bad)
         assert exc.value.exit_code == 2
 
