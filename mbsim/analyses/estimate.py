@@ -11,8 +11,9 @@ reintegration"; Hairer, Norsett & Wanner I, Sec. II.4 and II.12).  Which compani
   It takes half the run's steps, none rejected, and samples its plain interpolant: 0.2-0.55
   of the run's CPU on the reference problems, where the companion at rtol/5 took 0.73-1.6.
   Est / true error there 0.3-2 (tests/integrators/test_error_estimate.py,
-  tests/analyses/test_estimate.py); it overestimates where a doubled step is out of the
-  asymptotic regime (four parallel cranks across flat positions at rtol 1e-7: 35x).
+  tests/analyses/test_estimate.py).  A run that met a change point (a singular position,
+  :data:`CHANGE_POINT_COUNTERS`) gets the companion below: a doubled step across it is not
+  in the asymptotic regime (four parallel cranks at rtol 1e-7: 35x the true error).
 - ``tighter`` (and for every other method, or when the coarse companion does not reach
   every output): the same method repeats the run more accurately, an adaptive method at
   the tolerances divided by ``estimate_ratio`` (rho, default 5), a fixed-step method at
@@ -106,6 +107,13 @@ t = 0.09 s), so that the companion at rtol / rho would follow a wasted coarse ru
 
 
 COARSE_MIN_STEPS = 4  # fewer accepted steps: the companion at rtol / rho instead
+CHANGE_POINT_COUNTERS = ("tangent_stages", "straddle_steps", "output_steps", "row_changes")
+"""Counters of a run that met a change point (a singular position): tangent-coordinate
+stages, steps placed across it, outputs integrated to because the interpolant was not to be
+trusted, rows chosen again.  Such a run gets the companion at rtol / rho: on a doubled step
+across a singular position the error is not 2^p times the run's (four parallel cranks,
+projection-dop853 at rtol 1e-7, one tangent stage and 5 outputs integrated to: the coarse
+estimate was 35x the true error, the companion at rtol/5 0.97x)."""
 INTERRUPTED = {}  # coarse_estimate's mark of a companion stopped by Ctrl-C
 
 
@@ -155,6 +163,11 @@ def coarse_estimate(model, prep, opt, tr):
         return None, f"{cls.name} is not estimated on a coarse mesh"
     if run is None or not tr.complete or len(run.step_ends) < COARSE_MIN_STEPS:
         return None, "the run is incomplete or too short for a coarse mesh"
+    counters = run.all_counters()
+    passed = [k for k in CHANGE_POINT_COUNTERS if counters.get(k)]
+    if passed:
+        return None, (f"the run passed a change point ({', '.join(passed)}): a doubled step "
+                      f"there is not in the asymptotic regime")
     t0 = float(tr.t[0])
     ends = [t0] + [e[0] for e in run.step_ends]
     mesh = np.array(ends[::2] + ([ends[-1]] if (len(ends) - 1) % 2 else []))

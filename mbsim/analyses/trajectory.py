@@ -357,6 +357,30 @@ class Stepper:
         return out
 
 
+def step_outputs(solver, ts):
+    """The states at the output times ``ts`` (in the last accepted step of ``solver``, up to
+    round-off past its end): (Q (k, nq), QD (k, nq), W (k,), failure), all the step's
+    outputs at once; failure None, or the message of the first time whose dense output
+    failed, the arrays then holding the times before it.  (The one place to call a bulk
+    dense output of the integrators.)"""
+    n = len(ts)
+    Q, QD, W = np.empty((n, solver.q.size)), np.empty((n, solver.q.size)), np.empty(n)
+    i = 0
+    try:
+        dense = solver.dense_output_safe()
+        for i, t in enumerate(ts):
+            if min(t, solver.t) == solver.t:
+                Q[i], QD[i], W[i] = solver.q, solver.qd, solver.w
+            else:
+                Q[i], QD[i], W[i] = dense(t)
+    except IntegratorFailure as exc:
+        return Q[:i], QD[:i], W[:i], str(exc)
+    except NUMERICAL_ERRORS as exc:
+        return Q[:i], QD[:i], W[:i], (f"t = {ts[i]:.6g} s: evaluating the outputs failed: "
+                                      f"{exc}")
+    return Q, QD, W, None
+
+
 def integrate(run, times, record, max_steps):
     """Step ``run`` (a :class:`Stepper`) to times[-1], calling ``record(t, q, qd, w, h)`` at
     times[1:].
@@ -374,18 +398,17 @@ def integrate(run, times, record, max_steps):
         solver = run.solver
         eps = 1e-12 * max(1.0, abs(solver.t))
         if times[k] <= solver.t + eps:
+            j = int(np.searchsorted(times, solver.t + eps, side="right"))
+            Q, QD, W, failure = step_outputs(solver, times[k:j])
             try:
-                dense = solver.dense_output_safe()
-                while k < len(times) and times[k] <= solver.t + eps:
-                    tk = min(times[k], solver.t)
-                    qk, qdk, wk = (solver.q, solver.qd, solver.w) if tk == solver.t else dense(tk)
-                    record(times[k], qk, qdk, wk, solver.h_last)
+                for i in range(len(W)):
+                    record(times[k], Q[i], QD[i], W[i], solver.h_last)
                     k += 1
-            except IntegratorFailure as exc:
-                return STATUS_INCOMPLETE, str(exc)
             except NUMERICAL_ERRORS as exc:  # the output's own accelerations, energies
                 return STATUS_INCOMPLETE, (f"t = {times[k]:.6g} s: evaluating the outputs "
                                            f"failed: {exc}")
+            if failure is not None:
+                return STATUS_INCOMPLETE, failure
         if steps >= max_steps and k < len(times):
             return STATUS_INCOMPLETE, (f"t = {solver.t:.6g} s: max_steps = {max_steps} reached "
                                        f"before t_end = {times[-1]:g} s (step size "

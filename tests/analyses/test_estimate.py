@@ -6,9 +6,9 @@ The default integrator (projection-dop853, p = 8) is checked on all five referen
 at rtol 1e-5 and 1e-9 by tests/integrators/test_error_estimate.py (est / true there:
 0.59-1.95); here Dormand-Prince 5(4) with projection (p = 5) at rtol 1e-8 on the four
 problems that move (est / true 0.82-1.61 measured), and what the companion costs in steps.
-Known overestimates, outside these tests: the four parallel cranks at rtol 1e-7 with
-projection-dop853 (35x: a doubled step across a flat position is not in the asymptotic
-regime) and the pendulum at rtol 1e-5 with projection (19x).
+A run that met a singular position (the four parallel cranks at rtol 1e-7, where the
+coarse estimate was 35x the true error) gets the companion at rtol / 5 instead.  A known
+overestimate outside these tests: the pendulum at rtol 1e-5 with projection (19x).
 """
 
 import math
@@ -67,3 +67,14 @@ def test_tighter_companion_on_request():
     assert "at rtol/5" in res.summary["error_estimate"]["method"]
     with pytest.raises(UsageError, match="analysis setting estimate_method"):
         run(pb, estimate_method="finer")
+
+
+def test_a_run_past_a_singular_position_gets_the_tighter_companion():
+    """The four parallel cranks at rtol 1e-7 pass flat positions (a tangent stage, outputs
+    integrated to): the estimate is the companion at rtol/5's, within 10x of the truth."""
+    pb = M.reference_problem("parallel_fourbar")
+    res = run(pb, rtol=1e-7, atol=1e-9)
+    est = res.summary["error_estimate"]
+    assert "at rtol/5" in est["method"]
+    pos = R.position_error(res, pb.reference(res.t)).max()
+    assert 0.1 <= est["position"] / pos <= 10, (est["position"], pos)
