@@ -56,12 +56,6 @@ log = logging.getLogger(__name__)
 
 ESTIMATE_STEPS = 10  # the companion run may take at most this x the run's steps (+100)
 
-
-ESTIMATE_METHODS = ("coarse", "tighter")
-"""Option ``estimate_method``: 'coarse' (default) the companion on the run's mesh coarsened
-by two (:func:`coarse_estimate`) where it applies, else the companion at rtol / rho;
-'tighter' always the companion at rtol / rho."""
-
 ERROR_UNITS = {
     "position": ("m", "estimated global error of positions (bodies, output points)"),
     "orientation": ("rad", "estimated global error of orientations (rotation angle)"),
@@ -169,16 +163,16 @@ def coarse_estimate(model, prep, opt, tr):
         return None, (f"the run passed a change point ({', '.join(passed)}): a doubled step "
                       f"there is not in the asymptotic regime")
     t0 = float(tr.t[0])
-    ends = [t0] + [e[0] for e in run.step_ends]
+    ends = [t0] + run.step_ends
     mesh = np.array(ends[::2] + ([ends[-1]] if (len(ends) - 1) % 2 else []))
     times = np.asarray(tr.t, float)
-    comp = CoarseStepper(model, cls, opt, t0, prep.q0.copy(), prep.qd0.copy(),
-                         float(mesh[-1]), prep.rows, mesh)
     n = len(times)
     Qc, QDc = np.empty((n, model.nq)), np.empty((n, model.nq))
     Qc[0], QDc[0] = prep.q0, prep.qd0
     k, steps = 1, 0
     try:
+        comp = CoarseStepper(model, cls, opt, t0, prep.q0.copy(), prep.qd0.copy(),
+                             float(mesh[-1]), prep.rows, mesh)
         while k < n:
             if steps > 2 * mesh.size + 100:
                 return None, "the coarse companion took more steps than its mesh has"

@@ -307,17 +307,16 @@ class Stepper:
         self.changes: list[dict] = []
         self._retired: list[dict] = []  # counters of the integrators before a restart
         self.first_step = None
-        # t, q, qd at the end of every accepted step: the run's mesh and its states there
-        # (the coarse error estimate, mbsim.analyses.estimate.coarse_estimate)
-        self.step_ends: list[tuple[float, np.ndarray, np.ndarray]] = []
+        # t at the end of every accepted step: the run's mesh (for the coarse error
+        # estimate, mbsim.analyses.estimate.coarse_estimate)
+        self.step_ends: list[float] = []
 
     def step(self):
         ok, msg = self.solver.step()
         if ok:
             if self.first_step is None:
                 self.first_step = self.solver.h_last
-            s = self.solver
-            self.step_ends.append((s.t, s.q.copy(), s.qd.copy()))
+            self.step_ends.append(self.solver.t)
         return ok, msg
 
     def restart(self, message) -> bool:
