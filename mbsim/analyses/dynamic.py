@@ -529,11 +529,12 @@ def _integrate(run, times, record, max_steps):
         eps = 1e-12 * max(1.0, abs(solver.t))
         if times[k] <= solver.t + eps:
             try:
-                dense = solver.dense_output_safe()
-                while k < len(times) and times[k] <= solver.t + eps:
-                    tk = min(times[k], solver.t)
-                    qk, qdk, wk = (solver.q, solver.qd, solver.w) if tk == solver.t else dense(tk)
-                    record(times[k], qk, qdk, wk, solver.h_last)
+                j = k
+                while j < len(times) and times[j] <= solver.t + eps:
+                    j += 1
+                Q, QD, W = solver.dense_output_many(np.minimum(times[k:j], solver.t))
+                for i in range(j - k):  # (k: the output being recorded, for the message)
+                    record(times[k], Q[i], QD[i], W[i], solver.h_last)
                     k += 1
             except IntegratorFailure as exc:
                 return STATUS_INCOMPLETE, str(exc)

@@ -63,7 +63,8 @@ class Integrator(ABC):
        ``(False, message)`` with the time and the joints involved; it never raises, prints
        or exits.
     4. ``_dense_output_impl() -> callable``: ``f(t) -> (q, qd, w)`` for t in the last step
-       [t_old, t].
+       [t_old, t]; ``dense_output_many(times) -> (Q, QD, W)`` evaluates it at all output
+       times of the step at once (the driver's call; a family may do it in C).
     5. Counters: ``self.counters`` (steps, rejected_steps, plus the family's own, e.g.
        repartitions) merge with ``system.counters`` (function_evaluations, factorizations,
        newton_iterations, ...) in :meth:`all_counters`.
@@ -175,6 +176,19 @@ class Integrator(ABC):
 
     def dense_output(self):
         return self._dense_output_impl()
+
+    def dense_output_many(self, times):
+        """(Q (k, nq), QD (k, nq), W (k,)): the state at each of ``times`` (ascending, in
+        the last step [t_old, t]; at t itself the accepted state), failures as
+        :class:`IntegratorFailure` (as :meth:`dense_output_safe`).  Families that can
+        evaluate all outputs of a step at once override it (index-1: in C)."""
+        times = np.asarray(times, dtype=float)
+        k = times.size
+        Q, QD, W = np.empty((k, self.q.size)), np.empty((k, self.q.size)), np.empty(k)
+        dense = self.dense_output_safe() if np.any(times != self.t) else None
+        for i, t in enumerate(times):
+            Q[i], QD[i], W[i] = (self.q, self.qd, self.w) if t == self.t else dense(t)
+        return Q, QD, W
 
     def all_counters(self) -> dict:
         out = dict(self.system.counters)

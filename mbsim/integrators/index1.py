@@ -47,8 +47,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from mbsim.fast import stepper
 from mbsim.integrators import changepoints as cp
-from mbsim.integrators.base import NUMERICAL_ERRORS, ROUNDOFF_ULPS, quintic_hermite, rms_norm
+from mbsim.integrators.base import (
+    NUMERICAL_ERRORS,
+    ROUNDOFF_ULPS,
+    IntegratorFailure,
+    quintic_hermite,
+    rms_norm,
+)
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
 
@@ -99,7 +106,21 @@ class Index1(RungeKuttaIntegrator):
                 self.policy = self.policy.off()
         if self.policy.tangent > 0.0:
             self._approach = self._new_approach()
+        self._compiled = self._compiled_step()
+        self._c_last = False  # the last accepted step was taken in C (its buffers hold it)
         self._start()
+
+    def _compiled_step(self):
+        """The trial step and dense output in C (:mod:`mbsim.fast.stepper`) for the
+        projection methods with a tableau step.c knows, unless option ``compiled_step`` is
+        false (the Python path, same arithmetic; the tests compare the two)."""
+        if not (self.project and self.options.get("compiled_step", True)
+                and stepper.supports(self.tableau)):
+            return None
+        return stepper.CompiledStep(
+            self.system, self.tableau, rtol=self.rtol, atol=self.atol,
+            control=self.tableau.embedded and self.h_fixed is None, project=True,
+            proj_tol=self.proj_tol, stab=self.stab)
 
     def _new_approach(self):
         return cp.Approach(cp.stage_times(self.tableau), self.h_fixed, self.policy)
@@ -215,6 +236,62 @@ class Index1(RungeKuttaIntegrator):
             return None
         k = C.shape[0]
         return np.concatenate([np.zeros(k), np.abs(a[0] - a[1]) / np.sqrt(2.0)])
+
+    def _attempt(self, h):
+        """The trial in C (mbsim/fast/step.c) outside tangent coordinates: stages, error
+        test, projection and f at the end in one call; where a stage's measure falls below
+        the policy's switch (or a Python force element raised) the trial is taken again by
+        the Python path, whose policy decides (:meth:`_rhs`)."""
+        self._c_last = False
+        c = self._compiled
+        if c is None or self._tangent:
+            return super()._attempt(h)
+        t = self.t
+        status = c.trial(t, h, self.y, self.f, self.policy.tangent)
+        if status in (stepper.ST_ALARM, stepper.ST_CALLBACK):
+            return super()._attempt(h)
+        out = c.out
+        self._trial_s, self._s = float(out[stepper.O_SMIN]), float(out[stepper.O_SLAST])
+        err = float(out[stepper.O_ERR])
+        if status == stepper.ST_SOLVE:
+            raise stepper.solve_error(out[stepper.O_CODE])
+        if status == stepper.ST_PROJECTION:
+            raise StageFailure(f"projection onto the constraints did not converge at "
+                               f"t = {t + h:.6g} s (max |Phi| = {out[stepper.O_RES]:.3g})")
+        if status == stepper.ST_NONFINITE:
+            raise StageFailure(f"error norm {err} at step {h:.3g} s")
+        if status == stepper.ST_REJECTED:
+            return err, c.y_new.copy(), None, None, None, None
+        self._c_last = True
+        return err, c.y_new.copy(), c.y_acc.copy(), c.f_acc.copy(), c.stages(), None
+
+    def dense_output_many(self, times):
+        """All outputs of the last step at once, in C when the step was taken there (module
+        :mod:`mbsim.fast.stepper`); an output whose projection C cannot vouch for (the
+        checks of :meth:`_dense_output_impl`) and a step whose extra stages meet the policy
+        go through the Python dense output."""
+        if not self._c_last or self._step_tangent:
+            return super().dense_output_many(times)
+        times = np.asarray(times, dtype=float)
+        inside = times != self.t  # (at t: the accepted state)
+        Q, QD = np.empty((times.size, self.n)), np.empty((times.size, self.n))
+        W = np.empty(times.size)
+        Q[~inside], QD[~inside], W[~inside] = self.q, self.qd, self.w
+        flags = np.zeros(times.size, dtype=bool)
+        if inside.any():
+            t0, h = self._dense_args[:2]
+            status, Q[inside], QD[inside], W[inside], flags[inside] = self._compiled.dense(
+                t0, h, times[inside])
+            if status != stepper.ST_ACCEPTED:
+                return super().dense_output_many(times)
+        redo = np.flatnonzero(flags)
+        if redo.size:
+            Q[redo], QD[redo], W[redo] = super().dense_output_many(times[redo])
+        bad = ~(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1))
+        if bad.any():
+            raise IntegratorFailure(f"t = {times[bad][0]:.6g} s: the state is not finite "
+                                    f"(NaN or inf)")
+        return Q, QD, W
 
     def _tangent_map(self, t, q):
         s = self.system
