@@ -1,0 +1,162 @@
+"""The step in C (mbsim/fast/step.c) against the Python step: CPU per simulated second and
+the compiled share of default runs, both paths side by side in one run.
+
+    python benchmarks/step_loop.py [--repeats 3] [--chain 64]
+
+Cases: the governor and the free slider-crank as their decks run them (``dynamic(model,
+{})``: the deck's outputs, the error estimate on, the default integrator projection-dop853)
+and a spherical chain of 64 links (benchmarks/common.py, 1 s, outputs every 0.01 s, the
+same defaults).  Paths: ``compiled_step: false`` (every stage, projection and output
+through Python) and true (the trial step and the outputs of a step in one C call each).
+
+Printed per case and path: the median CPU seconds (``time.process_time``) of the whole
+analysis over the repeats with the spread (min-max), per simulated second; and the
+compiled share: the fraction of a run's time spent inside the C library.  cProfile does
+not see calls through ctypes, so every C entry point of the library is wrapped in a
+one-line Python function before the run; under cProfile the wrappers' own time (tottime)
+is the time inside C (a Python callback made from C, as for driven rows or Python force
+elements, is a function of its own and is not counted), and the share is their sum over
+the profile's total.  cProfile slows the Python side more than C, so this share is a lower
+bound of the unprofiled one.  Beside it, the share of the step loop alone (``loop``):
+without the profiler, the time inside C during the driver's loop
+(``mbsim.analyses.dynamic._integrate``: steps and outputs, both integrations of the run)
+over the loop's time, the recording of the outputs (its ``record`` callback) taken out of
+both; timed with ``time.perf_counter`` around each C call.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import pstats
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
+
+from common import chain_model  # noqa: E402
+
+from mbsim.analyses import dynamic as dyn  # noqa: E402
+from mbsim.analyses.dynamic import dynamic  # noqa: E402
+from mbsim.deck import load_deck  # noqa: E402
+from mbsim.fast import _lib  # noqa: E402
+from mbsim.model import compile_model  # noqa: E402
+
+ENTRY_POINTS = ("mb_constraints", "mb_terms", "mb_gather_dense", "mb_jac_times",
+                "mb_applied_forces", "mb_mass_blocks", "mb_accelerations", "mb_project",
+                "mb_rk_trial", "mb_rk_dense")
+WRAPPER_FILE = "<mbsim C library>"
+
+
+CLOCK = {"on": False, "c": 0.0, "loop": 0.0}  # the loop share's timers (module doc)
+
+
+def wrap_library():
+    """Every C entry point of the loaded library replaced by a Python function that calls
+    it (compiled from a pseudo file name, so the profile tells them apart) and, while
+    CLOCK["on"], adds its time to CLOCK["c"].  Call before the models' Systems are built
+    (they bind the functions then)."""
+    lib = _lib.library()
+    for name in ENTRY_POINTS:
+        f = getattr(lib, name, None)
+        if f is None or getattr(f, "_wrapped", False):
+            continue
+        ns = {"f": f, "clock": CLOCK, "now": time.perf_counter}
+        src = (f"def {name}(*a):\n    if not clock['on']:\n        return f(*a)\n"
+               f"    t0 = now()\n    r = f(*a)\n    clock['c'] += now() - t0\n    return r\n")
+        exec(compile(src, WRAPPER_FILE, "exec"), ns)
+        w = ns[name]
+        w._wrapped = True
+        setattr(lib, name, w)
+    integrate = dyn._integrate
+
+    def timed_integrate(run, times, record, max_steps):
+        def timed_record(*a):
+            CLOCK["on"] = False
+            t0 = time.perf_counter()
+            try:
+                return record(*a)
+            finally:
+                CLOCK["loop"] -= time.perf_counter() - t0
+                CLOCK["on"] = True
+
+        CLOCK["on"] = True
+        t0 = time.perf_counter()
+        try:
+            return integrate(run, times, timed_record, max_steps)
+        finally:
+            CLOCK["loop"] += time.perf_counter() - t0
+            CLOCK["on"] = False
+
+    dyn._integrate = timed_integrate
+
+
+def loop_share(model, opt):
+    CLOCK.update(c=0.0, loop=0.0)
+    dynamic(model, opt)
+    return CLOCK["c"] / CLOCK["loop"]
+
+
+def cases(n_chain):
+    """(name, model, options) of the runs."""
+    gov = compile_model(load_deck(ROOT / "models" / "governor.yaml"))
+    sc = compile_model(load_deck(ROOT / "models" / "slider_crank.yaml"))
+    chain = chain_model(n_chain)
+    chain_opt = {"t_end": 1.0, "step": 0.01, "q0": chain.q0.copy()}
+    return [("governor", gov, {}), ("slider-crank", sc, {}),
+            (f"chain {n_chain}", chain, chain_opt)]
+
+
+def cpu_run(model, opt):
+    t0 = time.process_time()
+    res = dynamic(model, opt)
+    cpu = time.process_time() - t0
+    if not res.complete:
+        raise SystemExit(f"run did not complete: {res.message}")
+    span = float(res.t[-1] - res.t[0])
+    return cpu, span, res
+
+
+def compiled_share(model, opt):
+    prof = cProfile.Profile()
+    prof.enable()
+    dynamic(model, opt)
+    prof.disable()
+    st = pstats.Stats(prof)
+    inside = sum(v[2] for k, v in st.stats.items() if k[0] == WRAPPER_FILE)
+    return inside / st.total_tt
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--chain", type=int, default=64)
+    a = ap.parse_args(argv)
+    wrap_library()
+    print(f"default runs (deck outputs, error estimate on, projection-dop853); CPU s per "
+          f"simulated s: median of {a.repeats} (min-max); compiled share under cProfile")
+    print(f"{'case':<14} {'path':<7} {'CPU s/s':>9} {'spread':>20} {'share':>7} {'loop':>7} "
+          f"{'steps':>6} {'f evals':>8}")
+    for name, model, opt in cases(a.chain):
+        rows = {}
+        for compiled in (False, True):
+            o = dict(opt, compiled_step=compiled)
+            cpu_run(model, o)  # warm-up: the library, caches
+            runs = [cpu_run(model, o) for _ in range(a.repeats)]
+            per = [cpu / span for cpu, span, _ in runs]
+            res = runs[-1][2]
+            share = compiled_share(model, o)
+            loop = statistics.median(loop_share(model, o) for _ in range(a.repeats))
+            c = res.counters
+            rows[compiled] = statistics.median(per)
+            print(f"{name:<14} {'C' if compiled else 'Python':<7} {statistics.median(per):9.4f} "
+                  f"{min(per):9.4f}-{max(per):<10.4f} {100 * share:6.1f}% {100 * loop:6.1f}% "
+                  f"{c.get('steps', 0):6d} {c.get('function_evaluations', 0):8d}")
+        print(f"{'':<14} Python / C = {rows[False] / rows[True]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
