@@ -111,15 +111,15 @@ class Index1(RungeKuttaIntegrator):
         self._start()
 
     def _compiled_step(self):
-        """The trial step and dense output in C (:mod:`mbsim.fast.stepper`) for the
-        projection methods with a tableau step.c knows, unless option ``compiled_step`` is
-        false (the Python path, same arithmetic; the tests compare the two)."""
-        if not (self.project and self.options.get("compiled_step", True)
-                and stepper.supports(self.tableau)):
+        """The trial step and dense output in C (:mod:`mbsim.fast.stepper`) for a tableau
+        step.c knows, unless option ``compiled_step`` is false (the Python path, the same
+        arithmetic; tests/integrators/test_compiled_step.py compares the two).  The
+        projection methods project in C; Baumgarte's drift test stays :meth:`_accept`."""
+        if not (self.options.get("compiled_step", True) and stepper.supports(self.tableau)):
             return None
         return stepper.CompiledStep(
             self.system, self.tableau, rtol=self.rtol, atol=self.atol,
-            control=self.tableau.embedded and self.h_fixed is None, project=True,
+            control=self.tableau.embedded and self.h_fixed is None, project=self.project,
             proj_tol=self.proj_tol, stab=self.stab)
 
     def _new_approach(self):
@@ -260,10 +260,15 @@ class Index1(RungeKuttaIntegrator):
                                f"t = {t + h:.6g} s (max |Phi| = {out[stepper.O_RES]:.3g})")
         if status == stepper.ST_NONFINITE:
             raise StageFailure(f"error norm {err} at step {h:.3g} s")
+        y_new = c.y_new.copy()
         if status == stepper.ST_REJECTED:
-            return err, c.y_new.copy(), None, None, None, None
+            return err, y_new, None, None, None, None
+        y_acc, f_acc = c.y_acc.copy(), c.f_acc.copy()
+        if not self.project:  # Baumgarte's drift test (the dense output blends its result)
+            y_acc, f_acc = self._accept(t + h, y_acc, f_acc)
+            c.y_acc[:] = y_acc
         self._c_last = True
-        return err, c.y_new.copy(), c.y_acc.copy(), c.f_acc.copy(), c.stages(), None
+        return err, y_new, y_acc, f_acc, c.stages(), None
 
     def dense_output_many(self, times):
         """All outputs of the last step at once, in C when the step was taken there (module

@@ -1,4 +1,4 @@
-"""The step of the index-1 projection methods in C (mbsim/fast/step.c, mbsim/fast/stepper.py)
+"""The step of the index-1 methods in C (mbsim/fast/step.c, mbsim/fast/stepper.py)
 against the Python path (option ``compiled_step: false``), which does the same arithmetic.
 
 - One trial step from the same state: the error norm, the stages, the end before and after
@@ -29,7 +29,7 @@ from mbsim.model import compile_model
 from tests.integrators import models as M
 from tests.integrators import references as R
 
-METHODS = ("projection", "projection-dop853", "rk4")
+METHODS = ("projection", "projection-dop853", "rk4", "baumgarte")
 EPS = np.finfo(float).eps
 REL = 1e-12  # one step's round-off bound between the two paths (module doc)
 ROOT = Path(__file__).resolve().parents[2]
@@ -127,7 +127,8 @@ def test_which_models_call_python_per_stage():
 
 
 @pytest.mark.parametrize("method,rtol,h", [("projection-dop853", 1e-8, None),
-                                           ("projection", 1e-7, None), ("rk4", None, 2e-3)])
+                                           ("projection", 1e-7, None), ("rk4", None, 2e-3),
+                                           ("baumgarte", 1e-7, None)])
 @pytest.mark.parametrize("name", M.REFERENCE_PROBLEMS)
 def test_both_paths_meet_the_reference(name, method, rtol, h):
     """Whole runs, C and Python path, each against the independent reference.  Adaptive
