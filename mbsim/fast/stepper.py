@@ -128,8 +128,8 @@ class CompiledStep:
 
     def _counted(self, status):
         c = self.system.counters
-        for name, n in zip(COUNTERS, self.count):
-            c[name] += int(n)
+        for name, n in zip(COUNTERS, self.count.tolist()):
+            c[name] += n
         self.count[:] = 0
         return status
 
@@ -145,13 +145,15 @@ class CompiledStep:
         """(ns + 1, ny) copy of the last trial's stages and f(t + h, y_new)."""
         return self.K[: self.ns + 1].copy()
 
-    def dense(self, t0, h, times):
-        """(status, Q (k, nq), QD (k, nq), W (k,), flags (k,)) of the last trial (accepted;
-        the buffers untouched since) at ``times`` in [t0, t0 + h]; flags[i] = 1 where
-        Python must give the output (step.c: mb_rk_dense)."""
+    def dense(self, t0, h, times, k=None):
+        """(status, Q (n, nq), QD (n, nq), W (n,), flags (k,)) of the last trial (accepted;
+        the buffers untouched since) at the first k (default all n) of ``times`` in
+        [t0, t0 + h] (the rows after k are left for the caller); flags[i] = 1 where Python
+        must give the output (step.c: mb_rk_dense)."""
         times = np.ascontiguousarray(times, dtype=np.float64)
-        k, nq = times.size, self.system.nq
-        Q, QD, W = np.empty((k, nq)), np.empty((k, nq)), np.empty(k)
+        n, nq = times.size, self.system.nq
+        k = n if k is None else k
+        Q, QD, W = np.empty((n, nq)), np.empty((n, nq)), np.empty(n)
         flags = np.zeros(k, dtype=np.int64)
         st = self.lib.mb_rk_dense(self.system.c.ptr, self.ptr, t0, h, k, times.ctypes.data,
                                   Q.ctypes.data, QD.ctypes.data, W.ctypes.data,

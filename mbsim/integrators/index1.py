@@ -278,22 +278,18 @@ class Index1(RungeKuttaIntegrator):
         if not self._c_last or self._step_tangent:
             return super().dense_output_many(times)
         times = np.asarray(times, dtype=float)
-        inside = times != self.t  # (at t: the accepted state)
-        Q, QD = np.empty((times.size, self.n)), np.empty((times.size, self.n))
-        W = np.empty(times.size)
-        Q[~inside], QD[~inside], W[~inside] = self.q, self.qd, self.w
-        flags = np.zeros(times.size, dtype=bool)
-        if inside.any():
-            t0, h = self._dense_args[:2]
-            status, Q[inside], QD[inside], W[inside], flags[inside] = self._compiled.dense(
-                t0, h, times[inside])
-            if status != stepper.ST_ACCEPTED:
-                return super().dense_output_many(times)
-        redo = np.flatnonzero(flags)
-        if redo.size:
+        k = times.size - int(times.size > 0 and times[-1] == self.t)  # (at t: the state)
+        t0, h = self._dense_args[:2]
+        status, Q, QD, W, flags = self._compiled.dense(t0, h, times, k)
+        if status != stepper.ST_ACCEPTED:
+            return super().dense_output_many(times)
+        if k < times.size:
+            Q[k], QD[k], W[k] = self.q, self.qd, self.w
+        if flags.any():
+            redo = np.flatnonzero(flags)
             Q[redo], QD[redo], W[redo] = super().dense_output_many(times[redo])
-        bad = ~(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1))
-        if bad.any():
+        if not (np.isfinite(Q).all() and np.isfinite(QD).all()):
+            bad = ~(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1))
             raise IntegratorFailure(f"t = {times[bad][0]:.6g} s: the state is not finite "
                                     f"(NaN or inf)")
         return Q, QD, W
