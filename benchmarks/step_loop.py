@@ -12,16 +12,18 @@ through Python) and true (the trial step and the outputs of a step in one C call
 Printed per case and path: the median CPU seconds (``time.process_time``) of the whole
 analysis over the repeats with the spread (min-max), per simulated second; and the
 compiled share: the fraction of a run's time spent inside the C library.  cProfile does
-not see calls through ctypes, so every C entry point of the library is wrapped in a
-one-line Python function before the run; under cProfile the wrappers' own time (tottime)
-is the time inside C (a Python callback made from C, as for driven rows or Python force
-elements, is a function of its own and is not counted), and the share is their sum over
-the profile's total.  cProfile slows the Python side more than C, so this share is a lower
-bound of the unprofiled one.  Beside it, the share of the step loop alone (``loop``):
-without the profiler, the time inside C during the driver's loop
+not see calls through ctypes, so every C entry point of the library is wrapped in a small
+Python function for these runs (the CPU runs come first, unwrapped); under cProfile the
+wrappers' own time (tottime) is the time inside C (a Python callback made from C, as for
+driven rows or Python force elements, is a function of its own and is not counted), and
+the share is their sum over the profile's total (``share``).  cProfile slows the Python side more than C, so this
+share is a lower bound of the unprofiled one, which is printed beside it (``run``: the
+time inside C over the run's time, timed with ``time.perf_counter`` around each C call,
+medians of the repeats), with the share of the step loop alone (``loop``): the time inside
+C during the driver's loop
 (``mbsim.analyses.dynamic._integrate``: steps and outputs, both integrations of the run)
 over the loop's time, the recording of the outputs (its ``record`` callback) taken out of
-both; timed with ``time.perf_counter`` around each C call.
+both.
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ ENTRY_POINTS = ("mb_constraints", "mb_terms", "mb_gather_dense", "mb_jac_times",
 WRAPPER_FILE = "<mbsim C library>"
 
 
-CLOCK = {"on": False, "c": 0.0, "loop": 0.0}  # the loop share's timers (module doc)
+CLOCK = {"on": False, "c": 0.0, "loop": 0.0, "all": 0.0}  # the timed shares (module doc)
 
 
 def wrap_library():
@@ -65,8 +67,9 @@ def wrap_library():
         if f is None or getattr(f, "_wrapped", False):
             continue
         ns = {"f": f, "clock": CLOCK, "now": time.perf_counter}
-        src = (f"def {name}(*a):\n    if not clock['on']:\n        return f(*a)\n"
-               f"    t0 = now()\n    r = f(*a)\n    clock['c'] += now() - t0\n    return r\n")
+        src = (f"def {name}(*a):\n    t0 = now()\n    r = f(*a)\n    dt = now() - t0\n"
+               f"    clock['all'] += dt\n    if clock['on']:\n        clock['c'] += dt\n"
+               f"    return r\n")
         exec(compile(src, WRAPPER_FILE, "exec"), ns)
         w = ns[name]
         w._wrapped = True
@@ -94,10 +97,13 @@ def wrap_library():
     dyn._integrate = timed_integrate
 
 
-def loop_share(model, opt):
-    CLOCK.update(c=0.0, loop=0.0)
+def timed_shares(model, opt):
+    """(share of the run, share of the step loop) timed without the profiler."""
+    CLOCK.update(c=0.0, loop=0.0, all=0.0)
+    t0 = time.perf_counter()
     dynamic(model, opt)
-    return CLOCK["c"] / CLOCK["loop"]
+    run = time.perf_counter() - t0
+    return CLOCK["all"] / run, CLOCK["c"] / CLOCK["loop"]
 
 
 def cases(n_chain):
@@ -135,27 +141,32 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--chain", type=int, default=64)
     a = ap.parse_args(argv)
+    runs = [(name, model, dict(opt, compiled_step=compiled))
+            for name, model, opt in cases(a.chain) for compiled in (False, True)]
+    cpu = {}
+    for name, model, o in runs:  # CPU first, with the library as it is
+        cpu_run(model, o)  # warm-up: the library, caches
+        out = [cpu_run(model, o) for _ in range(a.repeats)]
+        cpu[name, o["compiled_step"]] = ([c / span for c, span, _ in out], out[-1][2].counters)
     wrap_library()
     print(f"default runs (deck outputs, error estimate on, projection-dop853); CPU s per "
-          f"simulated s: median of {a.repeats} (min-max); compiled share under cProfile")
-    print(f"{'case':<14} {'path':<7} {'CPU s/s':>9} {'spread':>20} {'share':>7} {'loop':>7} "
-          f"{'steps':>6} {'f evals':>8}")
-    for name, model, opt in cases(a.chain):
-        rows = {}
-        for compiled in (False, True):
-            o = dict(opt, compiled_step=compiled)
-            cpu_run(model, o)  # warm-up: the library, caches
-            runs = [cpu_run(model, o) for _ in range(a.repeats)]
-            per = [cpu / span for cpu, span, _ in runs]
-            res = runs[-1][2]
-            share = compiled_share(model, o)
-            loop = statistics.median(loop_share(model, o) for _ in range(a.repeats))
-            c = res.counters
-            rows[compiled] = statistics.median(per)
-            print(f"{name:<14} {'C' if compiled else 'Python':<7} {statistics.median(per):9.4f} "
-                  f"{min(per):9.4f}-{max(per):<10.4f} {100 * share:6.1f}% {100 * loop:6.1f}% "
-                  f"{c.get('steps', 0):6d} {c.get('function_evaluations', 0):8d}")
-        print(f"{'':<14} Python / C = {rows[False] / rows[True]:.2f}")
+          f"simulated s: median of {a.repeats} (min-max); compiled share: under cProfile, "
+          f"and timed (run, step loop)")
+    print(f"{'case':<14} {'path':<7} {'CPU s/s':>9} {'spread':>20} {'share':>7} {'run':>7} "
+          f"{'loop':>7} {'steps':>6} {'f evals':>8}")
+    for name, model, o in runs:
+        compiled = o["compiled_step"]
+        per, c = cpu[name, compiled]
+        share = compiled_share(model, o)
+        timed = [timed_shares(model, o) for _ in range(a.repeats)]
+        run = statistics.median(x[0] for x in timed)
+        loop = statistics.median(x[1] for x in timed)
+        print(f"{name:<14} {'C' if compiled else 'Python':<7} {statistics.median(per):9.4f} "
+              f"{min(per):9.4f}-{max(per):<10.4f} {100 * share:6.1f}% {100 * run:6.1f}% "
+              f"{100 * loop:6.1f}% {c.get('steps', 0):6d} {c.get('function_evaluations', 0):8d}")
+        if compiled:
+            ratio = statistics.median(cpu[name, False][0]) / statistics.median(per)
+            print(f"{'':<14} Python / C = {ratio:.2f}")
 
 
 if __name__ == "__main__":
