@@ -16,14 +16,13 @@ not see calls through ctypes, so every C entry point of the library is wrapped i
 Python function for these runs (the CPU runs come first, unwrapped); under cProfile the
 wrappers' own time (tottime) is the time inside C (a Python callback made from C, as for
 driven rows or Python force elements, is a function of its own and is not counted), and
-the share is their sum over the profile's total (``share``).  cProfile slows the Python side more than C, so this
-share is a lower bound of the unprofiled one, which is printed beside it (``run``: the
-time inside C over the run's time, timed with ``time.perf_counter`` around each C call,
-medians of the repeats), with the share of the step loop alone (``loop``): the time inside
-C during the driver's loop
-(``mbsim.analyses.dynamic._integrate``: steps and outputs, both integrations of the run)
-over the loop's time, the recording of the outputs (its ``record`` callback) taken out of
-both.
+the share is their sum over the profile's total (``share``).  cProfile slows the Python
+side more than C, so this share is a lower bound of the unprofiled one, printed beside it
+(``run``: the time inside C over the run's time, timed with ``time.perf_counter`` around
+each C call, medians of the repeats), with the share of the step loop alone (``loop``):
+the time inside C during the driver's loop (``mbsim.analyses.dynamic._integrate``: steps
+and outputs, both integrations of the run) over the loop's time, the recording of the
+outputs (its ``record`` callback) taken out of both.
 """
 
 from __future__ import annotations
