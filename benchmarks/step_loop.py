@@ -6,7 +6,9 @@ the compiled share of default runs, both paths side by side in one run.
 Cases: the governor and the free slider-crank as their decks run them (``dynamic(model,
 {})``: the deck's outputs, the error estimate on, the default integrator projection-dop853)
 and a spherical chain of 64 links (benchmarks/common.py, 1 s, outputs every 0.01 s, the
-same defaults).  Paths: ``compiled_step: false`` (every stage, projection and output
+same defaults); then two bare integrations (one output, no estimate: what
+benchmarks/peers.py times) at the issue's peer targets, the governor at rtol 1e-3 and the
+4-link chain at rtol 1e-6 (2 s each; set-up included).  Paths: ``compiled_step: false`` (every stage, projection and output
 through Python) and true (the trial step and the outputs of a step in one C call each).
 
 Printed per case and path: the median CPU seconds (``time.process_time``) of the whole
@@ -106,13 +108,22 @@ def timed_shares(model, opt):
 
 
 def cases(n_chain):
-    """(name, model, options) of the runs."""
+    """(name, model, options) of the runs: the default runs, then the bare integrations
+    (one output, no estimate) of the issue's peer targets."""
     gov = compile_model(load_deck(ROOT / "models" / "governor.yaml"))
     sc = compile_model(load_deck(ROOT / "models" / "slider_crank.yaml"))
     chain = chain_model(n_chain)
     chain_opt = {"t_end": 1.0, "step": 0.01, "q0": chain.q0.copy()}
+    chain4 = chain_model(4)
+
+    def bare(rtol, t_end=2.0, **o):
+        return dict(o, t_end=t_end, step=t_end, rtol=rtol, atol=1e-2 * rtol,
+                    error_estimate=False)
+
     return [("governor", gov, {}), ("slider-crank", sc, {}),
-            (f"chain {n_chain}", chain, chain_opt)]
+            (f"chain {n_chain}", chain, chain_opt),
+            ("bare gov 1e-3", gov, bare(1e-3)),
+            ("bare chain4 1e-6", chain4, bare(1e-6, q0=chain4.q0.copy()))]
 
 
 def cpu_run(model, opt):
@@ -148,10 +159,10 @@ def main(argv=None):
         out = [cpu_run(model, o) for _ in range(a.repeats)]
         cpu[name, o["compiled_step"]] = ([c / span for c, span, _ in out], out[-1][2].counters)
     wrap_library()
-    print(f"default runs (deck outputs, error estimate on, projection-dop853); CPU s per "
+    print(f"projection-dop853; default runs: deck outputs, error estimate on; CPU s per "
           f"simulated s: median of {a.repeats} (min-max); compiled share: under cProfile, "
           f"and timed (run, step loop)")
-    print(f"{'case':<14} {'path':<7} {'CPU s/s':>9} {'spread':>20} {'share':>7} {'run':>7} "
+    print(f"{'case':<16} {'path':<7} {'CPU s/s':>9} {'spread':>20} {'share':>7} {'run':>7} "
           f"{'loop':>7} {'steps':>6} {'f evals':>8}")
     for name, model, o in runs:
         compiled = o["compiled_step"]
@@ -160,12 +171,12 @@ def main(argv=None):
         timed = [timed_shares(model, o) for _ in range(a.repeats)]
         run = statistics.median(x[0] for x in timed)
         loop = statistics.median(x[1] for x in timed)
-        print(f"{name:<14} {'C' if compiled else 'Python':<7} {statistics.median(per):9.4f} "
+        print(f"{name:<16} {'C' if compiled else 'Python':<7} {statistics.median(per):9.4f} "
               f"{min(per):9.4f}-{max(per):<10.4f} {100 * share:6.1f}% {100 * run:6.1f}% "
               f"{100 * loop:6.1f}% {c.get('steps', 0):6d} {c.get('function_evaluations', 0):8d}")
         if compiled:
             ratio = statistics.median(cpu[name, False][0]) / statistics.median(per)
-            print(f"{'':<14} Python / C = {ratio:.2f}")
+            print(f"{'':<16} Python / C = {ratio:.2f}")
 
 
 if __name__ == "__main__":
