@@ -8,8 +8,9 @@ Cases: the governor and the free slider-crank as their decks run them (``dynamic
 and a spherical chain of 64 links (benchmarks/common.py, 1 s, outputs every 0.01 s, the
 same defaults); then two bare integrations (one output, no estimate: what
 benchmarks/peers.py times) at the issue's peer targets, the governor at rtol 1e-3 and the
-4-link chain at rtol 1e-6 (2 s each; set-up included).  Paths: ``compiled_step: false`` (every stage, projection and output
-through Python) and true (the trial step and the outputs of a step in one C call each).
+4-link chain at rtol 1e-6 (2 s each; set-up included).  Paths: ``compiled_step: false``
+(every stage, projection and output through Python) and true (the trial step and the
+outputs of a step in one C call each).
 
 Printed per case and path: the median CPU seconds (``time.process_time``) of the whole
 analysis over the repeats with the spread (min-max), per simulated second; and the
