@@ -474,6 +474,12 @@ class Stepper:
             self.first_step = self.solver.h_last
         return ok, msg
 
+    def advance(self, t_stop, max_steps):
+        """Accepted steps until t >= t_stop (Integrator.advance); the first one alone."""
+        if self.first_step is None:
+            return self.step()
+        return self.solver.advance(t_stop, max_steps)
+
     def restart(self, message) -> bool:
         """Re-select the rows at the last accepted state; True when the run goes on."""
         s, model = self.solver, self.model
@@ -511,6 +517,9 @@ class Stepper:
         return out
 
 
+ADVANCE_STEPS = 10000  # steps per call of Integrator.advance at most (a Ctrl-C waits for it)
+
+
 def _integrate(run, times, record, max_steps):
     """Step ``run`` (a :class:`Stepper`) to times[-1], calling ``record(t, q, qd, w, h)`` at
     times[1:].
@@ -519,8 +528,9 @@ def _integrate(run, times, record, max_steps):
     ends as ('incomplete', message with the time), never as an exception."""
     k, steps = 1, 0
     while k < len(times):
-        ok, msg = run.step()
-        steps += 1
+        before = run.solver.counters["steps"]
+        ok, msg = run.advance(times[k], max(1, min(ADVANCE_STEPS, max_steps - steps)))
+        steps += max(1, run.solver.counters["steps"] - before)
         if not ok:
             if run.restart(msg):
                 continue

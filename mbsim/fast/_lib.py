@@ -205,6 +205,8 @@ def _declare(lib):
         "mb_rk_trial": ([P, P, ctypes.c_double, ctypes.c_double], I),
         "mb_rk_dense": ([P, P, ctypes.c_double, ctypes.c_double, ctypes.c_int64, P, P, P, P,
                          P], I),
+        "mb_rk_steps": ([P, P, P], I),
+        "mb_loop_size": ([], ctypes.c_int64),
     }
     for name, (args, res) in sig.items():
         f = getattr(lib, name)

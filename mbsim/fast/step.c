@@ -443,3 +443,124 @@ int mb_rk_dense(const mb_model *M, mb_rk *R, double t0, double h, idx k, const d
     }
     return ST_ACCEPTED;
 }
+
+/* -- a loop of accepted steps ------------------------------------------------------------ */
+
+/* The step-size controller's settings and state (mbsim/integrators/base.py: the constants,
+ * Integrator._clip, _min_step, _step_factor, _check_progress), in and out. */
+typedef struct {
+    double t;        /* in: the state's time; out: the last accepted step's end */
+    double t_bound, t_stop; /* steps end at t_bound; the loop stops once t >= t_stop */
+    double h_abs;    /* in/out: the next step to try */
+    double h_max, h_min, h_fixed; /* h_fixed > 0: fixed steps, no error control */
+    double err_old;  /* in/out: the PI controller's memory */
+    double exponent, beta, safety, min_factor, max_factor;
+    double near;     /* stop after a step whose measure s is below this (the policy's
+                        Approach takes over; 0: never) */
+    double stall_floor; /* stop after a step below stall_floor max(1, |t|) */
+    idx max_steps, max_rejects;
+    /* out */
+    idx steps, rejected; /* accepted steps, and the rejected trials of those steps */
+    idx why;         /* LOOP_* */
+    double t_old, h_last;
+} mb_loop;
+
+enum { LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON };
+
+int64_t mb_loop_size(void) { return (int64_t)sizeof(mb_loop); }
+
+/* base.Integrator._step_factor: Hairer's PI controller. */
+static double step_factor(mb_loop *L, double err, int rejected)
+{
+    if (err <= 1.0) {
+        double e = err > 1e-10 ? err : 1e-10;
+        double f = L->safety * pow(e, L->exponent + 0.75 * L->beta) * pow(L->err_old, L->beta);
+        if (f > L->max_factor)
+            f = L->max_factor;
+        if (rejected && f > 1.0)
+            f = 1.0;
+        L->err_old = err > 1e-4 ? err : 1e-4;
+        return f;
+    }
+    double f = L->safety * pow(err, L->exponent + 0.75 * L->beta);
+    return f > L->min_factor ? f : L->min_factor;
+}
+
+/* Accepted steps from (t, y, f) (the buffers y, f) until t >= t_stop (or t_bound, or
+ * max_steps), as RungeKuttaIntegrator._step_impl and Integrator.step take them one by one,
+ * for a family whose step is mb_rk_trial alone (index-1 outside tangent coordinates).  A
+ * step that needs Python is not taken: the loop returns LOOP_PYTHON before it, with every
+ * earlier step accepted (a trial's status other than accepted or rejected, a step below the
+ * smallest step, max_rejects rejections, a non-finite step or state).  It also returns after
+ * a step whose change-point measure is below `near` (LOOP_NEAR) and after a step below the
+ * stall floor (LOOP_TINY), where the integrator's bookkeeping decides.  On return y is the
+ * last step's start, y_new, y_acc, f_acc and K its trial (the dense output's data), and
+ * t_old, h_last, t, h_abs, err_old, steps, rejected say where the loop is; after
+ * LOOP_PYTHON, (t, y, f) is the last accepted state and the rest is the abandoned step's. */
+int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
+{
+    idx ny = 2 * R->nq + 1;
+    L->steps = 0;
+    L->rejected = 0;
+    L->why = LOOP_STOP;
+    while (L->t < L->t_stop && L->t < L->t_bound && L->steps < L->max_steps) {
+        if (L->steps > 0) { /* the last step's end is the next step's start */
+            memcpy(R->y, R->y_acc, (size_t)ny * sizeof(double));
+            memcpy(R->f, R->f_acc, (size_t)ny * sizeof(double));
+        }
+        double t = L->t, h_abs = L->h_abs < L->h_max ? L->h_abs : L->h_max, h;
+        double err_old = L->err_old;
+        int rejected = 0;
+        idx rejects = 0;
+        for (;;) {
+            h = h_abs; /* Integrator._clip */
+            if (L->h_max < h)
+                h = L->h_max;
+            if (L->t_bound - t < h)
+                h = L->t_bound - t;
+            if (L->t_bound - (t + h) < 1e-12 * fmax(1.0, fabs(L->t_bound)))
+                h = L->t_bound - t;
+            double min_step = fmax(L->h_min, 10.0 * fabs(nextafter(t, INFINITY) - t));
+            if (!isfinite(h) || (h < min_step && h < L->t_bound - t) ||
+                rejects >= L->max_rejects)
+                break;
+            int st = mb_rk_trial(M, R, t, h);
+            if (st != ST_ACCEPTED && st != ST_REJECTED)
+                break;
+            if (L->h_fixed > 0.0)
+                goto accepted;
+            double err = R->out[O_ERR];
+            h_abs = h * step_factor(L, err, rejected);
+            if (st == ST_ACCEPTED)
+                goto accepted;
+            rejected = 1;
+            rejects++;
+        }
+        /* this step needs Python: nothing of it is kept (y, f: the state before it) */
+        L->err_old = err_old;
+        L->why = LOOP_PYTHON;
+        return L->why;
+    accepted:
+        for (idx i = 0; i < ny; i++)
+            if (!isfinite(R->y_acc[i])) {
+                L->err_old = err_old;
+                L->why = LOOP_PYTHON;
+                return L->why;
+            }
+        L->rejected += rejects;
+        L->steps++;
+        L->t_old = t;
+        L->h_last = h;
+        L->t = t + h;
+        L->h_abs = L->h_fixed > 0.0 ? L->h_fixed : h_abs;
+        if (R->out[O_SLAST] < L->near) {
+            L->why = LOOP_NEAR;
+            return L->why;
+        }
+        if (h < L->stall_floor * fmax(1.0, fabs(L->t)) && L->t < L->t_bound) {
+            L->why = LOOP_TINY;
+            return L->why;
+        }
+    }
+    return L->why;
+}

@@ -21,6 +21,11 @@ Buffers (all owned here, handed to C once):
 - ``out`` (5,): error norm, smallest change-point measure of the trial's stages, measure of
   the last derivative, last projection residual, failure code of a factorisation;
 - ``count`` (4,): the work done (``COUNTERS``), added to ``system.counters`` after a call.
+
+A third call takes many accepted steps in a row (``steps``: up to the next output time),
+with the step-size controller of :mod:`mbsim.integrators.base` in C too (``Loop``); it
+returns before any step that needs Python, and after one where the change-point policy's
+approach or the stall watchdog must look.
 """
 
 from __future__ import annotations
@@ -54,6 +59,22 @@ class RK(ctypes.Structure):
         + [(n, ctypes.c_void_p) for n in
            ("A", "B", "C", "E", "E3", "P", "AX", "CX", "D", "y", "f", "K", "y_new", "y_acc",
             "f_acc", "ys", "vm", "qw", "Fd", "out", "count")]
+    )
+
+
+LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON = range(4)
+
+
+class Loop(ctypes.Structure):
+    """mb_loop of step.c: the step-size controller's settings and state."""
+
+    _fields_ = (
+        [(n, ctypes.c_double) for n in
+         ("t", "t_bound", "t_stop", "h_abs", "h_max", "h_min", "h_fixed", "err_old",
+          "exponent", "beta", "safety", "min_factor", "max_factor", "near", "stall_floor")]
+        + [(n, ctypes.c_int64) for n in ("max_steps", "max_rejects", "steps", "rejected",
+                                         "why")]
+        + [(n, ctypes.c_double) for n in ("t_old", "h_last")]
     )
 
 
@@ -140,6 +161,14 @@ class CompiledStep:
         self.f[:] = f
         self.r.tangent = tangent
         return self._counted(self.lib.mb_rk_trial(self.system.c.ptr, self.ptr, t, h))
+
+    def steps(self, y, f, loop: Loop) -> int:
+        """Accepted steps from (loop.t, y), y' = f, as ``loop`` says (step.c: mb_rk_steps);
+        returns LOOP_* (``loop`` updated)."""
+        self.y[:] = y
+        self.f[:] = f
+        return self._counted(self.lib.mb_rk_steps(self.system.c.ptr, self.ptr,
+                                                  ctypes.byref(loop)))
 
     def stages(self) -> np.ndarray:
         """(ns + 1, ny) copy of the last trial's stages and f(t + h, y_new)."""

@@ -65,7 +65,9 @@ class Integrator(ABC):
     4. ``_dense_output_impl() -> callable``: ``f(t) -> (q, qd, w)`` for t in the last step
        [t_old, t]; ``dense_output_many(times) -> (Q, QD, W)`` evaluates it at all output
        times of the step at once (the driver's call; a family may do it in C).
-    5. Counters: ``self.counters`` (steps, rejected_steps, plus the family's own, e.g.
+    5. ``advance(t_stop, max_steps) -> (ok, message)``: several accepted steps at once up
+       to the next output time (the driver's call; default: one :meth:`step`).
+    6. Counters: ``self.counters`` (steps, rejected_steps, plus the family's own, e.g.
        repartitions) merge with ``system.counters`` (function_evaluations, factorizations,
        newton_iterations, ...) in :meth:`all_counters`.
     """
@@ -133,6 +135,13 @@ class Integrator(ABC):
         if self.t >= self.t_bound:
             self.status = "finished"
         return True, ""
+
+    def advance(self, t_stop, max_steps=1):
+        """Accepted steps until t >= t_stop, at least one and at most ``max_steps``; returns
+        (ok, message) as :meth:`step`.  The outputs before t_stop lie in no step but the
+        last, so the driver samples the last step only.  This default takes one step; a
+        family that can take several at once overrides it (index-1: in C)."""
+        return self.step()
 
     def dense_output_safe(self):
         """The dense output, with failures as values: ``f(t) -> (q, qd, w)`` or raises

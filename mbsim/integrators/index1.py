@@ -48,6 +48,7 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim.fast import stepper
+from mbsim.integrators import base
 from mbsim.integrators import changepoints as cp
 from mbsim.integrators.base import (
     NUMERICAL_ERRORS,
@@ -269,6 +270,57 @@ class Index1(RungeKuttaIntegrator):
             c.y_acc[:] = y_acc
         self._c_last = True
         return err, y_new, y_acc, f_acc, c.stages(), None
+
+    def advance(self, t_stop, max_steps=1):
+        """Accepted steps until t >= t_stop in one C call (mbsim/fast/step.c: mb_rk_steps,
+        the controller of :meth:`RungeKuttaIntegrator._step_impl` and the watchdog of
+        :meth:`Integrator.step`), where the step is the C trial alone: the projection
+        methods (Baumgarte's drift test is Python), outside tangent coordinates and the
+        approach to a change point.  The steps C leaves (a failed
+        trial, a step the controller must give up, the approach's) are taken by
+        :meth:`step`, and so are the first step of a run (the driver records its size) and
+        the steps after one below the stall floor (the watchdog counts them)."""
+        c, approach = self._compiled, self._approach if self.policy.tangent > 0.0 else None
+        if (c is None or not self.project or self._tangent or max_steps < 2
+                or self.status != "running"
+                or self.counters["steps"] == 0 or self.t >= self.t_bound or self._tiny_steps
+                or (approach is not None and len(approach.points) >= 2)):
+            return self.step()
+        L = stepper.Loop(
+            t=self.t, t_bound=self.t_bound, t_stop=t_stop, h_abs=self.h_abs, h_max=self.h_max,
+            h_min=self.h_min, h_fixed=self.h_fixed or 0.0, err_old=self._err_old,
+            exponent=self.error_exponent, beta=self.pi_beta, safety=base.SAFETY,
+            min_factor=base.MIN_FACTOR, max_factor=base.MAX_FACTOR,
+            near=approach.near if approach is not None else 0.0,
+            stall_floor=base.STALL_FLOOR, max_steps=max_steps, max_rejects=base.MAX_REJECTS)
+        why = c.steps(self.y, self.f, L)
+        if L.steps:
+            self.counters["steps"] += L.steps
+            self.counters["rejected_steps"] += L.rejected
+            self.t, self.t_old, self.h_last = L.t, L.t_old, L.h_last
+            self.h_abs, self._err_old = L.h_abs, L.err_old
+            n = self.n
+            if why == stepper.LOOP_PYTHON:  # (t, y, f): the last accepted state
+                self.y, self.f = c.y.copy(), c.f.copy()
+                self._c_last = False
+            else:
+                self._dense_args = (L.t_old, L.h_last, c.y.copy(), c.y_new.copy(),
+                                    c.stages(), None)
+                self.y, self.f = c.y_acc.copy(), c.f_acc.copy()
+                self._s = float(c.out[stepper.O_SLAST])
+                self._c_last = True
+                self._step_start = (L.t_old, self._dense_args[2][:n])
+            self._C, self._step_tangent = None, False
+            self.q, self.qd, self.w = self._state_from_y(self.t, self.y)
+            if approach is not None:  # (the steps before the last: s above ``near``)
+                approach.accepted(self.t, self.h_last, self._s)
+            tiny = why == stepper.LOOP_TINY
+            self._tiny_steps = (self._tiny_steps + 1 if L.steps == 1 else 1) if tiny else 0
+            if self.t >= self.t_bound:
+                self.status = "finished"
+        if why == stepper.LOOP_PYTHON or not L.steps:
+            return self.step()
+        return True, ""
 
     def dense_output_many(self, times):
         """All outputs of the last step at once, in C when the step was taken there (module
