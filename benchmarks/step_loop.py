@@ -51,7 +51,7 @@ from mbsim.model import compile_model  # noqa: E402
 
 ENTRY_POINTS = ("mb_constraints", "mb_terms", "mb_gather_dense", "mb_jac_times",
                 "mb_applied_forces", "mb_mass_blocks", "mb_accelerations", "mb_project",
-                "mb_rk_trial", "mb_rk_dense")
+                "mb_rk_trial", "mb_rk_dense", "mb_rk_steps")
 WRAPPER_FILE = "<mbsim C library>"
 
 
