@@ -142,7 +142,8 @@ class CompiledStep:
                         ("y_acc", self.y_acc), ("f_acc", self.f_acc), ("ys", ys), ("vm", vm),
                         ("qw", qw), ("Fd", Fd), ("out", self.out), ("count", self.count)):
             setattr(r, name, a.ctypes.data)
-        self._load = _load_callback(system)
+        self._pending = []  # a KeyboardInterrupt (or SystemExit) met in the callback
+        self._load = _load_callback(system, self._pending)
         r.load = ctypes.cast(self._load, ctypes.c_void_p).value if self._load else None
         self.ptr = ctypes.addressof(r)
         self.ns = ns
@@ -152,6 +153,8 @@ class CompiledStep:
         for name, n in zip(COUNTERS, self.count.tolist()):
             c[name] += n
         self.count[:] = 0
+        if self._pending:  # raised where the C call was made (_load_callback)
+            raise self._pending.pop()
         return status
 
     def trial(self, t, h, y, f, tangent) -> int:
@@ -199,11 +202,14 @@ def solve_error(code):
                           else dyn._NOT_PD)
 
 
-def _load_callback(system):
+def _load_callback(system, pending):
     """The per-stage Python part (time targets, Python force elements) as a C callback, or
     None when the model has neither.  It reads q, qd where C loaded them (the system's own
     input buffers); an exception returns 1 and the caller takes the step in Python again,
-    where the same exception is raised and handled."""
+    where the same exception is raised and handled.  A KeyboardInterrupt or SystemExit
+    (Ctrl-C arrives in the callback: the only Python code running during the C call)
+    returns 1 too and is kept in ``pending``, to be raised once the C call is back
+    (:meth:`CompiledStep._counted`); ctypes would print and drop it."""
     fc, py = system.fc, system.py_forces
     if not fc.funcs and not py:
         return None
@@ -219,6 +225,9 @@ def _load_callback(system):
                 for el in py:
                     el.apply(st, t, loads[0], loads[1])
         except Exception:  # noqa: BLE001 - re-raised by the Python path (docstring)
+            return 1
+        except BaseException as exc:  # noqa: BLE001 - raised after the C call (docstring)
+            pending.append(exc)
             return 1
         return 0
 

@@ -207,3 +207,27 @@ def test_a_loop_of_steps_in_c_takes_the_steps_of_one_by_one(kind, name, method, 
         # fixed step's change-point approach starts further from the point, at s = 0.03
         # (changepoints S_FIXED x NEAR_INDEX1), and leaves the steps there to Python)
         assert calls == len(outputs) < ca["steps"] - 1
+
+
+def test_ctrl_c_in_a_python_force_element_reaches_the_caller(capfd):
+    """Ctrl-C during a C step arrives in the per-stage callback (the only Python code
+    running then): it is raised where the C call was made, not printed and dropped by
+    ctypes; the integrator's state is the one before the call."""
+    model, q, qd = state_of("deck", "vehicle")
+    c = pair(model, q, qd, "projection-dop853", 1.0)[0]
+    el = c.system.py_forces[0]
+    calls = {"n": 0}
+    apply = el.apply
+
+    def interrupted(*args):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise KeyboardInterrupt
+        return apply(*args)
+
+    el.apply = interrupted
+    t, y = c.t, c.y.copy()
+    with pytest.raises(KeyboardInterrupt):
+        c.step()
+    assert c.t == t and np.array_equal(c.y, y)
+    assert "Exception ignored" not in capfd.readouterr().err
