@@ -529,7 +529,7 @@ def _integrate(run, times, record, max_steps):
     k, steps = 1, 0
     while k < len(times):
         before = run.solver.counters["steps"]
-        ok, msg = run.advance(times[k], max(1, min(ADVANCE_STEPS, max_steps - steps)))
+        ok, msg = run.advance(times[k], int(max(1, min(ADVANCE_STEPS, max_steps - steps))))
         steps += max(1, run.solver.counters["steps"] - before)
         if not ok:
             if run.restart(msg):
