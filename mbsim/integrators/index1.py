@@ -331,6 +331,8 @@ class Index1(RungeKuttaIntegrator):
             return super().dense_output_many(times)
         times = np.asarray(times, dtype=float)
         k = times.size - int(times.size > 0 and times[-1] == self.t)  # (at t: the state)
+        if k == 0:
+            return super().dense_output_many(times)
         t0, h = self._dense_args[:2]
         status, Q, QD, W, flags = self._compiled.dense(t0, h, times, k)
         if status != stepper.ST_ACCEPTED:
