@@ -67,10 +67,17 @@ def problem_state(name):
 
 
 CASES = [("problem", n) for n in M.REFERENCE_PROBLEMS] + [
-    ("deck", "governor"), ("deck", "four_bar"), ("deck", "vehicle"), ("deck", "compressor")]
+    ("deck", "governor"), ("deck", "four_bar"), ("deck", "vehicle"), ("deck", "compressor"),
+    ("chain", "40")]
+"""Reference problems, decks (four_bar: singular J', the KKT path; vehicle: Python tires
+and a driver; compressor: Python force elements) and a 40-link chain (nq = 280 >=
+SPARSE_NQ: CSR Jacobians)."""
 
 
 def state_of(kind, name):
+    if kind == "chain":
+        model = M.chain(int(name))
+        return model, model.q0.copy(), np.zeros(model.nq)
     return problem_state(name) if kind == "problem" else deck_state(name)
 
 
