@@ -6,10 +6,12 @@
  * power) (Haug Sec. 11.3; mbsim/integrators/index1.py): the stages, each through
  * mb_accelerations, the embedded error norm in the scale of mbsim/integrators/rk.py, and,
  * when the step is accepted, the mass-weighted projection of q and qd onto the constraints
- * and the derivative there (FSAL).  A second call evaluates the step's dense output at all
- * output times inside it at once, each projected as the step's end is.  The step-size
- * controller, the change-point policy and every fallback stay in Python: a call returns
- * as soon as something needs them (a status below).
+ * and the derivative there (FSAL) (mb_rk_trial).  A second call evaluates the step's dense
+ * output at all output times inside it at once, each projected as the step's end is
+ * (mb_rk_dense).  A third takes accepted steps up to the next output time with the
+ * step-size controller of mbsim/integrators/base.py (mb_rk_steps).  The change-point
+ * policy and every fallback stay in Python: a call returns as soon as something needs them
+ * (a status below).
  *
  * The tableau is data (mbsim/integrators/rk.py's class data, passed in as arrays); nothing
  * here allocates.

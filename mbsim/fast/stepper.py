@@ -35,6 +35,7 @@ import ctypes
 import numpy as np
 
 from mbsim import equations as eq
+from mbsim.fast import _lib
 
 ST_ACCEPTED, ST_REJECTED, ST_SOLVE, ST_ALARM, ST_PROJECTION, ST_NONFINITE, ST_CALLBACK = range(7)
 O_ERR, O_SMIN, O_SLAST, O_RES, O_CODE = range(5)
@@ -95,6 +96,10 @@ class CompiledStep:
     def __init__(self, system, tableau, *, rtol, atol, control, project, proj_tol, stab=None):
         self.system = system
         self.lib = system.fc.lib
+        if (self.lib.mb_rk_size(), self.lib.mb_loop_size()) != (ctypes.sizeof(RK),
+                                                               ctypes.sizeof(Loop)):
+            raise _lib.KernelBuildError("mb_rk / mb_loop in step.c and mbsim.fast.stepper's "
+                                        "RK / Loop differ (an edit on one side only)")
         nq = system.nq
         ny = 2 * nq + 1
         self.tableau = tab = tableau
