@@ -546,7 +546,11 @@ def _integrate(run, times, record, max_steps):
                 for i in range(j - k):  # (k: the output being recorded, for the message)
                     record(times[k], Q[i], QD[i], W[i], solver.h_last)
                     k += 1
-            except IntegratorFailure as exc:
+            except IntegratorFailure as exc:  # the outputs before the failed one are kept
+                for i in range(len(exc.done[0]) if exc.done is not None else 0):
+                    record(times[k], exc.done[0][i], exc.done[1][i], exc.done[2][i],
+                           solver.h_last)
+                    k += 1
                 return STATUS_INCOMPLETE, str(exc)
             except NUMERICAL_ERRORS as exc:  # the output's own accelerations, energies
                 return STATUS_INCOMPLETE, (f"t = {times[k]:.6g} s: evaluating the outputs "

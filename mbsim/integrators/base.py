@@ -28,7 +28,12 @@ STALL_STEPS = 200  # ... and that many of them in a row is a stall
 
 class IntegratorFailure(Exception):
     """A failure outside a step (dense output); the dynamic analysis turns it into an
-    incomplete result."""
+    incomplete result.  ``done``: (Q, QD, W) of the outputs before the failed one, when
+    several were asked at once (:meth:`Integrator.dense_output_many`), else None."""
+
+    def __init__(self, message, done=None):
+        super().__init__(message)
+        self.done = done
 
 
 NUMERICAL_ERRORS = (SolveError, ArithmeticError, np.linalg.LinAlgError, ValueError)
@@ -189,14 +194,19 @@ class Integrator(ABC):
     def dense_output_many(self, times):
         """(Q (k, nq), QD (k, nq), W (k,)): the state at each of ``times`` (ascending, in
         the last step [t_old, t]; at t itself the accepted state), failures as
-        :class:`IntegratorFailure` (as :meth:`dense_output_safe`).  Families that can
+        :class:`IntegratorFailure` (as :meth:`dense_output_safe`) carrying the outputs
+        before the failed one (``done``).  Families that can
         evaluate all outputs of a step at once override it (index-1: in C)."""
         times = np.asarray(times, dtype=float)
         k = times.size
         Q, QD, W = np.empty((k, self.q.size)), np.empty((k, self.q.size)), np.empty(k)
-        dense = self.dense_output_safe() if np.any(times != self.t) else None
-        for i, t in enumerate(times):
-            Q[i], QD[i], W[i] = (self.q, self.qd, self.w) if t == self.t else dense(t)
+        try:
+            dense = self.dense_output_safe() if np.any(times != self.t) else None
+            for i, t in enumerate(times):
+                Q[i], QD[i], W[i] = (self.q, self.qd, self.w) if t == self.t else dense(t)
+        except IntegratorFailure as exc:
+            exc.done = (Q[:i], QD[:i], W[:i]) if dense is not None else None
+            raise
         return Q, QD, W
 
     def all_counters(self) -> dict:

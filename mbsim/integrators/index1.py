@@ -339,13 +339,18 @@ class Index1(RungeKuttaIntegrator):
             return super().dense_output_many(times)
         if k < times.size:
             Q[k], QD[k], W[k] = self.q, self.qd, self.w
-        if flags.any():
-            redo = np.flatnonzero(flags)
-            Q[redo], QD[redo], W[redo] = super().dense_output_many(times[redo])
+        redo = np.flatnonzero(flags)
+        dense = self.dense_output_safe() if redo.size else None
+        for i in redo:  # (one Python dense output: the outputs integrated to share a start)
+            try:
+                Q[i], QD[i], W[i] = dense(times[i])
+            except IntegratorFailure as exc:
+                exc.done = (Q[:i], QD[:i], W[:i])
+                raise
         if not (np.isfinite(Q).all() and np.isfinite(QD).all()):
-            bad = ~(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1))
-            raise IntegratorFailure(f"t = {times[bad][0]:.6g} s: the state is not finite "
-                                    f"(NaN or inf)")
+            i = int(np.argmin(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1)))
+            raise IntegratorFailure(f"t = {times[i]:.6g} s: the state is not finite "
+                                    f"(NaN or inf)", done=(Q[:i], QD[:i], W[:i]))
         return Q, QD, W
 
     def _tangent_map(self, t, q):

@@ -238,3 +238,23 @@ def test_ctrl_c_in_a_python_force_element_reaches_the_caller(capfd):
         c.step()
     assert c.t == t and np.array_equal(c.y, y)
     assert "Exception ignored" not in capfd.readouterr().err
+
+
+def test_an_output_the_c_path_cannot_give_ends_the_run_as_incomplete(monkeypatch):
+    """A non-finite output from C (here forced after t = 0.4 s) ends the run as an
+    incomplete result naming the time (the driver's IntegratorFailure), with the outputs
+    before it."""
+    real = stepper.CompiledStep.dense
+
+    def dense(self, t0, h, times, k=None):
+        status, Q, QD, W, flags = real(self, t0, h, times, k)
+        Q[np.asarray(times) > 0.4] = np.nan
+        return status, Q, QD, W, flags
+
+    monkeypatch.setattr(stepper.CompiledStep, "dense", dense)
+    pb = M.reference_problem("free_body")
+    res = dynamic(pb.model, {"t_end": 1.0, "step": 0.1, "q0": pb.q0, "qd0": pb.qd0,
+                             "error_estimate": False})
+    assert res.status == "incomplete"
+    assert "not finite" in res.message and "t = 0.5" in res.message
+    assert res.t[-1] == pytest.approx(0.4)
