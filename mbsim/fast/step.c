@@ -464,7 +464,7 @@ typedef struct {
     /* out */
     idx steps, rejected; /* accepted steps, and the rejected trials of those steps */
     idx why;         /* LOOP_* */
-    double t_old, h_last;
+    double t_old, h_last, s; /* the last accepted step: start, size, measure s at its end */
 } mb_loop;
 
 enum { LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON };
@@ -555,7 +555,8 @@ int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
         L->h_last = h;
         L->t = t + h;
         L->h_abs = L->h_fixed > 0.0 ? L->h_fixed : h_abs;
-        if (R->out[O_SLAST] < L->near) {
+        L->s = R->out[O_SLAST];
+        if (L->s < L->near) {
             L->why = LOOP_NEAR;
             return L->why;
         }

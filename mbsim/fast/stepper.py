@@ -75,7 +75,7 @@ class Loop(ctypes.Structure):
           "exponent", "beta", "safety", "min_factor", "max_factor", "near", "stall_floor")]
         + [(n, ctypes.c_int64) for n in ("max_steps", "max_rejects", "steps", "rejected",
                                          "why")]
-        + [(n, ctypes.c_double) for n in ("t_old", "h_last")]
+        + [(n, ctypes.c_double) for n in ("t_old", "h_last", "s")]
     )
 
 

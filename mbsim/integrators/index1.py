@@ -276,10 +276,10 @@ class Index1(RungeKuttaIntegrator):
         the controller of :meth:`RungeKuttaIntegrator._step_impl` and the watchdog of
         :meth:`Integrator.step`), where the step is the C trial alone: the projection
         methods (Baumgarte's drift test is Python), outside tangent coordinates and the
-        approach to a change point.  The steps C leaves (a failed
-        trial, a step the controller must give up, the approach's) are taken by
-        :meth:`step`, and so are the first step of a run (the driver records its size) and
-        the steps after one below the stall floor (the watchdog counts them)."""
+        approach to a change point.  The steps C leaves (a failed trial, a step the
+        controller must give up, the approach's) are taken by :meth:`step`, and so are the
+        first step of a run (the driver records its size) and the steps after one below
+        the stall floor (the watchdog counts them)."""
         c, approach = self._compiled, self._approach if self.policy.tangent > 0.0 else None
         if (c is None or not self.project or self._tangent or max_steps < 2
                 or self.status != "running"
@@ -307,10 +307,9 @@ class Index1(RungeKuttaIntegrator):
                 self._dense_args = (L.t_old, L.h_last, c.y.copy(), c.y_new.copy(),
                                     c.stages(), None)
                 self.y, self.f = c.y_acc.copy(), c.f_acc.copy()
-                self._s = float(c.out[stepper.O_SLAST])
                 self._c_last = True
                 self._step_start = (L.t_old, self._dense_args[2][:n])
-            self._C, self._step_tangent = None, False
+            self._s, self._C, self._step_tangent = L.s, None, False
             self.q, self.qd, self.w = self._state_from_y(self.t, self.y)
             if approach is not None:  # (the steps before the last: s above ``near``)
                 approach.accepted(self.t, self.h_last, self._s)
