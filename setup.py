@@ -1,4 +1,5 @@
-"""Build step of mbsim: the C kernels (mbsim/fast/kernels.c) as a plain shared library.
+"""Build step of mbsim: the C kernels (mbsim/fast/kernels.c and step.c) as one plain shared
+library.
 
 Everything else is declared in pyproject.toml.  The library is not a Python extension
 module (no Python.h, no PyInit_): mbsim.fast._lib loads it with ctypes.  A failed compile
@@ -14,7 +15,7 @@ from pathlib import Path
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
-SOURCE = Path("mbsim") / "fast" / "kernels.c"
+SOURCES = [Path("mbsim") / "fast" / "kernels.c", Path("mbsim") / "fast" / "step.c"]
 
 
 class BuildKernels(build_ext):
@@ -38,10 +39,11 @@ class BuildKernels(build_ext):
                       "at first use (needs a C compiler: e.g. apt install gcc)")
 
 
-digest = hashlib.sha256(SOURCE.read_bytes()).hexdigest()[:16]  # = mbsim.fast._lib.source_hash
+# = mbsim.fast._lib.source_hash: the sources' bytes one after the other
+digest = hashlib.sha256(b"".join(p.read_bytes() for p in SOURCES)).hexdigest()[:16]
 kernels = Extension(
     "mbsim.fast._kernels",
-    sources=[str(SOURCE)],
+    sources=[str(p) for p in SOURCES],
     define_macros=[("MB_SOURCE_HASH", f'"{digest}"')],
     # MBSIM_CFLAGS (e.g. "-O0" or "-O3 -march=native") after -O2 wins: the same variable as
     # a first-use compile reads (mbsim/fast/_lib.py)

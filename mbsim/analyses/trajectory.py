@@ -319,6 +319,12 @@ class Stepper:
             self.step_ends.append(self.solver.t)
         return ok, msg
 
+    def advance(self, t_stop, max_steps):
+        """Accepted steps until t >= t_stop (Integrator.advance); the first one alone."""
+        if self.first_step is None:
+            return self.step()
+        return self.solver.advance(t_stop, max_steps)
+
     def restart(self, message) -> bool:
         """Re-select the rows at the last accepted state; True when the run goes on."""
         s, model = self.solver, self.model
@@ -359,25 +365,24 @@ class Stepper:
 def step_outputs(solver, ts):
     """The states at the output times ``ts`` (in the last accepted step of ``solver``, up to
     round-off past its end): (Q (k, nq), QD (k, nq), W (k,), failure), all the step's
-    outputs at once; failure None, or the message of the first time whose dense output
-    failed, the arrays then holding the times before it.  (The one place to call a bulk
-    dense output of the integrators.)"""
-    n = len(ts)
-    Q, QD, W = np.empty((n, solver.q.size)), np.empty((n, solver.q.size)), np.empty(n)
-    i = 0
+    outputs at once (Integrator.dense_output_many); failure None, or the message of the
+    first time whose dense output failed, the arrays then holding the times before it.
+    (The one place the driver calls the integrators' dense output.)"""
+    ts = np.minimum(np.asarray(ts, dtype=float), solver.t)
     try:
-        dense = solver.dense_output_safe()
-        for i, t in enumerate(ts):
-            if min(t, solver.t) == solver.t:
-                Q[i], QD[i], W[i] = solver.q, solver.qd, solver.w
-            else:
-                Q[i], QD[i], W[i] = dense(t)
-    except IntegratorFailure as exc:
-        return Q[:i], QD[:i], W[:i], str(exc)
+        Q, QD, W = solver.dense_output_many(ts)
+    except IntegratorFailure as exc:  # the outputs before the failed one are kept
+        done = exc.done if exc.done is not None else (np.empty((0, solver.q.size)),) * 2 + (
+            np.empty(0),)
+        return done[0], done[1], done[2], str(exc)
     except NUMERICAL_ERRORS as exc:
-        return Q[:i], QD[:i], W[:i], (f"t = {ts[i]:.6g} s: evaluating the outputs failed: "
-                                      f"{exc}")
+        n = solver.q.size
+        return (np.empty((0, n)), np.empty((0, n)), np.empty(0),
+                f"t = {ts[0]:.6g} s: evaluating the outputs failed: {exc}")
     return Q, QD, W, None
+
+
+ADVANCE_STEPS = 10000  # steps per call of Integrator.advance at most (a Ctrl-C waits for it)
 
 
 def integrate(run, times, record, max_steps):
@@ -388,8 +393,9 @@ def integrate(run, times, record, max_steps):
     ends as ('incomplete', message with the time), never as an exception."""
     k, steps = 1, 0
     while k < len(times):
-        ok, msg = run.step()
-        steps += 1
+        before = run.solver.counters["steps"]
+        ok, msg = run.advance(times[k], int(max(1, min(ADVANCE_STEPS, max_steps - steps))))
+        steps += max(1, run.solver.counters["steps"] - before)
         if not ok:
             if run.restart(msg):
                 continue

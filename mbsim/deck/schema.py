@@ -103,7 +103,8 @@ ANALYSIS_DIMENSIONS = {"t_start": "time", "t_end": "time", "step": "time", "h": 
 # mbsim.api.run_model: a key not listed is an error with a suggestion (setting_name_problems).
 _TIME_GRID = ("t_start", "t_end", "step")
 _INTEGRATOR_OWN = ("alpha", "beta", "rho_inf", "newton_tol", "jacobian", "repartition_ratio",
-                   "drift_bound", "tangent_steps", "partition", "projection_tol", "h_min")
+                   "drift_bound", "tangent_steps", "partition", "projection_tol", "h_min",
+                   "compiled_step")
 ANALYSIS_SETTINGS: dict[str, tuple[str, ...]] = {
     "assembly": ("hold",),
     "kinematic": (*_TIME_GRID, "tol", "max_iter", "cond_max"),

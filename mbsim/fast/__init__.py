@@ -18,6 +18,10 @@ nu and gamma), the applied forces, and the Schur-complement solve.
   ``full_lam``, ``project_positions``, ``project_velocities``, ``violations``, ``energy``,
   ``applied_forces(st, t)``, ``generalized_forces(q, qd, t)``, ``mass_blocks(q)``,
   ``mass_matrix(q)``; counters; :class:`SolveError` when a factorisation fails.
+- :mod:`mbsim.fast.stepper` (mbsim/fast/step.c, built into the same library):
+  ``CompiledStep`` takes a whole trial step of an explicit RK tableau of the index-1
+  integrators (stages, error norm, projection) and the dense outputs of a step in one C
+  call each; the integrators keep the step-size controller and the change-point policy.
 
 What is in C and what stays Python: every constraint kernel (driver functions f(t), f', f''
 are called in Python: few rows); gravity, the gyroscopic term, ``tsda`` with k, c, L0 (no

@@ -1,10 +1,10 @@
-"""Find, build and load the C kernels (mbsim/fast/kernels.c) through ctypes.
+"""Find, build and load the C kernels (mbsim/fast/kernels.c and step.c) through ctypes.
 
 Where the shared library comes from, in this order:
 
 1. next to this file, built at install time by setup.py (``mbsim.fast._kernels``, a plain
-   shared library, not a Python extension), when it was built from the kernels.c beside it
-   (every build embeds the SHA-256 of its source, ``mb_source_hash``);
+   shared library, not a Python extension), when it was built from the sources beside it
+   (every build embeds the SHA-256 of its sources, ``mb_source_hash``);
 2. the compile cache: ``$MBSIM_CACHE_DIR`` or ``~/.cache/mbsim``, one file per (source,
    compiler, flags, platform) hash;
 3. otherwise compiled now with the system C compiler (``sysconfig``'s CC, else cc, gcc,
@@ -40,6 +40,9 @@ log = logging.getLogger(__name__)
 
 HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "kernels.c"
+SOURCES = (SOURCE, HERE / "step.c")
+"""The files of the one library: the physics (kernels.c) and the integrators' step
+(step.c, :mod:`mbsim.fast.stepper`)."""
 CFLAGS = ["-O2", "-std=c99", "-fPIC", "-shared"]  # -O3: no faster (benchmarks/kernels.py)
 FLAGS_ENV = "MBSIM_CFLAGS"
 """Extra compiler flags, appended after CFLAGS (so ``-O0`` or ``-O3 -march=native`` wins
@@ -59,8 +62,9 @@ class KernelBuildError(MbsimError):
 
 
 def source_hash(text: bytes | None = None) -> str:
-    """First 16 hex digits of the SHA-256 of kernels.c."""
-    text = SOURCE.read_bytes() if text is None else text
+    """First 16 hex digits of the SHA-256 of the sources (kernels.c then step.c, their bytes
+    one after the other; setup.py computes the same)."""
+    text = b"".join(p.read_bytes() for p in SOURCES) if text is None else text
     return hashlib.sha256(text).hexdigest()[:16]
 
 
@@ -80,7 +84,10 @@ def compiler() -> list[str]:
 
 
 def compile_command(cc, src, out, digest):
-    return [*cc, *cflags(), f"-DMB_SOURCE_HASH=\"{digest}\"", "-o", str(out), str(src), "-lm"]
+    """The compiler's command line; src: one path or a sequence of them (SOURCES)."""
+    src = [src] if isinstance(src, (str, Path)) else list(src)
+    return [*cc, *cflags(), f"-DMB_SOURCE_HASH=\"{digest}\"", "-o", str(out),
+            *map(str, src), "-lm"]
 
 
 def cache_dir() -> Path:
@@ -115,9 +122,8 @@ def _hash_of(lib) -> str:
 
 
 def build(dest: Path | None = None) -> Path:
-    """Compile kernels.c into the cache (or ``dest``); returns the library's path."""
-    src = SOURCE.read_bytes()
-    digest = source_hash(src)
+    """Compile the sources (SOURCES) into the cache (or ``dest``); returns the library's path."""
+    digest = source_hash()
     cc = compiler()
     key = hashlib.sha256(
         "\0".join([digest, " ".join(cc), " ".join(cflags()), platform.platform(),
@@ -143,7 +149,7 @@ def build(dest: Path | None = None) -> Path:
         ) from exc
     os.close(fd)
     try:
-        cmd = compile_command(cc, SOURCE, tmp, digest)
+        cmd = compile_command(cc, SOURCES, tmp, digest)
         out = subprocess.run(cmd, capture_output=True, text=True)
         if out.returncode != 0:
             raise KernelBuildError(
@@ -164,18 +170,19 @@ def library():
     """The loaded C library (argtypes and restypes set), built on first use if needed."""
     global _LIB
     if _LIB is None:
-        digest = source_hash() if SOURCE.exists() else None
+        digest = source_hash() if all(p.exists() for p in SOURCES) else None
         lib = _installed(digest)
         if lib is None:
             if digest is None:
-                raise KernelBuildError("mbsim/fast/kernels.c is missing and no built kernels "
-                                       "are installed; reinstall mbsim")
+                raise KernelBuildError("mbsim/fast/kernels.c or step.c is missing and no "
+                                       "built kernels are installed; reinstall mbsim")
             lib = ctypes.CDLL(str(build()))
         _declare(lib)
-        if lib.mb_struct_size() != ctypes.sizeof(Struct):  # an edit on one side only
+        sizes = (lib.mb_struct_size(), lib.mb_step_model_size(), ctypes.sizeof(Struct))
+        if len(set(sizes)) != 1:  # an edit on one side only
             raise KernelBuildError(
-                f"mb_model in kernels.c ({lib.mb_struct_size()} bytes) and "
-                f"mbsim.fast._lib.Struct ({ctypes.sizeof(Struct)} bytes) differ"
+                f"mb_model in kernels.c ({sizes[0]} bytes), its copy in step.c ({sizes[1]} "
+                f"bytes) and mbsim.fast._lib.Struct ({sizes[2]} bytes) differ"
             )
         _LIB = lib
     return _LIB
@@ -193,6 +200,13 @@ def _declare(lib):
         "mb_accelerations": ([P, I, I], I),
         "mb_project": ([P, I], I),
         "mb_struct_size": ([], ctypes.c_int64),
+        "mb_step_model_size": ([], ctypes.c_int64),
+        "mb_rk_size": ([], ctypes.c_int64),
+        "mb_rk_trial": ([P, P, ctypes.c_double, ctypes.c_double], I),
+        "mb_rk_dense": ([P, P, ctypes.c_double, ctypes.c_double, ctypes.c_int64, P, P, P, P,
+                         P], I),
+        "mb_rk_steps": ([P, P, P], I),
+        "mb_loop_size": ([], ctypes.c_int64),
     }
     for name, (args, res) in sig.items():
         f = getattr(lib, name)

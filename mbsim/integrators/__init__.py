@@ -6,7 +6,8 @@ follows is in :class:`mbsim.integrators.base.Integrator`.
 - gcp.py: generalized coordinate partitioning (Wehage & Haug 1982) with explicit RK pairs
 - index1.py: index-1 ODE with Baumgarte stabilisation or with projection
 - genalpha.py: implicit index-3 generalized-alpha and HHT (Arnold & Bruls 2007)
-- rk.py: the RK tableaus and the step loop they share
+- rk.py: the RK tableaus and the step loop they share (the index-1 family takes its trial
+  steps, outputs and runs of steps in C: mbsim/fast/step.c through :mod:`mbsim.fast.stepper`)
 - system.py: the equations of motion the integrators call: :class:`mbsim.fast.dynamics.System`,
   the one implementation (C kernels); :mod:`mbsim.equations` is the plain numpy reference
 """

@@ -28,7 +28,12 @@ STALL_STEPS = 200  # ... and that many of them in a row is a stall
 
 class IntegratorFailure(Exception):
     """A failure outside a step (dense output); the dynamic analysis turns it into an
-    incomplete result."""
+    incomplete result.  ``done``: (Q, QD, W) of the outputs before the failed one, when
+    several were asked at once (:meth:`Integrator.dense_output_many`), else None."""
+
+    def __init__(self, message, done=None):
+        super().__init__(message)
+        self.done = done
 
 
 NUMERICAL_ERRORS = (SolveError, ArithmeticError, np.linalg.LinAlgError, ValueError)
@@ -63,8 +68,11 @@ class Integrator(ABC):
        ``(False, message)`` with the time and the joints involved; it never raises, prints
        or exits.
     4. ``_dense_output_impl() -> callable``: ``f(t) -> (q, qd, w)`` for t in the last step
-       [t_old, t].
-    5. Counters: ``self.counters`` (steps, rejected_steps, plus the family's own, e.g.
+       [t_old, t]; ``dense_output_many(times) -> (Q, QD, W)`` evaluates it at all output
+       times of the step at once (the driver's call; a family may do it in C).
+    5. ``advance(t_stop, max_steps) -> (ok, message)``: several accepted steps at once up
+       to the next output time (the driver's call; default: one :meth:`step`).
+    6. Counters: ``self.counters`` (steps, rejected_steps, plus the family's own, e.g.
        repartitions) merge with ``system.counters`` (function_evaluations, factorizations,
        newton_iterations, ...) in :meth:`all_counters`.
     """
@@ -133,6 +141,13 @@ class Integrator(ABC):
             self.status = "finished"
         return True, ""
 
+    def advance(self, t_stop, max_steps=1):
+        """Accepted steps until t >= t_stop, at least one and at most ``max_steps``; returns
+        (ok, message) as :meth:`step`.  The outputs before t_stop lie in no step but the
+        last, so the driver samples the last step only.  This default takes one step; a
+        family that can take several at once overrides it (index-1: in C)."""
+        return self.step()
+
     def dense_output_safe(self):
         """The dense output, with failures as values: ``f(t) -> (q, qd, w)`` or raises
         :class:`IntegratorFailure` with the time and the reason (a dense output may solve
@@ -175,6 +190,24 @@ class Integrator(ABC):
 
     def dense_output(self):
         return self._dense_output_impl()
+
+    def dense_output_many(self, times):
+        """(Q (k, nq), QD (k, nq), W (k,)): the state at each of ``times`` (ascending, in
+        the last step [t_old, t]; at t itself the accepted state), failures as
+        :class:`IntegratorFailure` (as :meth:`dense_output_safe`) carrying the outputs
+        before the failed one (``done``).  Families that can
+        evaluate all outputs of a step at once override it (index-1: in C)."""
+        times = np.asarray(times, dtype=float)
+        k = times.size
+        Q, QD, W = np.empty((k, self.q.size)), np.empty((k, self.q.size)), np.empty(k)
+        try:
+            dense = self.dense_output_safe() if np.any(times != self.t) else None
+            for i, t in enumerate(times):
+                Q[i], QD[i], W[i] = (self.q, self.qd, self.w) if t == self.t else dense(t)
+        except IntegratorFailure as exc:
+            exc.done = (Q[:i], QD[:i], W[:i]) if dense is not None else None
+            raise
+        return Q, QD, W
 
     def all_counters(self) -> dict:
         out = dict(self.system.counters)

@@ -47,8 +47,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from mbsim.fast import stepper
+from mbsim.integrators import base
 from mbsim.integrators import changepoints as cp
-from mbsim.integrators.base import NUMERICAL_ERRORS, ROUNDOFF_ULPS, quintic_hermite, rms_norm
+from mbsim.integrators.base import (
+    NUMERICAL_ERRORS,
+    ROUNDOFF_ULPS,
+    IntegratorFailure,
+    quintic_hermite,
+    rms_norm,
+)
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
 
@@ -99,7 +107,21 @@ class Index1(RungeKuttaIntegrator):
                 self.policy = self.policy.off()
         if self.policy.tangent > 0.0:
             self._approach = self._new_approach()
+        self._compiled = self._compiled_step()
+        self._c_last = False  # the last accepted step was taken in C (its buffers hold it)
         self._start()
+
+    def _compiled_step(self):
+        """The trial step and dense output in C (:mod:`mbsim.fast.stepper`) for a tableau
+        step.c knows, unless option ``compiled_step`` is false (the Python path, the same
+        arithmetic; tests/integrators/test_compiled_step.py compares the two).  The
+        projection methods project in C; Baumgarte's drift test stays :meth:`_accept`."""
+        if not (self.options.get("compiled_step", True) and stepper.supports(self.tableau)):
+            return None
+        return stepper.CompiledStep(
+            self.system, self.tableau, rtol=self.rtol, atol=self.atol,
+            control=self.tableau.embedded and self.h_fixed is None, project=self.project,
+            proj_tol=self.proj_tol, stab=self.stab)
 
     def _new_approach(self):
         return cp.Approach(cp.stage_times(self.tableau), self.h_fixed, self.policy)
@@ -215,6 +237,120 @@ class Index1(RungeKuttaIntegrator):
             return None
         k = C.shape[0]
         return np.concatenate([np.zeros(k), np.abs(a[0] - a[1]) / np.sqrt(2.0)])
+
+    def _attempt(self, h):
+        """The trial in C (mbsim/fast/step.c) outside tangent coordinates: stages, error
+        test, projection and f at the end in one call; where a stage's measure falls below
+        the policy's switch (or a Python force element raised) the trial is taken again by
+        the Python path, whose policy decides (:meth:`_rhs`)."""
+        self._c_last = False
+        c = self._compiled
+        if c is None or self._tangent:
+            return super()._attempt(h)
+        t = self.t
+        status = c.trial(t, h, self.y, self.f, self.policy.tangent)
+        if status in (stepper.ST_ALARM, stepper.ST_CALLBACK):
+            return super()._attempt(h)
+        out = c.out
+        self._trial_s, self._s = float(out[stepper.O_SMIN]), float(out[stepper.O_SLAST])
+        err = float(out[stepper.O_ERR])
+        if status == stepper.ST_SOLVE:
+            raise stepper.solve_error(out[stepper.O_CODE])
+        if status == stepper.ST_PROJECTION:
+            raise StageFailure(f"projection onto the constraints did not converge at "
+                               f"t = {t + h:.6g} s (max |Phi| = {out[stepper.O_RES]:.3g})")
+        if status == stepper.ST_NONFINITE:
+            raise StageFailure(f"error norm {err} at step {h:.3g} s")
+        y_new = c.y_new.copy()
+        if status == stepper.ST_REJECTED:
+            return err, y_new, None, None, None, None
+        y_acc, f_acc = c.y_acc.copy(), c.f_acc.copy()
+        if not self.project:  # Baumgarte's drift test (the dense output blends its result)
+            y_acc, f_acc = self._accept(t + h, y_acc, f_acc)
+            c.y_acc[:] = y_acc
+        self._c_last = True
+        return err, y_new, y_acc, f_acc, c.stages(), None
+
+    def advance(self, t_stop, max_steps=1):
+        """Accepted steps until t >= t_stop in one C call (mbsim/fast/step.c: mb_rk_steps,
+        the controller of :meth:`RungeKuttaIntegrator._step_impl` and the watchdog of
+        :meth:`Integrator.step`), where the step is the C trial alone: the projection
+        methods (Baumgarte's drift test is Python), outside tangent coordinates and the
+        approach to a change point.  The steps C leaves (a failed trial, a step the
+        controller must give up, the approach's) are taken by :meth:`step`, and so are the
+        first step of a run (the driver records its size) and the steps after one below
+        the stall floor (the watchdog counts them)."""
+        c, approach = self._compiled, self._approach if self.policy.tangent > 0.0 else None
+        if (c is None or not self.project or self._tangent or max_steps < 2
+                or self.status != "running"
+                or self.counters["steps"] == 0 or self.t >= self.t_bound or self._tiny_steps
+                or (approach is not None and len(approach.points) >= 2)):
+            return self.step()
+        L = stepper.Loop(
+            t=self.t, t_bound=self.t_bound, t_stop=t_stop, h_abs=self.h_abs, h_max=self.h_max,
+            h_min=self.h_min, h_fixed=self.h_fixed or 0.0, err_old=self._err_old,
+            exponent=self.error_exponent, beta=self.pi_beta, safety=base.SAFETY,
+            min_factor=base.MIN_FACTOR, max_factor=base.MAX_FACTOR,
+            near=approach.near if approach is not None else 0.0,
+            stall_floor=base.STALL_FLOOR, max_steps=max_steps, max_rejects=base.MAX_REJECTS)
+        why = c.steps(self.y, self.f, L)
+        if L.steps:
+            self.counters["steps"] += L.steps
+            self.counters["rejected_steps"] += L.rejected
+            self.t, self.t_old, self.h_last = L.t, L.t_old, L.h_last
+            self.h_abs, self._err_old = L.h_abs, L.err_old
+            n = self.n
+            if why == stepper.LOOP_PYTHON:  # (t, y, f): the last accepted state
+                self.y, self.f = c.y.copy(), c.f.copy()
+                self._c_last = False
+            else:
+                self._dense_args = (L.t_old, L.h_last, c.y.copy(), c.y_new.copy(),
+                                    c.stages(), None)
+                self.y, self.f = c.y_acc.copy(), c.f_acc.copy()
+                self._c_last = True
+                self._step_start = (L.t_old, self._dense_args[2][:n])
+            self._s, self._C, self._step_tangent = L.s, None, False
+            self.q, self.qd, self.w = self._state_from_y(self.t, self.y)
+            if approach is not None:  # (the steps before the last: s above ``near``)
+                approach.accepted(self.t, self.h_last, self._s)
+            tiny = why == stepper.LOOP_TINY
+            self._tiny_steps = (self._tiny_steps + 1 if L.steps == 1 else 1) if tiny else 0
+            if self.t >= self.t_bound:
+                self.status = "finished"
+        if why == stepper.LOOP_PYTHON or not L.steps:
+            return self.step()
+        return True, ""
+
+    def dense_output_many(self, times):
+        """All outputs of the last step at once, in C when the step was taken there (module
+        :mod:`mbsim.fast.stepper`); an output whose projection C cannot vouch for (the
+        checks of :meth:`_dense_output_impl`) and a step whose extra stages meet the policy
+        go through the Python dense output."""
+        if not self._c_last or self._step_tangent:
+            return super().dense_output_many(times)
+        times = np.asarray(times, dtype=float)
+        k = times.size - int(times.size > 0 and times[-1] == self.t)  # (at t: the state)
+        if k == 0:
+            return super().dense_output_many(times)
+        t0, h = self._dense_args[:2]
+        status, Q, QD, W, flags = self._compiled.dense(t0, h, times, k)
+        if status != stepper.ST_ACCEPTED:
+            return super().dense_output_many(times)
+        if k < times.size:
+            Q[k], QD[k], W[k] = self.q, self.qd, self.w
+        redo = np.flatnonzero(flags)
+        dense = self.dense_output_safe() if redo.size else None
+        for i in redo:  # (one Python dense output: the outputs integrated to share a start)
+            try:
+                Q[i], QD[i], W[i] = dense(times[i])
+            except IntegratorFailure as exc:
+                exc.done = (Q[:i], QD[:i], W[:i])
+                raise
+        if not (np.isfinite(Q).all() and np.isfinite(QD).all()):
+            i = int(np.argmin(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1)))
+            raise IntegratorFailure(f"t = {times[i]:.6g} s: the state is not finite "
+                                    f"(NaN or inf)", done=(Q[:i], QD[:i], W[:i]))
+        return Q, QD, W
 
     def _tangent_map(self, t, q):
         s = self.system

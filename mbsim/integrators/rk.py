@@ -40,6 +40,9 @@ class Tableau:
     E: np.ndarray | None = None
     P: np.ndarray | None = None  # dense output: y = y0 + h K^T P [x, x^2, ...]
     embedded = True  # has an error estimate (False: fixed step only)
+    # the forms of error_norm and dense as mbsim/fast/step.c knows them (None: not in C)
+    error_form: str | None = "embedded"  # | "dop853" | None (no estimate)
+    dense_form: str | None = "poly"  # | "dop853" | "hermite"
 
     @classmethod
     def error_norm(cls, K, h, scale, noise=None):
@@ -96,6 +99,7 @@ class Dop853(Tableau):
     7th-order dense output from three extra stages (evaluated only when output is asked)."""
 
     order, error_order, n_stages = 8, 7, dop.N_STAGES
+    error_form, dense_form = "dop853", "dop853"
     A = dop.A[: dop.N_STAGES, : dop.N_STAGES]
     B = dop.B
     C = dop.C[: dop.N_STAGES]
@@ -149,6 +153,7 @@ class ClassicRK4(Tableau):
 
     order, error_order, n_stages = 4, 0, 4
     embedded = False
+    error_form, dense_form = None, "hermite"
     C = np.array([0, 1 / 2, 1 / 2, 1])
     A = np.array([[0, 0, 0], [1 / 2, 0, 0], [0, 1 / 2, 0], [0, 0, 1]])
     B = np.array([1 / 6, 1 / 3, 1 / 3, 1 / 6])
@@ -166,8 +171,9 @@ class RungeKuttaIntegrator(Integrator):
     self.qd, self.w), ``_state_from_y(t, y, ctx=None)`` (-> q, qd, w), ``n_err`` (leading
     components of y under error control) and may override ``_accept(t, y, f) -> (y, f)``
     (projection, re-partitioning), ``_recover()`` (what to try after a StageFailure before
-    shrinking the step) and ``_context()`` (what y means during the step, e.g. the
-    coordinate partition, kept with the dense output).
+    shrinking the step), ``_context()`` (what y means during the step, e.g. the
+    coordinate partition, kept with the dense output) and ``_attempt(h)`` (the trial, its
+    error test and _accept in one: the index-1 family takes it in C, mbsim/fast/step.c).
     """
 
     tableau = DormandPrince54
@@ -257,15 +263,7 @@ class RungeKuttaIntegrator(Integrator):
                 return self._fail(f"no progress: {rejects} rejected steps in a row "
                                   f"(step {h:.3g} s){why}")
             try:
-                y_new, f_new = self._trial(h)
-                err = 0.0
-                if self.tableau.embedded and self.h_fixed is None:
-                    err = max(self._error_norm(h, y_new), self._extra_error(h))
-                    if not np.isfinite(err):  # NaN/inf in a stage: reject hard
-                        raise StageFailure(f"error norm {err} at step {h:.3g} s")
-                if err <= 1:
-                    K, ctx = self.K.copy(), self._context()
-                    y_acc, f_acc = self._accept(t + h, y_new, f_new)
+                err, y_new, y_acc, f_acc, K, ctx = self._attempt(h)
             except NUMERICAL_ERRORS as exc:
                 self.counters["rejected_steps"] += 1
                 rejects += 1
@@ -292,6 +290,23 @@ class RungeKuttaIntegrator(Integrator):
         self.h_abs = self.h_fixed if self.h_fixed is not None else h_abs
         self.q, self.qd, self.w = self._state_from_y(self.t, self.y)
         return True, ""
+
+    def _attempt(self, h):
+        """One trial step of size h from (t, y) and its error test; when accepted (err <= 1)
+        the step's end after :meth:`_accept`.  Returns (err, y_new, y_acc, f_acc, K, ctx):
+        y_new the end before _accept, K the stages (copy) and ctx as the dense output needs
+        them; y_acc, f_acc, K, ctx None when rejected.  Raises what a stage raises."""
+        y_new, f_new = self._trial(h)
+        err = 0.0
+        if self.tableau.embedded and self.h_fixed is None:
+            err = max(self._error_norm(h, y_new), self._extra_error(h))
+            if not np.isfinite(err):  # NaN/inf in a stage: reject hard
+                raise StageFailure(f"error norm {err} at step {h:.3g} s")
+        if err > 1:
+            return err, y_new, None, None, None, None
+        K, ctx = self.K.copy(), self._context()
+        y_acc, f_acc = self._accept(self.t + h, y_new, f_new)
+        return err, y_new, y_acc, f_acc, K, ctx
 
     def _accept(self, t, y, f):
         return y, f

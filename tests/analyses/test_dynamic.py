@@ -107,21 +107,22 @@ def test_failure_keeps_data_and_names_time_and_joints(crank):
 
 
 def test_ctrl_c_keeps_the_finished_outputs(crank, monkeypatch):
-    """A KeyboardInterrupt in the 40th step ends the run as incomplete with every output
-    reached so far, each with its monitors (all channels the same length)."""
+    """A KeyboardInterrupt in the 40th call of the integrator (Integrator.advance: the steps
+    up to the next output) ends the run as incomplete with every output reached so far,
+    each with its monitors (all channels the same length)."""
     from mbsim.analyses import trajectory as dyn
 
     model, q, qd = crank
     cls = dyn.integrator_class("projection-dop853")
-    step, calls = cls.step, {"n": 0}
+    advance, calls = cls.advance, {"n": 0}
 
-    def interrupted_step(self):
+    def interrupted_advance(self, *args):
         calls["n"] += 1
         if calls["n"] == 40:
             raise KeyboardInterrupt
-        return step(self)
+        return advance(self, *args)
 
-    monkeypatch.setattr(cls, "step", interrupted_step)
+    monkeypatch.setattr(cls, "advance", interrupted_advance)
     res = dynamic(model, {"t_end": 1.0, "step": 0.005, "q0": q, "qd0": qd,
                           "integrator": "projection-dop853", "rtol": 1e-8})
     assert res.status == "incomplete" and "interrupted (Ctrl-C)" in res.message

@@ -1,0 +1,569 @@
+/* The step of the explicit Runge-Kutta integrators of the index-1 family, in C (plain C99).
+ *
+ * Compiled into the same shared library as kernels.c (mbsim.fast._lib builds both; the
+ * source hash covers both) and called through ctypes by mbsim/fast/stepper.py.  One call
+ * takes one whole trial step of an explicit RK tableau on y = (q, qd, w), y' = (qd, qdd,
+ * power) (Haug Sec. 11.3; mbsim/integrators/index1.py): the stages, each through
+ * mb_accelerations, the embedded error norm in the scale of mbsim/integrators/rk.py, and,
+ * when the step is accepted, the mass-weighted projection of q and qd onto the constraints
+ * and the derivative there (FSAL) (mb_rk_trial).  A second call evaluates the step's dense
+ * output at all output times inside it at once, each projected as the step's end is
+ * (mb_rk_dense).  A third takes accepted steps up to the next output time with the
+ * step-size controller of mbsim/integrators/base.py (mb_rk_steps).  The change-point
+ * policy and every fallback stay in Python: a call returns as soon as something needs them
+ * (a status below).
+ *
+ * The tableau is data (mbsim/integrators/rk.py's class data, passed in as arrays); nothing
+ * here allocates.
+ */
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+typedef int64_t idx;
+
+/* mb_model of kernels.c, field for field (mbsim.fast._lib.Struct mirrors it too; the
+ * library checks all three sizes at load time: mb_struct_size, mb_step_model_size). */
+typedef struct {
+    idx nb, nq, m, ma, nc, ninc, npairs, nenv, ne;
+    const idx *ci;
+    const double *cf;
+    const idx *rb, *rows, *dpos, *sidx, *inc, *pairs;
+    const double *bt;
+    const idx *nrm, *ei;
+    const double *ef;
+    double *q, *qd, *tv, *loads, *par, *Jg, *rhs;
+    double *phi, *Jc, *gamma, *nu;
+    double *phi_a, *gamma_a, *nu_a, *J, *data;
+    double *Q, *qdd, *lam, *dq, *out;
+    double *Qt, *g, *Mi, *XG, *JG, *env, *srhs, *z, *K, *kr, *Mb, *A, *F, *n, *w;
+} mb_model;
+
+int mb_accelerations(const mb_model *M, int kkt, int have_jac);
+void mb_constraints(const mb_model *M, int jac, int gam);
+int mb_project(const mb_model *M, int unit);
+void mb_jac_times(const mb_model *M, const double *x, double *out);
+
+int64_t mb_step_model_size(void) { return (int64_t)sizeof(mb_model); }
+
+/* What a call returns. */
+enum {
+    ST_ACCEPTED = 0,  /* err <= 1: y_acc, f_acc hold the projected end and its derivative */
+    ST_REJECTED = 1,  /* err > 1 */
+    ST_SOLVE = 2,     /* a factorisation failed (code of mb_accelerations / mb_project in
+                         out[O_CODE]) */
+    ST_ALARM = 3,     /* a change-point measure below the policy's switch: Python decides */
+    ST_PROJECTION = 4, /* the projection did not reach its tolerance (out[O_RES]) */
+    ST_NONFINITE = 5, /* the error norm is NaN or inf */
+    ST_CALLBACK = 6   /* the Python loads raised: Python takes the step again */
+};
+enum { O_ERR, O_SMIN, O_SLAST, O_RES, O_CODE, N_OUT };
+enum { C_FE, C_CE, C_FACT, C_NEWTON, N_COUNT };
+enum { ERR_NONE, ERR_EMBEDDED, ERR_DOP853 };
+enum { DENSE_POLY, DENSE_DOP853, DENSE_HERMITE };
+
+/* Python's part of a stage: fills tv (time targets) and, when forces, the loads of the
+ * Python force elements at the q, qd loaded into the model; nonzero: it raised. */
+typedef int (*load_fn)(double t, int forces);
+
+/* One integrator's view: sizes and options, the tableau, buffers (the caller's). */
+typedef struct {
+    idx ns;       /* stages (the last stage's derivative at the step's end is K[ns]) */
+    idx nq;
+    idx err_kind; /* ERR_*: none (fixed step), E (ns+1) weights, DOP853's E5/E3 */
+    idx dense_kind; /* DENSE_*: y0 + h K^T P [x, x^2, ..], DOP853's, cubic Hermite */
+    idx np;       /* columns of P (DENSE_POLY) */
+    idx project;  /* 1: project q, qd after an accepted step and at every output */
+    idx kkt;      /* the model's KKT path (identity metric in the projections) */
+    idx stab;     /* Baumgarte terms in gamma (alpha, beta) */
+    double rtol, atol;
+    double tangent;   /* the change-point policy's switch (0: off) */
+    double proj_tol;  /* projection tolerance on max |Phi| */
+    double proj_fail; /* an unconverged projection above this residual fails the step */
+    double alpha, beta;
+    load_fn load;     /* NULL: nothing time-dependent or in Python */
+    const double *A;  /* (ns, ns) row-major */
+    const double *B, *C; /* (ns,) */
+    const double *E, *E3; /* (ns + 1,): E (or E5) and E3 of DOP853 */
+    const double *P;  /* (ns + 1, np) (DENSE_POLY) */
+    const double *AX; /* (3, 16) DOP853's extra stages, row-major */
+    const double *CX; /* (3,) */
+    const double *D;  /* (4, 16) DOP853's dense-output weights */
+    double *y, *f;    /* (ny,) the state at the step's start and its derivative */
+    double *K;        /* (16, ny): the stages; K[ns] = f(t + h, y_new) */
+    double *y_new, *y_acc, *f_acc; /* (ny,) */
+    double *ys;       /* (ny,) work: a stage's state */
+    double *vm;       /* (m,) work: Phi_q qd on all rows */
+    double *qw;       /* (nq,) work: an output's q after one Newton step */
+    double *Fd;       /* (7, ny) work: DOP853's interpolation coefficients */
+    double *out;      /* (N_OUT,) O_* */
+    int64_t *count;   /* (N_COUNT,) C_*: added to, never reset here */
+} mb_rk;
+
+int64_t mb_rk_size(void) { return (int64_t)sizeof(mb_rk); }
+
+/* q, qd into the model's inputs and Python's part at t. */
+static int load_state(const mb_model *M, const mb_rk *R, double t, const double *q,
+                      const double *qd, int forces)
+{
+    idx n = R->nq;
+    memcpy(M->q, q, (size_t)n * sizeof(double));
+    if (qd)
+        memcpy(M->qd, qd, (size_t)n * sizeof(double));
+    return R->load && R->load(t, forces) ? ST_CALLBACK : ST_ACCEPTED;
+}
+
+/* f = y'(t, y) = (qd, qdd, power) (index1.Index1._rhs); the change-point measure
+ * s = sqrt(smallest Schur pivot ratio) (changepoints.measure_from_schur) into out. */
+static int rhs(const mb_model *M, mb_rk *R, double t, const double *y, double *f)
+{
+    idx n = R->nq;
+    if (load_state(M, R, t, y, y + n, 1))
+        return ST_CALLBACK;
+    M->par[0] = R->alpha;
+    M->par[1] = R->beta;
+    M->par[2] = R->stab ? 1.0 : 0.0;
+    R->count[C_FE]++;
+    R->count[C_CE]++;
+    R->count[C_FACT]++;
+    int code = mb_accelerations(M, (int)R->kkt, 0);
+    if (code) {
+        R->out[O_CODE] = code;
+        return ST_SOLVE;
+    }
+    double s = sqrt(M->out[1] > 0.0 ? M->out[1] : 0.0);
+    R->out[O_SLAST] = s;
+    if (s < R->out[O_SMIN])
+        R->out[O_SMIN] = s;
+    if (s < R->tangent)
+        return ST_ALARM;
+    memcpy(f, y + n, (size_t)n * sizeof(double));
+    memcpy(f + n, M->qdd, (size_t)n * sizeof(double));
+    f[2 * n] = M->out[0];
+    return ST_ACCEPTED;
+}
+
+/* max |Phi| on the active rows at M->q (after mb_constraints). */
+static double phi_max(const mb_model *M)
+{
+    double r = 0.0;
+    for (idx k = 0; k < M->ma; k++) {
+        double a = fabs(M->phi[M->rows[k]]);
+        if (a > r || a != a)
+            r = a;
+    }
+    return r;
+}
+
+/* Mass-weighted Newton projection of q onto Phi(q, t) = 0 (System.project_positions):
+ * q updated in place; *res the last max |Phi|; returns 1 converged, 0 not, or -ST_* on
+ * a failure. */
+static int project_positions(const mb_model *M, mb_rk *R, double t, double *q, int max_iter,
+                             double *res)
+{
+    idx n = R->nq;
+    for (int it = 0; it <= max_iter; it++) {
+        R->count[C_CE]++;
+        if (load_state(M, R, t, q, NULL, 0))
+            return -ST_CALLBACK;
+        mb_constraints(M, 1, 0);
+        *res = phi_max(M);
+        if (*res <= R->proj_tol)
+            return 1;
+        if (it == max_iter)
+            break;
+        R->count[C_NEWTON]++;
+        R->count[C_FACT]++;
+        for (idx k = 0; k < M->ma; k++)
+            M->rhs[k] = M->phi[M->rows[k]];
+        int code = mb_project(M, (int)R->kkt);
+        if (code) {
+            R->out[O_CODE] = code;
+            return -ST_SOLVE;
+        }
+        for (idx i = 0; i < n; i++)
+            q[i] -= M->dq[i];
+    }
+    return 0;
+}
+
+/* qd projected onto Phi_q qd = nu at q (System.project_velocities), in place. */
+static int project_velocities(const mb_model *M, mb_rk *R, double t, const double *q,
+                              double *qd)
+{
+    R->count[C_CE]++;
+    if (load_state(M, R, t, q, qd, 0))
+        return ST_CALLBACK;
+    mb_constraints(M, 1, 0);
+    mb_jac_times(M, M->qd, R->vm);
+    for (idx k = 0; k < M->ma; k++) {
+        idx r = M->rows[k];
+        M->rhs[k] = R->vm[r] - M->nu[r];
+    }
+    R->count[C_FACT]++;
+    int code = mb_project(M, (int)R->kkt);
+    if (code) {
+        R->out[O_CODE] = code;
+        return ST_SOLVE;
+    }
+    for (idx i = 0; i < R->nq; i++)
+        qd[i] = M->qd[i] - M->dq[i];
+    return ST_ACCEPTED;
+}
+
+/* (q, qd) put on Phi = 0, Phi_q qd = nu, in place (Index1._project): ST_PROJECTION when
+ * the positions' Newton iteration stops above proj_fail. */
+static int project_state(const mb_model *M, mb_rk *R, double t, double *q, double *qd)
+{
+    double res = 0.0;
+    int ok = project_positions(M, R, t, q, 10, &res);
+    R->out[O_RES] = res;
+    if (ok < 0)
+        return -ok;
+    if (!ok && res > R->proj_fail)
+        return ST_PROJECTION;
+    return project_velocities(M, R, t, q, qd);
+}
+
+/* The RMS norm of a - b in the scale of q over the step (atol + rtol max(|y0|, |y_acc|),
+ * Index1._dense_output_impl's ``scale``). */
+static double rms_diff(const mb_rk *R, const double *a, const double *b, idx n)
+{
+    double s = 0.0;
+    for (idx i = 0; i < n; i++) {
+        double z = (a[i] - b[i]) / (R->atol + R->rtol * fmax(fabs(R->y[i]), fabs(R->y_acc[i])));
+        s += z * z;
+    }
+    return sqrt(s / (double)(n > 1 ? n : 1));
+}
+
+/* The embedded error norm of the trial (rk.Tableau.error_norm, rk.Dop853.error_norm) on
+ * the 2 nq components of q and qd. */
+static double error_norm(const mb_rk *R, double h)
+{
+    idx n = 2 * R->nq, ny = n + 1, ns = R->ns;
+    const double *K = R->K, *y = R->y, *y1 = R->y_new;
+    if (R->err_kind == ERR_EMBEDDED) {
+        double s = 0.0;
+        for (idx i = 0; i < n; i++) {
+            double e = 0.0;
+            for (idx j = 0; j <= ns; j++)
+                e += K[j * ny + i] * R->E[j];
+            double z = h * e / (R->atol + R->rtol * fmax(fabs(y[i]), fabs(y1[i])));
+            s += z * z;
+        }
+        return sqrt(s / (double)(n > 1 ? n : 1));
+    }
+    double e5 = 0.0, e3 = 0.0;
+    for (idx i = 0; i < n; i++) {
+        double a = 0.0, b = 0.0;
+        for (idx j = 0; j <= ns; j++) {
+            a += K[j * ny + i] * R->E[j];
+            b += K[j * ny + i] * R->E3[j];
+        }
+        double sc = R->atol + R->rtol * fmax(fabs(y[i]), fabs(y1[i]));
+        a /= sc;
+        b /= sc;
+        e5 += a * a;
+        e3 += b * b;
+    }
+    if (e5 == 0.0 && e3 == 0.0)
+        return 0.0;
+    return fabs(h) * e5 / sqrt((e5 + 0.01 * e3) * (double)n);
+}
+
+/* ys = y + h sum_{j < s} a[j] K[j] (a stage's state). */
+static void combine(const mb_rk *R, const double *y, const double *a, idx s, double h,
+                    double *ys)
+{
+    idx ny = 2 * R->nq + 1;
+    for (idx i = 0; i < ny; i++) {
+        double acc = 0.0;
+        for (idx j = 0; j < s; j++)
+            acc += R->K[j * ny + i] * a[j];
+        ys[i] = y[i] + h * acc;
+    }
+}
+
+/* One trial step of size h from (t, y) with y' = f (rk.RungeKuttaIntegrator._trial, then
+ * its error test and Index1._accept).  K[0..ns] the stages and f(t + h, y_new); out[O_ERR]
+ * the error norm (0 without control); out[O_SMIN] the smallest measure of the trial's
+ * stages, out[O_SLAST] that of the last derivative.  ST_ACCEPTED: y_acc, f_acc the
+ * (projected) end and its derivative. */
+int mb_rk_trial(const mb_model *M, mb_rk *R, double t, double h)
+{
+    idx n = R->nq, ny = 2 * n + 1, ns = R->ns;
+    double *K = R->K;
+    int st;
+    R->out[O_ERR] = 0.0;
+    R->out[O_SMIN] = INFINITY;
+    memcpy(K, R->f, (size_t)ny * sizeof(double));
+    for (idx s = 1; s < ns; s++) {
+        combine(R, R->y, R->A + s * ns, s, h, R->ys);
+        if ((st = rhs(M, R, t + R->C[s] * h, R->ys, K + s * ny)))
+            return st;
+    }
+    combine(R, R->y, R->B, ns, h, R->y_new);
+    if ((st = rhs(M, R, t + h, R->y_new, K + ns * ny)))
+        return st;
+    if (R->err_kind != ERR_NONE) {
+        double err = error_norm(R, h);
+        R->out[O_ERR] = err;
+        if (!isfinite(err))
+            return ST_NONFINITE;
+        if (err > 1.0)
+            return ST_REJECTED;
+    }
+    memcpy(R->y_acc, R->y_new, (size_t)ny * sizeof(double));
+    if (!R->project) {
+        memcpy(R->f_acc, K + ns * ny, (size_t)ny * sizeof(double));
+        return ST_ACCEPTED;
+    }
+    if ((st = project_state(M, R, t + h, R->y_acc, R->y_acc + n)))
+        return st;
+    return rhs(M, R, t + h, R->y_acc, R->f_acc);
+}
+
+/* -- dense output ------------------------------------------------------------------------ */
+
+/* DOP853's three extra stages (K[ns + 1 ..], from the step's unprojected stages) and its
+ * interpolation coefficients Fd (rk.Dop853.dense); y0 = R->y, y1 = R->y_new, K[0..ns]
+ * as the accepted trial left them. */
+static int dop853_coefficients(const mb_model *M, mb_rk *R, double t0, double h)
+{
+    idx n = R->nq, ny = 2 * n + 1, ns = R->ns;
+    double *K = R->K, *F = R->Fd;
+    int st;
+    for (idx e = 0; e < 3; e++) {
+        idx s = ns + 1 + e;
+        combine(R, R->y, R->AX + 16 * e, s, h, R->ys);
+        if ((st = rhs(M, R, t0 + R->CX[e] * h, R->ys, K + s * ny)))
+            return st;
+    }
+    for (idx i = 0; i < ny; i++) {
+        double dy = R->y_new[i] - R->y[i];
+        F[i] = dy;
+        F[ny + i] = h * K[i] - dy;
+        F[2 * ny + i] = 2.0 * dy - h * (K[ns * ny + i] + K[i]);
+        for (idx r = 0; r < 4; r++) {
+            double acc = 0.0;
+            for (idx j = 0; j < 16; j++)
+                acc += R->D[16 * r + j] * K[j * ny + i];
+            F[(3 + r) * ny + i] = h * acc;
+        }
+    }
+    return ST_ACCEPTED;
+}
+
+/* y (ny,) = the interpolant at t (rk.Tableau.dense and its subclasses'), unprojected. */
+static void interpolate(const mb_rk *R, double t0, double h, double t, double *y)
+{
+    idx ny = 2 * R->nq + 1, ns = R->ns;
+    const double *K = R->K, *y0 = R->y, *y1 = R->y_new;
+    double x = (t - t0) / h;
+    if (R->dense_kind == DENSE_DOP853) {
+        for (idx i = 0; i < ny; i++) {
+            double v = 0.0;
+            for (idx k = 0; k < 7; k++) {
+                v += R->Fd[(6 - k) * ny + i];
+                v *= k % 2 == 0 ? x : 1.0 - x;
+            }
+            y[i] = v + y0[i];
+        }
+    } else if (R->dense_kind == DENSE_POLY) {
+        for (idx i = 0; i < ny; i++) {
+            double v = 0.0, xp = 1.0;
+            for (idx c = 0; c < R->np; c++) {
+                double qc = 0.0;
+                for (idx j = 0; j <= ns; j++)
+                    qc += K[j * ny + i] * R->P[j * R->np + c];
+                xp *= x;
+                v += qc * xp;
+            }
+            y[i] = y0[i] + h * v;
+        }
+    } else { /* cubic Hermite from the end-point slopes K[0], K[ns] (base.hermite) */
+        double h00 = (1 + 2 * x) * (1 - x) * (1 - x), h10 = x * (1 - x) * (1 - x);
+        double h01 = x * x * (3 - 2 * x), h11 = x * x * (x - 1);
+        for (idx i = 0; i < ny; i++)
+            y[i] = h00 * y0[i] + h10 * h * K[i] + h01 * y1[i] + h11 * h * K[ns * ny + i];
+    }
+}
+
+/* The dense output of the last accepted step [t0, t0 + h] at times[0..k) (inside it), each
+ * sample projected as the step's end (Index1._dense_output_impl): the projection's
+ * correction at the end (y_acc - y_new) blended in linearly, then q, qd put on the
+ * constraints.  Q, QD (k, nq), W (k,).  flags[i] = 1 where the C path cannot give the
+ * output: the projection did not converge, or its nonlinear part exceeds the tolerance
+ * (Python integrates to that output instead); 0 otherwise.  Returns ST_ACCEPTED or what
+ * stopped the extra stages (ST_ALARM, ST_SOLVE, ST_CALLBACK: Python's dense output
+ * takes the whole step then). */
+int mb_rk_dense(const mb_model *M, mb_rk *R, double t0, double h, idx k, const double *times,
+                double *Q, double *QD, double *W, int64_t *flags)
+{
+    idx n = R->nq, ny = 2 * n + 1;
+    int st;
+    if (R->dense_kind == DENSE_DOP853 && (st = dop853_coefficients(M, R, t0, h)))
+        return st;
+    int blend = 0;
+    for (idx i = 0; i < ny; i++)
+        if (R->y_acc[i] != R->y_new[i])
+            blend = 1;
+    double *y = R->ys;
+    for (idx j = 0; j < k; j++) {
+        double t = times[j];
+        interpolate(R, t0, h, t, y);
+        if (blend) {
+            double x = (t - t0) / h;
+            for (idx i = 0; i < ny; i++)
+                y[i] += x * (R->y_acc[i] - R->y_new[i]);
+        }
+        flags[j] = 0;
+        double *q = Q + j * n, *qd = QD + j * n;
+        memcpy(q, y, (size_t)n * sizeof(double));
+        memcpy(qd, y + n, (size_t)n * sizeof(double));
+        W[j] = y[2 * n];
+        if (!R->project)
+            continue;
+        st = project_state(M, R, t, q, qd);
+        if (st == ST_CALLBACK)
+            return st;
+        if (st) {
+            flags[j] = 1;
+            continue;
+        }
+        if (rms_diff(R, q, y, n) > 1.0) { /* the projection's nonlinear part: q after all
+                                             * Newton steps against q after the first */
+            double res;
+            memcpy(R->qw, y, (size_t)n * sizeof(double));
+            int ok = project_positions(M, R, t, R->qw, 1, &res);
+            if (ok < 0)
+                return -ok;
+            if (rms_diff(R, q, R->qw, n) > 1.0)
+                flags[j] = 1;
+        }
+    }
+    return ST_ACCEPTED;
+}
+
+/* -- a loop of accepted steps ------------------------------------------------------------ */
+
+/* The step-size controller's settings and state (mbsim/integrators/base.py: the constants,
+ * Integrator._clip, _min_step, _step_factor, _check_progress), in and out. */
+typedef struct {
+    double t;        /* in: the state's time; out: the last accepted step's end */
+    double t_bound, t_stop; /* steps end at t_bound; the loop stops once t >= t_stop */
+    double h_abs;    /* in/out: the next step to try */
+    double h_max, h_min, h_fixed; /* h_fixed > 0: fixed steps, no error control */
+    double err_old;  /* in/out: the PI controller's memory */
+    double exponent, beta, safety, min_factor, max_factor;
+    double near;     /* stop after a step whose measure s is below this (the policy's
+                        Approach takes over; 0: never) */
+    double stall_floor; /* stop after a step below stall_floor max(1, |t|) */
+    idx max_steps, max_rejects;
+    /* out */
+    idx steps, rejected; /* accepted steps, and the rejected trials of those steps */
+    idx why;         /* LOOP_* */
+    double t_old, h_last, s; /* the last accepted step: start, size, measure s at its end */
+} mb_loop;
+
+enum { LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON };
+
+int64_t mb_loop_size(void) { return (int64_t)sizeof(mb_loop); }
+
+/* base.Integrator._step_factor: Hairer's PI controller. */
+static double step_factor(mb_loop *L, double err, int rejected)
+{
+    if (err <= 1.0) {
+        double e = err > 1e-10 ? err : 1e-10;
+        double f = L->safety * pow(e, L->exponent + 0.75 * L->beta) * pow(L->err_old, L->beta);
+        if (f > L->max_factor)
+            f = L->max_factor;
+        if (rejected && f > 1.0)
+            f = 1.0;
+        L->err_old = err > 1e-4 ? err : 1e-4;
+        return f;
+    }
+    double f = L->safety * pow(err, L->exponent + 0.75 * L->beta);
+    return f > L->min_factor ? f : L->min_factor;
+}
+
+/* Accepted steps from (t, y, f) (the buffers y, f) until t >= t_stop (or t_bound, or
+ * max_steps), as RungeKuttaIntegrator._step_impl and Integrator.step take them one by one,
+ * for a family whose step is mb_rk_trial alone (index-1 outside tangent coordinates).  A
+ * step that needs Python is not taken: the loop returns LOOP_PYTHON before it, with every
+ * earlier step accepted (a trial's status other than accepted or rejected, a step below the
+ * smallest step, max_rejects rejections, a non-finite step or state).  It also returns after
+ * a step whose change-point measure is below `near` (LOOP_NEAR) and after a step below the
+ * stall floor (LOOP_TINY), where the integrator's bookkeeping decides.  On return y is the
+ * last step's start, y_new, y_acc, f_acc and K its trial (the dense output's data), and
+ * t_old, h_last, t, h_abs, err_old, steps, rejected say where the loop is; after
+ * LOOP_PYTHON, (t, y, f) is the last accepted state and the rest is the abandoned step's. */
+int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
+{
+    idx ny = 2 * R->nq + 1;
+    L->steps = 0;
+    L->rejected = 0;
+    L->why = LOOP_STOP;
+    while (L->t < L->t_stop && L->t < L->t_bound && L->steps < L->max_steps) {
+        if (L->steps > 0) { /* the last step's end is the next step's start */
+            memcpy(R->y, R->y_acc, (size_t)ny * sizeof(double));
+            memcpy(R->f, R->f_acc, (size_t)ny * sizeof(double));
+        }
+        double t = L->t, h_abs = L->h_abs < L->h_max ? L->h_abs : L->h_max, h;
+        double err_old = L->err_old;
+        int rejected = 0;
+        idx rejects = 0;
+        for (;;) {
+            h = h_abs; /* Integrator._clip */
+            if (L->h_max < h)
+                h = L->h_max;
+            if (L->t_bound - t < h)
+                h = L->t_bound - t;
+            if (L->t_bound - (t + h) < 1e-12 * fmax(1.0, fabs(L->t_bound)))
+                h = L->t_bound - t;
+            double min_step = fmax(L->h_min, 10.0 * fabs(nextafter(t, INFINITY) - t));
+            if (!isfinite(h) || (h < min_step && h < L->t_bound - t) ||
+                rejects >= L->max_rejects)
+                break;
+            int st = mb_rk_trial(M, R, t, h);
+            if (st != ST_ACCEPTED && st != ST_REJECTED)
+                break;
+            if (L->h_fixed > 0.0)
+                goto accepted;
+            double err = R->out[O_ERR];
+            h_abs = h * step_factor(L, err, rejected);
+            if (st == ST_ACCEPTED)
+                goto accepted;
+            rejected = 1;
+            rejects++;
+        }
+        /* this step needs Python: nothing of it is kept (y, f: the state before it) */
+        L->err_old = err_old;
+        L->why = LOOP_PYTHON;
+        return L->why;
+    accepted:
+        for (idx i = 0; i < ny; i++)
+            if (!isfinite(R->y_acc[i])) {
+                L->err_old = err_old;
+                L->why = LOOP_PYTHON;
+                return L->why;
+            }
+        L->rejected += rejects;
+        L->steps++;
+        L->t_old = t;
+        L->h_last = h;
+        L->t = t + h;
+        L->h_abs = L->h_fixed > 0.0 ? L->h_fixed : h_abs;
+        L->s = R->out[O_SLAST];
+        if (L->s < L->near) {
+            L->why = LOOP_NEAR;
+            return L->why;
+        }
+        if (h < L->stall_floor * fmax(1.0, fabs(L->t)) && L->t < L->t_bound) {
+            L->why = LOOP_TINY;
+            return L->why;
+        }
+    }
+    return L->why;
+}

@@ -1,0 +1,239 @@
+"""CompiledStep: the trial step and the dense output of an explicit RK integrator in C.
+
+mbsim/fast/step.c takes one whole trial step of a tableau (rk.py's class data, passed in
+as arrays) on the index-1 system y = (q, qd, w) of a :class:`~mbsim.fast.dynamics.System`:
+the stages through ``mb_accelerations``, the embedded error norm, and after acceptance the
+projection of q and qd and the derivative there; and evaluates the dense output of the
+last accepted step at all output times inside it at once, each output projected.  Python
+keeps the step-size controller, the change-point policy and every fallback: a call
+returns a status (``ST_*``) as soon as one of them must decide.
+
+What still runs in Python per stage: the time targets of driven rows (f, f', f'') and the
+force elements that are not compiled (laws, rsda, tire: :mod:`mbsim.fast.dynamics`), through
+one ctypes callback (``load``) per stage; models without either never leave C in a step.
+
+Buffers (all owned here, handed to C once):
+
+- ``K`` (16, ny): the stages, K[ns] = f(t + h, y_new), DOP853's extra stages after it;
+- ``y``, ``f`` (ny,): the step's start and its derivative (written before each trial);
+- ``y_new`` (the unprojected end), ``y_acc``, ``f_acc`` (the accepted, projected end and
+  its derivative) (ny,);
+- ``out`` (5,): error norm, smallest change-point measure of the trial's stages, measure of
+  the last derivative, last projection residual, failure code of a factorisation;
+- ``count`` (4,): the work done (``COUNTERS``), added to ``system.counters`` after a call.
+
+A third call takes many accepted steps in a row (``steps``: up to the next output time),
+with the step-size controller of :mod:`mbsim.integrators.base` in C too (``Loop``); it
+returns before any step that needs Python, and after one where the change-point policy's
+approach or the stall watchdog must look.
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+from mbsim import equations as eq
+from mbsim.fast import _lib
+
+ST_ACCEPTED, ST_REJECTED, ST_SOLVE, ST_ALARM, ST_PROJECTION, ST_NONFINITE, ST_CALLBACK = range(7)
+O_ERR, O_SMIN, O_SLAST, O_RES, O_CODE = range(5)
+COUNTERS = ("function_evaluations", "constraint_evaluations", "factorizations",
+            "newton_iterations")
+ERROR_FORMS = {None: 0, "embedded": 1, "dop853": 2}
+DENSE_FORMS = {"poly": 0, "dop853": 1, "hermite": 2}
+N_K = 16  # rows of K: DOP853's 12 stages, f(t + h, y_new) and 3 extra stages
+
+LOAD = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_double, ctypes.c_int)
+
+
+class RK(ctypes.Structure):
+    """mb_rk of step.c, field for field."""
+
+    _fields_ = (
+        [(n, ctypes.c_int64) for n in
+         ("ns", "nq", "err_kind", "dense_kind", "np", "project", "kkt", "stab")]
+        + [(n, ctypes.c_double) for n in
+           ("rtol", "atol", "tangent", "proj_tol", "proj_fail", "alpha", "beta")]
+        + [("load", ctypes.c_void_p)]
+        + [(n, ctypes.c_void_p) for n in
+           ("A", "B", "C", "E", "E3", "P", "AX", "CX", "D", "y", "f", "K", "y_new", "y_acc",
+            "f_acc", "ys", "vm", "qw", "Fd", "out", "count")]
+    )
+
+
+LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON = range(4)
+
+
+class Loop(ctypes.Structure):
+    """mb_loop of step.c: the step-size controller's settings and state."""
+
+    _fields_ = (
+        [(n, ctypes.c_double) for n in
+         ("t", "t_bound", "t_stop", "h_abs", "h_max", "h_min", "h_fixed", "err_old",
+          "exponent", "beta", "safety", "min_factor", "max_factor", "near", "stall_floor")]
+        + [(n, ctypes.c_int64) for n in ("max_steps", "max_rejects", "steps", "rejected",
+                                         "why")]
+        + [(n, ctypes.c_double) for n in ("t_old", "h_last", "s")]
+    )
+
+
+def supports(tableau) -> bool:
+    """True when step.c knows the tableau's error norm and dense output (class data
+    ``error_form``, ``dense_form``)."""
+    return (getattr(tableau, "dense_form", None) in DENSE_FORMS
+            and getattr(tableau, "error_form", "?") in ERROR_FORMS)
+
+
+class CompiledStep:
+    """One integrator's step in C on ``system`` with ``tableau``.
+
+    control: the error norm is computed (an embedded pair without a fixed step); project:
+    q, qd projected after each accepted step and at each output (the projection families);
+    stab: Baumgarte's (alpha, beta) or None; rtol, atol, proj_tol as the integrator's."""
+
+    def __init__(self, system, tableau, *, rtol, atol, control, project, proj_tol, stab=None):
+        self.system = system
+        self.lib = system.fc.lib
+        if (self.lib.mb_rk_size(), self.lib.mb_loop_size()) != (ctypes.sizeof(RK),
+                                                               ctypes.sizeof(Loop)):
+            raise _lib.KernelBuildError("mb_rk / mb_loop in step.c and mbsim.fast.stepper's "
+                                        "RK / Loop differ (an edit on one side only)")
+        nq = system.nq
+        ny = 2 * nq + 1
+        self.tableau = tab = tableau
+        ns = tab.n_stages
+        self._keep = []  # the arrays C points into
+
+        def arr(x, shape=None):
+            a = np.ascontiguousarray(np.zeros(shape) if x is None else x, dtype=np.float64)
+            self._keep.append(a)
+            return a
+
+        A = np.zeros((ns, ns))
+        A[:, : tab.A.shape[1]] = tab.A[:ns, : min(ns, tab.A.shape[1])]
+        err_form = tab.error_form if control else None
+        if err_form == "dop853":
+            E, E3 = tab.E5, tab.E3
+        elif err_form == "embedded":
+            E, E3 = tab.E, None
+        else:
+            E = E3 = None
+        P = getattr(tab, "P", None)
+        r = self.r = RK()
+        r.ns, r.nq = ns, nq
+        r.err_kind = ERROR_FORMS[err_form]
+        r.dense_kind = DENSE_FORMS[tab.dense_form]
+        r.np = 0 if P is None else P.shape[1]
+        r.project, r.kkt = int(project), int(system.kkt)
+        r.stab = int(stab is not None)
+        r.alpha, r.beta = stab if stab is not None else (0.0, 0.0)
+        r.rtol, r.atol = rtol, atol
+        r.proj_tol = proj_tol
+        r.proj_fail = max(1e3 * proj_tol, 1e-11)  # Index1._project's failure rule
+        for name, x, shape in (("A", A, None), ("B", tab.B, None), ("C", tab.C, None),
+                               ("E", E, ns + 1), ("E3", E3, ns + 1), ("P", P, 1),
+                               ("AX", getattr(tab, "A_EXTRA", None), (3, 16)),
+                               ("CX", getattr(tab, "C_EXTRA", None), 3),
+                               ("D", getattr(tab, "D", None), (4, 16))):
+            setattr(r, name, arr(x, shape).ctypes.data)
+        self.y, self.f, self.y_new, self.y_acc, self.f_acc, ys, qw = (
+            arr(None, ny) for _ in range(7))
+        self.K = arr(None, (N_K, ny))
+        vm, Fd, self.out = arr(None, system.model.m), arr(None, (7, ny)), arr(None, 5)
+        self.count = np.zeros(4, dtype=np.int64)
+        for name, a in (("y", self.y), ("f", self.f), ("K", self.K), ("y_new", self.y_new),
+                        ("y_acc", self.y_acc), ("f_acc", self.f_acc), ("ys", ys), ("vm", vm),
+                        ("qw", qw), ("Fd", Fd), ("out", self.out), ("count", self.count)):
+            setattr(r, name, a.ctypes.data)
+        self._pending = []  # a KeyboardInterrupt (or SystemExit) met in the callback
+        self._load = _load_callback(system, self._pending)
+        r.load = ctypes.cast(self._load, ctypes.c_void_p).value if self._load else None
+        self.ptr = ctypes.addressof(r)
+        self.ns = ns
+
+    def _counted(self, status):
+        c = self.system.counters
+        for name, n in zip(COUNTERS, self.count.tolist()):
+            c[name] += n
+        self.count[:] = 0
+        if self._pending:  # raised where the C call was made (_load_callback)
+            raise self._pending.pop()
+        return status
+
+    def trial(self, t, h, y, f, tangent) -> int:
+        """One trial step of size h from (t, y), y' = f, with the change-point switch
+        ``tangent`` (0: off); returns ST_* (buffers: module doc)."""
+        self.y[:] = y
+        self.f[:] = f
+        self.r.tangent = tangent
+        return self._counted(self.lib.mb_rk_trial(self.system.c.ptr, self.ptr, t, h))
+
+    def steps(self, y, f, loop: Loop) -> int:
+        """Accepted steps from (loop.t, y), y' = f, as ``loop`` says (step.c: mb_rk_steps);
+        returns LOOP_* (``loop`` updated)."""
+        self.y[:] = y
+        self.f[:] = f
+        return self._counted(self.lib.mb_rk_steps(self.system.c.ptr, self.ptr,
+                                                  ctypes.byref(loop)))
+
+    def stages(self) -> np.ndarray:
+        """(ns + 1, ny) copy of the last trial's stages and f(t + h, y_new)."""
+        return self.K[: self.ns + 1].copy()
+
+    def dense(self, t0, h, times, k=None):
+        """(status, Q (n, nq), QD (n, nq), W (n,), flags (k,)) of the last trial (accepted;
+        the buffers untouched since) at the first k (default all n) of ``times`` in
+        [t0, t0 + h] (the rows after k are left for the caller); flags[i] = 1 where Python
+        must give the output (step.c: mb_rk_dense)."""
+        times = np.ascontiguousarray(times, dtype=np.float64)
+        n, nq = times.size, self.system.nq
+        k = n if k is None else k
+        Q, QD, W = np.empty((n, nq)), np.empty((n, nq)), np.empty(n)
+        flags = np.zeros(k, dtype=np.int64)
+        st = self.lib.mb_rk_dense(self.system.c.ptr, self.ptr, t0, h, k, times.ctypes.data,
+                                  Q.ctypes.data, QD.ctypes.data, W.ctypes.data,
+                                  flags.ctypes.data)
+        return self._counted(st), Q, QD, W, flags
+
+
+def solve_error(code):
+    """The SolveError that System.accelerations / System._correction raise for a failed
+    factorisation with this status code (mbsim.fast.dynamics.STATUS_*)."""
+    from mbsim.fast import dynamics as dyn
+
+    return dyn.SolveError("singular KKT matrix" if int(code) == dyn.STATUS_SINGULAR
+                          else dyn._NOT_PD)
+
+
+def _load_callback(system, pending):
+    """The per-stage Python part (time targets, Python force elements) as a C callback, or
+    None when the model has neither.  It reads q, qd where C loaded them (the system's own
+    input buffers); an exception returns 1 and the caller takes the step in Python again,
+    where the same exception is raised and handled.  A KeyboardInterrupt or SystemExit
+    (Ctrl-C arrives in the callback: the only Python code running during the C call)
+    returns 1 too and is kept in ``pending``, to be raised once the C call is back
+    (:meth:`CompiledStep._counted`); ctypes would print and drop it."""
+    fc, py = system.fc, system.py_forces
+    if not fc.funcs and not py:
+        return None
+    loads, model = system._loads, system.model
+
+    def load(t, forces):
+        try:
+            if fc.funcs:
+                fc.targets(t)
+            if forces and py:
+                loads[:] = 0.0
+                st = eq.State(model, fc._q, fc._qd)
+                for el in py:
+                    el.apply(st, t, loads[0], loads[1])
+        except Exception:  # noqa: BLE001 - re-raised by the Python path (docstring)
+            return 1
+        except BaseException as exc:  # noqa: BLE001 - raised after the C call (docstring)
+            pending.append(exc)
+            return 1
+        return 0
+
+    return LOAD(load)
