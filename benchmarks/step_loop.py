@@ -43,7 +43,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
 
 from common import chain_model  # noqa: E402
 
-from mbsim.analyses import dynamic as dyn  # noqa: E402
+from mbsim.analyses import trajectory as dyn  # noqa: E402
 from mbsim.analyses.dynamic import dynamic  # noqa: E402
 from mbsim.deck import load_deck  # noqa: E402
 from mbsim.fast import _lib  # noqa: E402
@@ -76,7 +76,7 @@ def wrap_library():
         w = ns[name]
         w._wrapped = True
         setattr(lib, name, w)
-    integrate = dyn._integrate
+    integrate = dyn.integrate
 
     def timed_integrate(run, times, record, max_steps):
         def timed_record(*a):
@@ -96,7 +96,7 @@ def wrap_library():
             CLOCK["loop"] += time.perf_counter() - t0
             CLOCK["on"] = False
 
-    dyn._integrate = timed_integrate
+    dyn.integrate = timed_integrate
 
 
 def timed_shares(model, opt):

@@ -310,13 +310,12 @@ class Stepper:
         # t at the end of every accepted step: the run's mesh (for the coarse error
         # estimate, mbsim.analyses.estimate.coarse_estimate)
         self.step_ends: list[float] = []
+        self.solver.step_ends = self.step_ends
 
     def step(self):
         ok, msg = self.solver.step()
-        if ok:
-            if self.first_step is None:
-                self.first_step = self.solver.h_last
-            self.step_ends.append(self.solver.t)
+        if ok and self.first_step is None:
+            self.first_step = self.solver.h_last
         return ok, msg
 
     def advance(self, t_stop, max_steps):
@@ -344,6 +343,7 @@ class Stepper:
         except NUMERICAL_ERRORS:  # the new rows do not solve here either: the failure stands
             return False
         solver.w = s.w
+        solver.step_ends = self.step_ends
         self._retired.append(s.all_counters())
         names = model.items_of_rows(red) if red.size else []
         self.changes.append({"t": float(s.t), "rank": int(rank), "redundant": names,

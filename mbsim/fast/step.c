@@ -465,6 +465,8 @@ typedef struct {
     idx steps, rejected; /* accepted steps, and the rejected trials of those steps */
     idx why;         /* LOOP_* */
     double t_old, h_last, s; /* the last accepted step: start, size, measure s at its end */
+    double *ends;    /* (max_steps,) out: each accepted step's end time (the run's mesh), or
+                        NULL */
 } mb_loop;
 
 enum { LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON };
@@ -554,6 +556,8 @@ int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
         L->t_old = t;
         L->h_last = h;
         L->t = t + h;
+        if (L->ends)
+            L->ends[L->steps - 1] = L->t;
         L->h_abs = L->h_fixed > 0.0 ? L->h_fixed : h_abs;
         L->s = R->out[O_SLAST];
         if (L->s < L->near) {

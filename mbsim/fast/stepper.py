@@ -76,6 +76,7 @@ class Loop(ctypes.Structure):
         + [(n, ctypes.c_int64) for n in ("max_steps", "max_rejects", "steps", "rejected",
                                          "why")]
         + [(n, ctypes.c_double) for n in ("t_old", "h_last", "s")]
+        + [("ends", ctypes.POINTER(ctypes.c_double))]
     )
 
 

@@ -111,6 +111,9 @@ class Integrator(ABC):
         self._err_old = 1e-4
         self.counters = {"steps": 0, "rejected_steps": 0}
         self._tiny_steps = 0
+        # the end time of every accepted step, when the caller sets a list here (the run's
+        # mesh, for the coarse error estimate); None: not recorded
+        self.step_ends = None
 
     # -- what the driver calls ------------------------------------------------------------
     def step(self):
@@ -137,6 +140,8 @@ class Integrator(ABC):
             return False, message
         self.t_old = t
         self.counters["steps"] += 1
+        if self.step_ends is not None:
+            self.step_ends.append(self.t)
         if self.t >= self.t_bound:
             self.status = "finished"
         return True, ""

@@ -45,6 +45,8 @@ benchmarks/singular_loops.py, benchmarks/dead_centre.py).
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 
 from mbsim.fast import stepper
@@ -108,6 +110,7 @@ class Index1(RungeKuttaIntegrator):
         if self.policy.tangent > 0.0:
             self._approach = self._new_approach()
         self._compiled = self._compiled_step()
+        self._ends_buffer = np.empty(0)  # advance: the C loop's step ends
         self._c_last = False  # the last accepted step was taken in C (its buffers hold it)
         self._start()
 
@@ -293,8 +296,16 @@ class Index1(RungeKuttaIntegrator):
             min_factor=base.MIN_FACTOR, max_factor=base.MAX_FACTOR,
             near=approach.near if approach is not None else 0.0,
             stall_floor=base.STALL_FLOOR, max_steps=max_steps, max_rejects=base.MAX_REJECTS)
+        ends = None
+        if self.step_ends is not None:
+            if self._ends_buffer.size < max_steps:
+                self._ends_buffer = np.empty(max_steps)
+            ends = self._ends_buffer
+            L.ends = ends.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
         why = c.steps(self.y, self.f, L)
         if L.steps:
+            if ends is not None:
+                self.step_ends.extend(ends[:L.steps].tolist())
             self.counters["steps"] += L.steps
             self.counters["rejected_steps"] += L.rejected
             self.t, self.t_old, self.h_last = L.t, L.t_old, L.h_last

@@ -20,7 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mbsim.analyses.dynamic import Stepper, _initial, dynamic
+from mbsim.analyses.dynamic import dynamic
+from mbsim.analyses.trajectory import Stepper
+from mbsim.analyses.trajectory import initial_conditions as _initial
 from mbsim.deck import load_deck
 from mbsim.fast import stepper
 from mbsim.integrators import INTEGRATORS
