@@ -1,6 +1,6 @@
 """The C kernels (mbsim.fast: FastConstraints, System) against the numpy reference.
 
-References: :func:`mbsim.equations.constraints`, ``applied_forces``, ``mass_matrix`` and
+References: :func:`tests.reference.equations.constraints`, ``applied_forces``, ``mass_matrix`` and
 ``accelerations`` (dense KKT solve), on the random joint and driver specs of
 tests/test_constraints.py (q off the constraint manifold, |p| off 1), every deck in models/
 with each of its scenes, and the spatial chains of benchmarks/eval_constraints.py.  Also the
@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 import scipy.linalg as la
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim import fast
 from mbsim.constraints import DRIVERS, JOINTS
 from mbsim.deck import load_deck, load_deck_text

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.analyses import redundancy
 from mbsim.analyses.common import rank_and_redundant, singular_rows
 from mbsim.errors import ConvergenceError, DeckError, ModelError, SingularJacobianError
@@ -133,10 +133,10 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
     Ih = np.eye(model.nq)[hold]
 
     def system(qq):
-        T = eq.constraints(model, qq, t)
+        if not np.isfinite(qq).all():  # before LAPACK sees inf
+            core.require_finite(model, t, q=qq)
+        T = core.constraints(model, None, qq, t)  # non-finite terms: an error naming them
         ph, J = T.phi, T.jac
-        if not (np.isfinite(ph).all() and np.isfinite(J).all()):  # before LAPACK sees inf
-            eq.require_finite(model, t, q=qq, phi=ph, J=J)
         if rows is not None:
             ph, J = ph[rows], J[rows]
         if hold.size:
@@ -162,7 +162,7 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
         res = np.abs(ph).max(initial=0.0)
     if res < tol:
         return q, max_iter, res
-    full = eq.phi(model, q, t)
+    full = core.phi(model, None, q, t)
     # A stall with Phi != 0 ends near a least-squares minimum, J^T Phi = 0: when the residual
     # lies mostly (measured: 64-70 % for the slider-crank's rod too short by 1e-6 to 6e-3 m)
     # along the weakest left singular vector of a (nearly) singular J, no configuration
@@ -226,7 +226,7 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembl
         # A rank-deficient Phi_q where Newton stalls means constraints that contradict
         # each other: name them (drivers first) rather than only the residuals.
         qs = normalize_q(model, q0)
-        T = eq.constraints(model, qs, t)
+        T = core.constraints(model, None, qs, t)
         rank, red = rank_and_redundant(model, T.jac)
         if red.size:
             act = np.setdiff1d(np.arange(model.m), red)
@@ -240,7 +240,7 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembl
         raise _with_loop(model, exc) from None
     log.info("assembly at t = %g s: %d Newton iteration(s) from the estimates, max |Phi| = "
              "%.3g", t, its, res)
-    rank, red = rank_and_redundant(model, eq.phi_q(model, q, t))
+    rank, red = rank_and_redundant(model, core.phi_q(model, None, q, t))
     warnings = []
     active = np.setdiff1d(np.arange(model.m), red)
     red_items = culprits(model, red) if red.size else []

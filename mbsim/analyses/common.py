@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as la
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.errors import DeckError, Where
 from mbsim.result import Result
 from mbsim.rotations import A as rot_A
@@ -191,10 +191,8 @@ class Recorder:
         model = self.model
         if not model.forces:
             return
-        from mbsim.equations import State
-
         q, qd, ts = self.q, self.qd, self.t
-        st0 = State(model, q[0], qd[0])
+        st0 = core.State(model, q[0], qd[0])
         wanted = []
         for el in model.forces:
             keys = [k for k in el.channels(st0, ts[0]) if needed(f"forces/{el.name}/{k}")]
@@ -205,7 +203,7 @@ class Recorder:
         data: dict[str, list] = {}
         units: dict[str, str] = {}
         for k in range(self._n):
-            st = State(model, q[k], qd[k])
+            st = core.State(model, q[k], qd[k])
             for el, keys in wanted:
                 chans = el.channels(st, ts[k])
                 for key in keys:
@@ -259,6 +257,6 @@ def potential_energies(model, q, kin) -> np.ndarray:
     """(nt,) V: gravity (vectorised) plus the force elements' potentials (per output)."""
     V = -np.einsum("b,tbi,i->t", model.mass, kin["r"], model.gravity)
     if any(True for _ in model.forces):
-        V = V + np.array([sum(el.potential(eq.State(model, qk)) for el in model.forces)
+        V = V + np.array([sum(el.potential(core.State(model, qk)) for el in model.forces)
                           for qk in q])
     return V

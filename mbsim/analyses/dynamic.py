@@ -858,14 +858,14 @@ def _accuracy_run(model, opt, progress, explicit):
 
 def _accelerations_lstsq(model, system, q, qd, t):
     """qdd and lam at a configuration where the active rows are singular (a change point):
-    the minimum-norm solution of the KKT equations on all rows (reference equations)."""
+    the minimum-norm solution of the KKT equations on all rows."""
     import scipy.linalg as la
 
-    from mbsim import equations as eq
+    from mbsim import core
 
-    T = eq.constraints(model, q, t, qd=qd, phi=False, gamma=True)
+    T = core.constraints(model, None, q, t, qd=qd, phi=False, gamma=True)
     Q = system.generalized_forces(q, qd, t)
-    M = eq.mass_matrix(model, q)
+    M = core.mass_matrix(model, None, q)
     J, g = T.jac, T.gamma
     n, m = model.nq, J.shape[0]
     K = np.zeros((n + m, n + m))
@@ -874,9 +874,9 @@ def _accelerations_lstsq(model, system, q, qd, t):
     return sol[:n], sol[n:][system.rows]
 
 def _jac(model, q, t):
-    from mbsim import equations as eq
+    from mbsim import core
 
-    return eq.phi_q(model, q, t)
+    return core.phi_q(model, None, q, t)
 
 
 def _initial(model, t0, opt):
@@ -938,7 +938,7 @@ def _switching_forces(model, system, q, qd, t):
         qdd = system.accelerations(q, qd, t)[0]
     except NUMERICAL_ERRORS:
         return []
-    from mbsim import equations as eq
+    from mbsim import core
 
     e = SWITCH_PROBE
     states = [(q + sg * e * qd + 0.5 * e * e * qdd, qd + sg * e * qdd, t + sg * e)
@@ -949,7 +949,7 @@ def _switching_forces(model, system, q, qd, t):
         try:
             for qs, vs, ts in states:
                 F, n = np.zeros((model.nb, 3)), np.zeros((model.nb, 3))
-                el.apply(eq.State(model, qs, vs), ts, F, n)
+                el.apply(core.State(model, qs, vs), ts, F, n)
                 loads.append(np.concatenate([F.ravel(), n.ravel()]))
         except Exception:  # noqa: BLE001 - the explanation must not hide the failure
             continue

@@ -17,8 +17,9 @@
    Whatever freedom is left is fixed by minimum kinetic energy, 1/2 qd^T M qd.
    Hook: further conditions (e.g. a joint's relative rate) are rows appended in
    :func:`given_conditions`; nothing else changes.
-3. Accelerations and multipliers: the KKT system (``equations.accelerations``) on the
-   active rows; the multipliers of dropped rows are 0.
+3. Accelerations and multipliers: the one solve of the equations of motion
+   (:func:`mbsim.core.accelerations`) on the active rows; the multipliers of dropped rows
+   are 0.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import logging
 import numpy as np
 import scipy.linalg as la
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.analyses import redundancy
 from mbsim.analyses.assembly import assemble
 from mbsim.rotations import A as rot_A
@@ -76,11 +77,12 @@ def given_conditions(model, q):
 def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
     """(qd, info) from the constraints and the given velocities (module doc, step 2)."""
     active = np.arange(model.m) if active is None else active
-    T = eq.constraints(model, q, t0, nu=True)
-    H, h = T.jac[active], T.nu[active]
-    M = eq.mass_matrix(model, q)
+    data = core.make_data(model, active)
+    T = core.constraints(model, data, q, t0, nu=True)  # input guard: 1e308 points
+    H, h = T.jac, T.nu
+    M = core.mass_matrix(model, data, q)
     C, c, w, labels = given_conditions(model, q)
-    eq.require_finite(model, t0, M=M, J=H, nu=h)  # input guard: 1e308 inertia, points
+    core.require_finite(model, t0, M=M)  # input guard: 1e308 inertia
     # constraints: qd = qd_p + N z
     U, s, Vt = la.svd(H, full_matrices=True)
     rank = int(np.sum(s > rtol * max(1.0, s[0] if s.size else 1.0)))
@@ -167,28 +169,12 @@ def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10):
     info["warnings"] = list(asm.warnings) + info["warnings"]
     info["assembly"] = asm
     info["active_rows"] = active
-    if active.size == model.m:
-        qdd, lam = eq.accelerations(model, q, qd, t0)
-    else:
-        qdd, lam_a = _accelerations_on(model, q, qd, t0, active)
-        lam = np.zeros(model.m)
-        lam[active] = lam_a
+    qdd, lam = core.accelerations(model, core.make_data(model, active), q, qd, t0)
+    if active.size < model.m:
         # the dropped rows must hold at velocity and acceleration level too (a driver that
         # over-determines the mechanism holds at the assembled position only)
-        T = eq.constraints(model, q, t0, qd=qd, phi=False, gamma=True, nu=True)
+        T = core.constraints(model, None, q, t0, qd=qd, phi=False, gamma=True, nu=True)
         redundancy.check(model, T.jac, asm.redundant_rows, active, t0, qd=qd, nu=T.nu,
                          qdd=qdd, gamma=T.gamma, start=True)
     return q, qd, qdd, lam, info
 
-
-def _accelerations_on(model, q, qd, t, rows):
-    """The KKT solve of equations.accelerations restricted to ``rows``."""
-    T = eq.constraints(model, q, t, qd=qd, phi=False, gamma=True)
-    J, g = T.jac[rows], T.gamma[rows]
-    Q = eq.applied_forces(model, q, qd, t)[0]
-    M = eq.mass_matrix(model, q)
-    n, m = model.nq, len(rows)
-    K = np.zeros((n + m, n + m))
-    K[:n, :n], K[:n, n:], K[n:, :n] = M, J.T, J
-    sol = la.solve(K, np.concatenate([Q, g]))
-    return sol[:n], sol[n:]

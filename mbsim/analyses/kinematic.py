@@ -9,7 +9,7 @@ import time as _time
 import numpy as np
 import scipy.linalg as la
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.analyses import redundancy
 from mbsim.analyses.assembly import assemble, newton
 from mbsim.analyses.common import Recorder, require_dof_zero, singular_rows
@@ -66,7 +66,7 @@ def kinematic(model, options=None):
                 q = q + h * qd_prev + 0.5 * h * h * qdd_prev
                 q, its, _ = newton(model, q, t, opt["tol"], opt["max_iter"], rows=rows)
                 newton_its += its
-            T = eq.constraints(model, q, t, qd=None, phi=True, jac=True, nu=True)
+            T = core.constraints(model, None, q, t, qd=None, phi=True, jac=True, nu=True)
             J = T.jac[rows]
             if model.nq <= 400:
                 s = np.linalg.svd(J, compute_uv=False)
@@ -80,7 +80,7 @@ def kinematic(model, options=None):
                         f"{', '.join(names)}", time=t, items=tuple(names))
                 cond.append(c)
             qd = solve_square(model, J, T.nu[rows], t, "velocity")
-            G = eq.gamma(model, q, qd, t)
+            G = core.gamma(model, None, q, qd, t)
             qdd = solve_square(model, J, G[rows], t, "acceleration")
             # the dropped rows must hold too; a conflict at the first output is the deck's
             # structure (exit 2), later it ends the run here (exit 1, results kept)

@@ -50,7 +50,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.fast.constraints import FastConstraints
 
 NB = 24
@@ -118,8 +118,11 @@ class System:
             Q=np.zeros(nq), qdd=np.zeros(nq), lam=np.zeros(ma), dq=np.zeros(nq), out=np.ones(2))
         c.set(Qt=np.zeros(nq), g=np.zeros(ma), Mi=np.zeros((nb, 4, 4)), XG=np.zeros((ninc, 8)),
               JG=np.zeros((ninc, 8)), env=np.zeros(nenv), srhs=np.zeros(ma), z=np.zeros(ma),
-              K=np.zeros(nk * nk), kr=np.zeros(nk), A=np.zeros((nb, 3, 3)),
-              F=np.zeros((nb, 3)), n=np.zeros((nb, 3)), w=np.zeros((nb, 3)))
+              K=np.zeros(nk * nk), kr=np.zeros(nk), A=np.zeros((nb, 3, 3)))
+        # after mb_applied_forces: F (nb, 3) global forces, n (nb, 3) body torques with the
+        # gyroscopic term, w (nb, 3) body-frame angular velocities
+        self._F, self._n, self._w = c.set(F=np.zeros((nb, 3)), n=np.zeros((nb, 3)),
+                                          w=np.zeros((nb, 3)))
         (self._Mb,) = c.set(Mb=np.zeros((nb, 7, 7)))
         self._v = np.zeros(model.m)
         lib = self.fc.lib
@@ -148,13 +151,13 @@ class System:
         if self.py_forces:
             loads = self._loads
             loads[:] = 0.0
-            st = eq.State(self.model, fc._q, fc._qd)
+            st = core.State(self.model, fc._q, fc._qd)
             for el in self.py_forces:
                 el.apply(st, t, loads[0], loads[1])
 
     def applied_forces(self, st, t) -> np.ndarray:
-        """Q (nq,) at the state st (:class:`mbsim.equations.State`) as
-        :func:`mbsim.equations.applied_forces`: gravity, force elements, gyroscopic term."""
+        """Q (nq,) at the state st (:class:`mbsim.core.State`) as
+        :func:`mbsim.core.applied_forces`: gravity, force elements, gyroscopic term."""
         q = np.concatenate([st.r, st.p], axis=1).reshape(-1)
         qd = np.concatenate([st.rd, st.pd], axis=1).reshape(-1)
         return self.generalized_forces(q, qd, t)
@@ -165,6 +168,15 @@ class System:
         self._forces(self.c.ptr)
         return self._Q.copy()
 
+    def loads(self, q, qd, t=0.0):
+        """(Q (nq,), F (nb, 3), n_local (nb, 3)): the generalized forces and their parts,
+        F the global forces at the centroids and n_local the body torques without the
+        gyroscopic term (as :func:`mbsim.core.applied_forces` reports them)."""
+        Q = self.generalized_forces(q, qd, t)
+        w = self._w
+        gyro = np.cross(w, np.einsum("bij,bj->bi", self.model.J_local, w))
+        return Q, self._F.copy(), self._n + gyro
+
     def mass_blocks(self, q) -> np.ndarray:
         """(nb, 7, 7) diagonal blocks of M = diag(m I, 4 G^T J' G) (Haug eq. 11.1.x)."""
         self.fc.vector(q, "q", self.fc._q)
@@ -172,7 +184,7 @@ class System:
         return self._Mb.copy()
 
     def mass_matrix(self, q) -> np.ndarray:
-        """M (nq, nq) = diag(m I, 4 G^T J' G) (mbsim.equations.mass_matrix)."""
+        """M (nq, nq) = diag(m I, 4 G^T J' G) (Haug eq. 11.1.x)."""
         Mb = self.mass_blocks(q)
         M = np.zeros((self.nq, self.nq))
         for b in range(self.nb):
@@ -297,7 +309,7 @@ class System:
 
     def energy(self, q, qd):
         """(T, V): kinetic and potential energy (Haug eq. 11.x)."""
-        return eq.kinetic_energy(self.model, q, qd), eq.potential_energy(self.model, q)
+        return core.energy(self.model, None, q, qd)
 
 
 def _env_size(sidx):

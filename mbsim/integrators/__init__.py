@@ -8,7 +8,7 @@ follows is in :class:`mbsim.integrators.base.Integrator`.
 - genalpha.py: implicit index-3 generalized-alpha and HHT (Arnold & Bruls 2007)
 - rk.py: the RK tableaus and the step loop they share
 - system.py: the equations of motion the integrators call: :class:`mbsim.fast.dynamics.System`,
-  the one implementation (C kernels); :mod:`mbsim.equations` is the plain numpy reference
+  the one implementation (C kernels); tests/reference/ holds the numpy reference
 """
 
 from __future__ import annotations

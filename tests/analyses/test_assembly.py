@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.analyses.kinematic import kinematic
 from mbsim.errors import ConvergenceError, ModelError

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.analyses.dynamic import dynamic
 from mbsim.integrators import DEFAULT
 from mbsim.errors import DeckError

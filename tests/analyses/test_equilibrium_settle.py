@@ -11,7 +11,7 @@ import pytest
 import scipy.linalg as la
 from scipy.integrate import solve_ivp
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.analyses.common import Recorder
 from mbsim.analyses.equilibrium import equilibrium

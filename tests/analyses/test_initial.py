@@ -9,7 +9,7 @@ rod omega = (1.92, -0.96, 0.48) rad/s (shared/reference/geometry.md, Sec. 1.2).
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.analyses.initial import initial_state
 from mbsim.model import compile_model
 from mbsim.rotations import E as rot_E

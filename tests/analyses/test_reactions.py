@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.analyses.inverse import inverse
 from mbsim.analyses.reactions import reactions
 from mbsim.model import compile_model

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.deck.spec import ForceSpec
 from mbsim.forces.measures import MeasureSpec
 from mbsim.model import compile_model

@@ -4,7 +4,7 @@ docs/deck.md quotes), and deck errors that name the field."""
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.deck import load_deck_text
 from mbsim.errors import DeckError
 from mbsim.model import compile_model

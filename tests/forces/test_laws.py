@@ -4,7 +4,7 @@ step in t, a one-way piston pressure force where(v < 0, ...), and the name check
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.deck.spec import FunctionSpec
 from mbsim.errors import DeckError
 from mbsim.expr import parse_expression

@@ -5,7 +5,7 @@ round-off ~ 1e-16/1e-5 = 1e-11, bound 1e-7)."""
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.forces.measures import MEASURES
 from mbsim.model import compile_model
 from mbsim.rotations import from_axis_angle, omega_to_pd

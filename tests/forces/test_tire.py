@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.errors import DeckError
 from mbsim.forces.tire import slip_angle
 from mbsim.model import compile_model

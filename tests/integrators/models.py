@@ -13,7 +13,7 @@ import functools
 
 import numpy as np
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.deck.spec import ForceSpec
 from mbsim.model import compile_model

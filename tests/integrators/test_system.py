@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.analyses.dynamic import dynamic
 from mbsim.integrators import ALIASES, INTEGRATORS, System

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from mbsim import equations as eq
+from tests.reference import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.api import load_model, run_model
 from mbsim.cli import main
