@@ -14,6 +14,7 @@ constant compiled model and per-call data (MuJoCo's ``mjModel``/``mjData``; Pino
     core.energy(model, data, q, qd)              # (kinetic, potential)
     core.accelerations(model, data, q, qd, t)    # (qdd (nq,), lam (m,)): THE KKT/Schur solve
     core.project_positions(model, data, q, t)    # the one Newton correction onto Phi = 0
+    core.kinematic_state(model, data, q, t)      # q, qd, qdd of a DOF-0 system at t
 
 The equations (Haug 1989, Ch. 9 and eq. 11.1.x) are evaluated in C (mbsim/fast/kernels.c,
 through :class:`mbsim.fast.System`); the numpy statement of the same equations lives under
@@ -262,6 +263,17 @@ def project_positions(model, data, q, t=0.0, tol=1e-12, max_iter=10):
     least-norm steps dq = -Mt^-1 Phi_q^T S^-1 Phi (the exact Newton step when Phi_q is
     square).  Returns (q, converged, iterations, max|Phi|)."""
     return _data(model, data).system.project_positions(q, t, tol, max_iter)
+
+
+def kinematic_state(model, data, q, t, tol=1e-10, max_iter=25, cond=False):
+    """One output of a kinematic analysis (DOF 0: ``data.rows`` square) in one C call:
+    Newton from the predictor q (nq,) onto Phi(q, t) = 0, then Phi_q qd = nu and
+    Phi_q qdd = gamma on one LU of Phi_q (Haug Sec. 10.x).
+
+    Returns (status, q, qd, qdd, info): status 0 ok, 2 singular Phi_q (a zero pivot), 3 no
+    convergence in max_iter steps; info (4,) = Newton iterations, max |Phi| on the rows,
+    cond_2(Phi_q) (NaN unless ``cond``), smallest/largest LU pivot."""
+    return _data(model, data).system.kinematic(q, t, tol, max_iter, cond)
 
 
 def require_finite(model, t, **arrays) -> None:

@@ -157,3 +157,43 @@ def test_no_module_of_mbsim_imports_the_numpy_reference():
                 offenders.append(f"{info.name}: {name}")
     assert not offenders, offenders
     assert not (pkg / "equations.py").exists() and not (pkg / "constraints" / "basic.py").exists()
+
+
+@pytest.mark.parametrize("t", [0.0, 0.11, 0.37])
+def test_kinematic_state_matches_dense_solves_of_the_reference(t):
+    """core.kinematic_state (one C call: Newton, then qd and qdd on one LU) against numpy:
+    the reference's Phi at the returned q below tol, qd = J^-1 nu and qdd = J^-1 gamma of the
+    reference by LAPACK (cond(J) ~ 20: 1e-12 of the largest entry), and cond_2 against the
+    SVD to 1e-6 (Lanczos stops when its Ritz value changes by < 1e-10; extreme Ritz values
+    converge superlinearly, so the error is of that order, well inside 1e-6)."""
+    from mbsim.analyses.assembly import assemble
+
+    model = compile_model(load_deck(ROOT / "models" / "slider_crank.yaml"))
+    asm = assemble(model, t=t)
+    data = core.make_data(model, asm.active_rows)
+    q0 = asm.q + 1e-4 * rng.normal(size=model.nq)
+    status, q, qd, qdd, info = core.kinematic_state(model, data, q0, t, 1e-10, 25, cond=True)
+    assert status == 0 and info[0] >= 1 and info[1] <= 1e-10
+    assert np.abs(eq.phi(model, q, t)).max() <= 1e-10
+    ref = eq.constraints(model, q, t, nu=True)
+    _close(qd, np.linalg.solve(ref.jac, ref.nu), 1e-12)
+    _close(qdd, np.linalg.solve(ref.jac, eq.gamma(model, q, qd, t)), 1e-12)
+    s = np.linalg.svd(ref.jac, compute_uv=False)
+    assert info[2] == pytest.approx(s[0] / s[-1], rel=1e-6)
+
+
+def test_kinematic_state_reports_no_convergence_and_a_singular_jacobian():
+    """max_iter = 0 from 1e-3 off the manifold: status 3 (no convergence); the first body's
+    Euler parameters set to zero make its normalisation row 2 p^T of Phi_q zero, and with a
+    tolerance that accepts any residual the LU meets a zero pivot: status 2 (singular)."""
+    from mbsim.analyses.assembly import assemble
+
+    model = compile_model(load_deck(ROOT / "models" / "slider_crank.yaml"))
+    asm = assemble(model)
+    data = core.make_data(model, asm.active_rows)
+    status, *_ = core.kinematic_state(model, data, asm.q + 1e-3, 0.0, 1e-10, 0)
+    assert status == 3
+    q = asm.q.copy()
+    q[3:7] = 0.0  # ground body's Euler parameters zero: its normalisation row 2 p^T = 0
+    status, *_ = core.kinematic_state(model, data, q, 0.0, 1e30, 0)
+    assert status == 2

@@ -193,6 +193,7 @@ def _declare(lib):
         "mb_accelerations": ([P, I, I], I),
         "mb_project": ([P, I], I),
         "mb_struct_size": ([], ctypes.c_int64),
+        "mb_kinematic": ([P, ctypes.c_double, ctypes.c_int64, I, P, P, P], I),
     }
     for name, (args, res) in sig.items():
         f = getattr(lib, name)

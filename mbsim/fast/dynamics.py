@@ -238,6 +238,32 @@ class System:
         Jc[self.rows] = 0.0
         Jc[r, 7 * slot + col] = coo.data
 
+    def kinematic(self, q, t, tol=1e-10, max_iter=25, cond=False):
+        """One output of a kinematic analysis (DOF 0: the active rows square, m_a = nq), in
+        one C call (``mb_kinematic``): Newton from the predictor q onto Phi(q, t) = 0, then
+        Phi_q qd = nu and Phi_q qdd = gamma on the LU of Phi_q at the solution.
+
+        Returns (status, q, qd, qdd, info): status 0 ok, 2 a zero pivot (singular Phi_q),
+        3 no convergence in max_iter steps; info (4,) = Newton iterations, max |Phi| on the
+        active rows, cond_2(Phi_q) (NaN unless ``cond``; Lanczos on J^T J and its inverse), smallest/largest
+        LU pivot."""
+        if self.m != self.nq:
+            raise ValueError(f"kinematic: the active rows must be square, got {self.m} rows "
+                             f"for {self.nq} coordinates")
+        if getattr(self, "_kin", None) is None:
+            n = self.nq
+            self._kin = (np.zeros(3 * n * n + 4 * n), np.zeros(n, dtype=np.int64),
+                         np.zeros(4))
+        work, piv, info = self._kin
+        fc = self.fc
+        fc.load(q, t)
+        self.counters["constraint_evaluations"] += 1
+        status = self.fc.lib.mb_kinematic(self.c.ptr, float(tol), int(max_iter), bool(cond),
+                                          work.ctypes.data, piv.ctypes.data, info.ctypes.data)
+        self.counters["newton_iterations"] += int(info[0])
+        self.counters["factorizations"] += int(info[0]) + 1
+        return status, fc._q.copy(), fc._qd.copy(), self._qdd.copy(), info.copy()
+
     def full_lam(self, lam):
         """(m,) multipliers on all rows, zero on the redundant ones."""
         if self.all_rows:
