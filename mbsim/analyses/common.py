@@ -14,11 +14,68 @@ from mbsim.rotations import G as rot_G
 XYZ = ("x", "y", "z")
 
 
+DENSE_NQ = 400
+"""Set-up (rank, redundancy, assembly steps, initial velocities) uses dense rank-revealing
+factorizations (QR with column pivoting, SVD: O(nq^3), 0.1 s at nq = 400) below this many
+coordinates, and sparse factorizations with a fill-reducing ordering (linear in the size of
+chains, trees and loops) from it on, falling back to dense only where a sparse factor finds
+the rows dependent."""
+
+SPARSE_PIVOT = 1e-12
+"""Smallest pivot of the sparse LDL^T of Phi_q Phi_q^T, relative to its diagonal entry, that
+certifies full row rank (a singular value ratio of about 1e-6; dependent rows leave pivots
+of round-off size, 1e-16 relative): below it the dense QR decides which rows are redundant."""
+
+
+def sparse_gram_factor(J):
+    """SuperLU factor of S = J J^T ((m, m), symmetric positive definite when J (m, nq) has
+    full row rank) in a fill-reducing symmetric ordering (minimum degree on S), pivots on the
+    diagonal; None when some pivot is below SPARSE_PIVOT of its diagonal entry (dependent
+    rows) or the factorization fails."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    J = sp.csr_matrix(J)
+    S = (J @ J.T).tocsc()
+    diag = S.diagonal()
+    if J.shape[0] == 0 or not np.all(diag > 0):
+        return None
+    try:
+        lu = splu(S, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                  options={"SymmetricMode": True})
+    except RuntimeError:  # exactly singular
+        return None
+    piv = np.abs(lu.U.diagonal())
+    if not np.array_equal(lu.perm_r, lu.perm_c) or \
+            not np.all(piv > SPARSE_PIVOT * diag[lu.perm_c]):
+        return None
+    return lu
+
+
+def min_norm_step(J, rhs):
+    """dq (nq,) of least norm with J dq = rhs (least squares when inconsistent): dense lstsq,
+    or J^T (J J^T)^-1 rhs on the sparse factor when J is sparse with full row rank."""
+    import scipy.sparse as sp
+
+    if sp.issparse(J):
+        lu = sparse_gram_factor(J)
+        if lu is not None:
+            return J.T @ lu.solve(rhs)
+        J = J.toarray()
+    return np.linalg.lstsq(J, rhs, rcond=None)[0]
+
+
 def rank_and_redundant(model, J, tol=1e-9):
     """Rank of Phi_q by QR with column pivoting of Phi_q^T; the rows beyond the rank are the
-    (locally) redundant ones, named by their items.  tol is relative to the largest pivot."""
+    (locally) redundant ones, named by their items.  tol is relative to the largest pivot.
+    J dense or sparse; a sparse J (large models, DENSE_NQ) with full row rank is certified
+    by the sparse factor of J J^T without the dense QR."""
     if J.shape[0] == 0:
         return 0, np.zeros(0, int)
+    if not isinstance(J, np.ndarray):
+        if sparse_gram_factor(J) is not None:
+            return J.shape[0], np.zeros(0, int)
+        J = J.toarray()
     R, piv = la.qr(J.T, mode="r", pivoting=True)
     d = np.abs(np.diag(R))
     if d.size == 0 or d[0] == 0:

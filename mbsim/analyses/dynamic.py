@@ -875,8 +875,9 @@ def _accelerations_lstsq(model, system, q, qd, t):
 
 def _jac(model, q, t):
     from mbsim import core
+    from mbsim.analyses.common import DENSE_NQ
 
-    return core.phi_q(model, None, q, t)
+    return core.phi_q(model, None, q, t, sparse=model.nq >= DENSE_NQ)
 
 
 def _initial(model, t0, opt):

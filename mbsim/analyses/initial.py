@@ -30,6 +30,7 @@ import numpy as np
 import scipy.linalg as la
 
 from mbsim import core
+from mbsim.analyses.common import DENSE_NQ
 from mbsim.analyses import redundancy
 from mbsim.analyses.assembly import assemble
 from mbsim.rotations import A as rot_A
@@ -75,13 +76,20 @@ def given_conditions(model, q):
 
 
 def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
-    """(qd, info) from the constraints and the given velocities (module doc, step 2)."""
+    """(qd, info) from the constraints and the given velocities (module doc, step 2).
+
+    Below DENSE_NQ coordinates by SVDs of Phi_q and of the given conditions on its null
+    space; from there on (:func:`_sparse_velocities`) in O(nq) per given condition."""
     active = np.arange(model.m) if active is None else active
     data = core.make_data(model, active)
+    C, c, w, labels = given_conditions(model, q)
+    if model.nq >= DENSE_NQ and not data.system.kkt:
+        h = core.nu(model, data, q, t0)
+        qd, free = _sparse_velocities(model, data, q, t0, C, c, w, rtol)
+        return qd, _report(labels, C, c, h, qd, free, rtol)
     T = core.constraints(model, data, q, t0, nu=True)  # input guard: 1e308 points
     H, h = T.jac, T.nu
     M = core.mass_matrix(model, data, q)
-    C, c, w, labels = given_conditions(model, q)
     core.require_finite(model, t0, M=M)  # input guard: 1e308 inertia
     # constraints: qd = qd_p + N z
     U, s, Vt = la.svd(H, full_matrices=True)
@@ -107,8 +115,62 @@ def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
         qd = base + free @ z2
     else:
         qd = base
+    return qd, _report(labels, C, c, h, qd, int(free.shape[1]), rtol)
+
+
+def _sparse_velocities(model, data, q, t0, C, c, w, rtol):
+    """(qd, free velocity DOF) of step 2 (module doc) without a basis of null(Phi_q), for
+    large models: with Mt the modified mass matrix of :mod:`mbsim.fast.dynamics` (equal to
+    M on the constraint set, where p^T pd = 0) and S = Phi_q Mt^-1 Phi_q^T (the Schur
+    factor the integrators use, sparse: linear in the size of chains and trees),
+
+        qd0 = Mt^-1 Phi_q^T S^-1 nu             the least-kinetic-energy solution of the
+                                                constraints alone
+        B   = (I - Mt^-1 Phi_q^T S^-1 Phi_q) Mt^-1 C^T   (nq, nc) the least-energy directions
+                                                in null(Phi_q) that change the given components
+
+    and qd = qd0 + B z with z the weighted least-squares solution of C B z = c - C qd0 (a
+    small nc x nc system): the given components are met as closely as the constraints allow
+    and the rest has least kinetic energy, as the dense path's answer."""
+    sys = data.system
+    zero = np.zeros(model.nq)
+    qd0 = sys.project_velocities(q, zero, t0)  # = Mt^-1 J^T S^-1 nu
+    nc = C.shape[0]
+    if nc == 0:
+        return qd0, model.nq - data.rows.size
+    J = core.phi_q(model, data, q, t0, sparse=True)
+    Mt_inv = np.linalg.inv(_modified_mass_blocks(model, data, q))  # (nb, 7, 7)
+    Y = np.einsum("bij,bjk->bik", Mt_inv, C.T.reshape(model.nb, 7, nc)).reshape(model.nq, nc)
+    B = np.empty_like(Y)
+    for k in range(nc):
+        B[:, k] = Y[:, k] - _correction(sys, q, t0, J @ Y[:, k])
+    G = C @ B
+    z, _, rank, _ = la.lstsq(w[:, None] * G, w * (c - C @ qd0),
+                             cond=rtol * max(1.0, np.abs(G).max(initial=0.0)))
+    return qd0 + B @ z, model.nq - data.rows.size - int(rank)
+
+
+def _correction(sys, q, t, rhs):
+    """Mt^-1 Phi_q^T S^-1 rhs on the active rows at q (one sparse Schur solve)."""
+    sys.fc.compact(q, t, jac=True)
+    return sys._correction(rhs).copy()
+
+
+def _modified_mass_blocks(model, data, q):
+    """(nb, 7, 7) blocks of Mt = M + c p p^T on the Euler-parameter block, c = 4 tr(J') / 3
+    (module doc of mbsim/fast/dynamics.py)."""
+    Mt = core.mass_blocks(model, data, q)
+    p = q.reshape(model.nb, 7)[:, 3:]
+    c = 4.0 * np.trace(model.J_local, axis1=1, axis2=2) / 3.0
+    Mt[:, 3:, 3:] += c[:, None, None] * np.einsum("bi,bj->bij", p, p)
+    return Mt
+
+
+def _report(labels, C, c, h, qd, free, rtol):
+    """info of :func:`initial_velocities`: the freedom left, and the given components the
+    constraints made change (with a warning naming them)."""
     info = {
-        "free_velocity_dof": int(free.shape[1]),
+        "free_velocity_dof": int(free),
         "given": len(labels),
         "changed": {},
         "warnings": [],
@@ -140,7 +202,7 @@ def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
             )
             info["warnings"].append(msg)
             log.warning(msg)
-    return qd, info
+    return info
 
 
 def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10):
