@@ -17,7 +17,8 @@ import numpy as np
 
 from mbsim import core
 from mbsim.analyses import redundancy
-from mbsim.analyses.common import DENSE_NQ, min_norm_step, rank_and_redundant, singular_rows
+from mbsim.analyses.common import (DENSE_NQ, min_norm_step, rank_and_redundant,
+                                   singular_rows, weakest_directions)
 from mbsim.errors import ConvergenceError, DeckError, ModelError, SingularJacobianError
 
 log = logging.getLogger(__name__)  # "mbsim.analyses.assembly": -v shows the iterations
@@ -175,8 +176,7 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
     # along the weakest left singular vector of a (nearly) singular J, no configuration
     # satisfies the constraints at this t (a lock-up: the mechanism cannot pass this
     # position), and the rows of that direction say which constraints are involved.
-    J = J if isinstance(J, np.ndarray) else J.toarray()
-    U, s, _ = np.linalg.svd(J)
+    U, s = weakest_directions(J)
     cond = s[0] / s[-1] if s[-1] > 0 else np.inf
     along = abs(U[:, -1] @ ph) / max(np.linalg.norm(ph), 1e-300) if J.shape[0] <= J.shape[1] \
         else 0.0

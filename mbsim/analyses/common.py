@@ -97,10 +97,37 @@ def require_dof_zero(model, dof: int, what: str) -> None:
                     f"{dof} driver(s), or run --mode dynamic", where)
 
 
+def weakest_directions(J, k=1):
+    """(U (m, k), s): the left singular vectors of the k smallest singular values of J
+    (m <= nq rows), and singular values with s[0] the largest and s[-1] the smallest.
+
+    Dense SVD below DENSE_NQ columns (or for a tall J); from there on the extreme eigenpairs
+    of the sparse S = J J^T by Lanczos (scipy eigsh; the smallest in shift-invert mode about
+    a shift of -1e-12 |S| below zero, so that a singular S factors): s then holds only the
+    extreme values [s_max, s_(k), ..., s_min]."""
+    import scipy.sparse as sp
+
+    m, nq = J.shape
+    if nq < DENSE_NQ or m > nq or m <= k + 1:
+        U, s, _ = np.linalg.svd(J.toarray() if sp.issparse(J) else J)
+        return U[:, m - k:] if m <= nq else U, s
+    from scipy.sparse.linalg import eigsh
+
+    J = sp.csr_matrix(J)
+    S = (J @ J.T).tocsc()
+    top = float(eigsh(S, k=1, which="LA", return_eigenvectors=False)[0])
+    lam, U = eigsh(S, k=k, sigma=-1e-12 * top, which="LM")
+    order = np.argsort(-lam)
+    lam, U = lam[order], U[:, order]
+    s = np.sqrt(np.maximum(np.concatenate([[top], lam]), 0.0))
+    return U, s
+
+
 def singular_rows(model, J, k=1):
-    """Rows taking part in the k most singular directions of J (left singular vectors)."""
-    U, s, _ = np.linalg.svd(J)
-    w = np.abs(U[:, -k:]).max(axis=1) if J.shape[0] <= J.shape[1] else np.abs(U[:, :]).max(1)
+    """Rows taking part in the k most singular directions of J (left singular vectors), and
+    the singular values (s[0] the largest, s[-1] the smallest: :func:`weakest_directions`)."""
+    U, s = weakest_directions(J, k)
+    w = np.abs(U).max(axis=1)
     return np.argsort(-w)[: min(6, len(w))], s
 
 

@@ -90,3 +90,17 @@ def test_sparse_assembly_steps_match_the_dense_ones(monkeypatch):
     qs_, its_s, res = assembly.newton(model, q0)
     assert res <= 1e-10 and its_s == its_d
     assert np.abs(qs_ - qd_).max() <= 1e-9
+
+
+def test_weakest_direction_of_a_sparse_jacobian_matches_the_svd():
+    """Diagnosis of a large model: Lanczos on J J^T names the rows of the weakest singular
+    direction as the dense SVD does, and gives its extreme singular values to 1e-9."""
+    from mbsim.analyses.common import singular_rows
+
+    model = compile_model(chain_spec(60))
+    J = core.phi_q(model, None, model.q0, sparse=True)
+    rows, s = singular_rows(model, J)
+    U, s_ref, _ = np.linalg.svd(J.toarray())
+    ref_rows = np.argsort(-np.abs(U[:, -1]))[:6]
+    assert set(rows) == set(ref_rows)
+    assert s[0] == pytest.approx(s_ref[0], rel=1e-9) and s[-1] == pytest.approx(s_ref[-1], rel=1e-9)
