@@ -139,8 +139,7 @@ def _sparse_velocities(model, data, q, t0, C, c, w, rtol):
     if nc == 0:
         return qd0, model.nq - data.rows.size
     J = core.phi_q(model, data, q, t0, sparse=True)
-    Mt_inv = np.linalg.inv(_modified_mass_blocks(model, data, q))  # (nb, 7, 7)
-    Y = np.einsum("bij,bjk->bik", Mt_inv, C.T.reshape(model.nb, 7, nc)).reshape(model.nq, nc)
+    Y = sys.apply_minv(q, C.T)  # (nq, nc)
     B = np.empty_like(Y)
     for k in range(nc):
         B[:, k] = Y[:, k] - _correction(sys, q, t0, J @ Y[:, k])
@@ -154,16 +153,6 @@ def _correction(sys, q, t, rhs):
     """Mt^-1 Phi_q^T S^-1 rhs on the active rows at q (one sparse Schur solve)."""
     sys.fc.compact(q, t, jac=True)
     return sys._correction(rhs).copy()
-
-
-def _modified_mass_blocks(model, data, q):
-    """(nb, 7, 7) blocks of Mt = M + c p p^T on the Euler-parameter block, c = 4 tr(J') / 3
-    (module doc of mbsim/fast/dynamics.py)."""
-    Mt = core.mass_blocks(model, data, q)
-    p = q.reshape(model.nb, 7)[:, 3:]
-    c = 4.0 * np.trace(model.J_local, axis1=1, axis2=2) / 3.0
-    Mt[:, 3:, 3:] += c[:, None, None] * np.einsum("bi,bj->bij", p, p)
-    return Mt
 
 
 def _report(labels, C, c, h, qd, free, rtol):

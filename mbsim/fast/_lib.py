@@ -194,6 +194,7 @@ def _declare(lib):
         "mb_project": ([P, I], I),
         "mb_struct_size": ([], ctypes.c_int64),
         "mb_kinematic": ([P, ctypes.c_double, ctypes.c_int64, I, P, P, P], I),
+        "mb_apply_minv": ([P, I, ctypes.c_int64, P, P], None),
     }
     for name, (args, res) in sig.items():
         f = getattr(lib, name)

@@ -264,6 +264,15 @@ class System:
         self.counters["factorizations"] += int(info[0]) + 1
         return status, fc._q.copy(), fc._qd.copy(), self._qdd.copy(), info.copy()
 
+    def apply_minv(self, q, X) -> np.ndarray:
+        """Mt^-1 X at q: X (nq,) or (nq, k), Mt the modified mass matrix (module doc)."""
+        X = np.asarray(X, dtype=np.float64)
+        Xt = np.ascontiguousarray(X.reshape(self.nq, -1).T)  # (k, nq) rows
+        Yt = np.empty_like(Xt)
+        self.fc.vector(q, "q", self.fc._q)
+        self.fc.lib.mb_apply_minv(self.c.ptr, 0, Xt.shape[0], Xt.ctypes.data, Yt.ctypes.data)
+        return Yt.T.reshape(X.shape)
+
     def full_lam(self, lam):
         """(m,) multipliers on all rows, zero on the redundant ones."""
         if self.all_rows:

@@ -1169,3 +1169,15 @@ int mb_kinematic(const mb_model *M, double tol, int64_t max_iter, int want_cond,
     }
     return STATUS_OK;
 }
+
+/* -- the modified mass matrix applied to vectors ------------------------------------------- */
+
+/* Y (k, nq) = Mt^-1 X (k, nq) at M->q, row by row: Mt = M + c p p^T on each Euler-parameter
+ * block (mbsim/fast/dynamics.py's module doc), identity when unit. */
+void mb_apply_minv(const mb_model *M, int unit, int64_t k, const double *X, double *Y)
+{
+    minv_blocks(M, unit);
+    for (int64_t r = 0; r < k; r++)
+        for (idx b = 0; b < M->nb; b++)
+            apply_minv(M, unit, b, X + r * M->nq + 7 * b, Y + r * M->nq + 7 * b);
+}
