@@ -43,8 +43,8 @@ from eval_constraints import chain_yaml  # noqa: E402
 
 from mbsim import fast  # noqa: E402
 from mbsim.deck import load_deck, load_deck_text  # noqa: E402
-from tests.reference import equations as eq  # noqa: E402
 from mbsim.model import compile_model  # noqa: E402
+from tests.reference import equations as eq  # noqa: E402
 
 FIRST_USE = """
 import time

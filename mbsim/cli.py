@@ -580,7 +580,6 @@ def plot(args, ys, x, output, labels, title, list_only, units, data_file):
     Example: mbsim plot slider_inverse.h5 drivers.crank.torque -o torque.png
     """
     from mbsim.output import list_channels, plot_channels, plot_results, read_result, save_figure
-
     from mbsim.output.hdf5 import result_file_problem
 
     files = [a for a in args if Path(a).is_file()]

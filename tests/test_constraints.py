@@ -15,11 +15,11 @@ derivative of Phi everywhere):
 import numpy as np
 import pytest
 
-from tests.reference import equations as eq
 from mbsim import fast
 from mbsim.constraints import DRIVERS, JOINTS
 from mbsim.model import compile_model
 from tests.helpers import body, driver, func, joint, pts, spec
+from tests.reference import equations as eq
 
 rng = np.random.default_rng(12345)
 

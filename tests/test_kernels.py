@@ -27,7 +27,6 @@ import numpy as np
 import pytest
 import scipy.linalg as la
 
-from tests.reference import equations as eq
 from mbsim import fast
 from mbsim.constraints import DRIVERS, JOINTS
 from mbsim.deck import load_deck, load_deck_text
@@ -35,6 +34,7 @@ from mbsim.deck.loader import parse_deck, scene_names
 from mbsim.model import compile_model
 from tests.forces.builders import force, two_body_model
 from tests.helpers import body, joint, pts, spec
+from tests.reference import equations as eq
 from tests.test_constraints import _driver_specs, _joint_spec, _two_bodies
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,8 +17,13 @@ import numpy as np
 
 from mbsim import core
 from mbsim.analyses import redundancy
-from mbsim.analyses.common import (DENSE_NQ, min_norm_step, rank_and_redundant,
-                                   singular_rows, weakest_directions)
+from mbsim.analyses.common import (
+    DENSE_NQ,
+    min_norm_step,
+    rank_and_redundant,
+    singular_rows,
+    weakest_directions,
+)
 from mbsim.errors import ConvergenceError, DeckError, ModelError, SingularJacobianError
 
 log = logging.getLogger(__name__)  # "mbsim.analyses.assembly": -v shows the iterations

@@ -482,7 +482,8 @@ def steady(model, opt) -> Result:
 
     def q_eff(q, Omega):
         qd, qdd = spin_field(model, q, Omega, c, bodies)
-        return core.generalized_forces(model, None, q, qd, t) - core.mass_matrix(model, None, q) @ qdd, qd, qdd
+        Q = core.generalized_forces(model, None, q, qd, t)
+        return Q - core.mass_matrix(model, None, q) @ qdd, qd, qdd
 
     def tangent(q):
         return spin_field(model, q, axis, c, bodies)[0]

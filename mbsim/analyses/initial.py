@@ -30,9 +30,9 @@ import numpy as np
 import scipy.linalg as la
 
 from mbsim import core
-from mbsim.analyses.common import DENSE_NQ
 from mbsim.analyses import redundancy
 from mbsim.analyses.assembly import assemble
+from mbsim.analyses.common import DENSE_NQ
 from mbsim.rotations import A as rot_A
 from mbsim.rotations import E as rot_E
 from mbsim.rotations import G as rot_G

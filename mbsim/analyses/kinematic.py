@@ -1,6 +1,13 @@
 """Kinematic analysis of a driven system with DOF = 0: at each output time solve
 Phi(q, t) = 0, Phi_q qd = nu, Phi_q qdd = gamma on the independent rows, and check that the
-redundant rows dropped at assembly hold at all three levels (:mod:`mbsim.analyses.redundancy`)."""
+redundant rows dropped at assembly hold at all three levels (:mod:`mbsim.analyses.redundancy`).
+
+Each output time is one C call (:func:`mbsim.core.kinematic_state`): Newton from a
+second-order predictor, then the velocity and acceleration equations on the LU of Phi_q at
+the solution, and cond_2(Phi_q) for the ``constraints/condition`` channel.  Where that call
+fails (no convergence, a singular or too ill-conditioned Phi_q) the output is solved again
+step by step in numpy on the core's terms (:func:`_solve_output`), which names the
+constraints involved."""
 
 from __future__ import annotations
 

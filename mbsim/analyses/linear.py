@@ -65,8 +65,8 @@ from mbsim import core
 from mbsim.analyses.assembly import assemble
 from mbsim.analyses.common import Recorder
 from mbsim.errors import ConvergenceError, DeckError
-from mbsim.rotations import G as rot_G
 from mbsim.result import Result
+from mbsim.rotations import G as rot_G
 
 log = logging.getLogger(__name__)
 

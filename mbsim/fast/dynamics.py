@@ -245,8 +245,8 @@ class System:
 
         Returns (status, q, qd, qdd, info): status 0 ok, 2 a zero pivot (singular Phi_q),
         3 no convergence in max_iter steps; info (4,) = Newton iterations, max |Phi| on the
-        active rows, cond_2(Phi_q) (NaN unless ``cond``; Lanczos on J^T J and its inverse), smallest/largest
-        LU pivot."""
+        active rows, cond_2(Phi_q) (NaN unless ``cond``; Lanczos on J^T J and on its
+        inverse), smallest / largest LU pivot."""
         if self.m != self.nq:
             raise ValueError(f"kinematic: the active rows must be square, got {self.m} rows "
                              f"for {self.nq} coordinates")
