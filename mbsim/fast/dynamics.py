@@ -361,7 +361,10 @@ def body_table(model):
     singular = []
     for b in range(nb):
         J = np.asarray(model.J_local[b], dtype=float)
-        ev = np.linalg.eigvalsh(0.5 * (J + J.T))
+        scale = float(np.abs(J).max())  # the test below is scale-free; 1e308 must not overflow
+        ok = np.isfinite(scale) and scale > 0.0
+        Js = J / scale if ok else J
+        ev = np.linalg.eigvalsh(0.5 * (Js + Js.T)) if ok else np.zeros(1)
         m = float(model.mass[b])
         bt[b, 0] = m
         bt[b, 1:10] = J.reshape(-1)
