@@ -21,7 +21,7 @@ through :class:`mbsim.fast.System`); the numpy statement of the same equations l
 tests/reference/ and exists only so the tests can compare the two to round-off.
 
 Data: ``make_data(model, rows)`` builds the C tables and buffers once per (model, row set)
-and caches them while the model lives, so an analysis that evaluates the constraints at
+and keeps them on the model, so an analysis that evaluates the constraints at
 every output pays the set-up once.  ``data=None`` in any function means
 ``make_data(model)``: all m rows.  Arrays returned are fresh (the caller may keep them).
 
@@ -31,8 +31,6 @@ evaluation returns).
 """
 
 from __future__ import annotations
-
-import weakref
 
 import numpy as np
 
@@ -101,30 +99,31 @@ class Data:
         self.rows = self.system.rows
 
 
-_DATA: dict = {}
-"""(id(model), rows bytes) -> Data of a live model (dropped with the model)."""
+class _DataCache(dict):
+    """rows key -> Data, kept on the Model it belongs to (so it lives and dies with it: the
+    cycle model -> cache -> Data -> System -> model is collected with the model); pickled and
+    copied empty, since the C buffers belong to one process."""
+
+    def __reduce__(self):
+        return (_DataCache, ())
 
 
 def make_data(model, rows=None) -> Data:
     """The Data of ``model`` on ``rows`` ((m_a,) row numbers; None: all m rows), built once
-    per (model, row set) while the model lives."""
+    per (model, row set) and kept on the model."""
     key_rows = None if rows is None else np.asarray(rows, dtype=np.int64)
     if key_rows is not None and key_rows.size == model.m and \
             np.array_equal(key_rows, np.arange(model.m)):
         key_rows = None
-    key = (id(model), None if key_rows is None else key_rows.tobytes())
-    data = _DATA.get(key)
+    cache = model.__dict__.get("_core_data")
+    if cache is None:
+        cache = _DataCache()
+        object.__setattr__(model, "_core_data", cache)  # Model is frozen: a cache, not a field
+    key = None if key_rows is None else key_rows.tobytes()
+    data = cache.get(key)
     if data is None:
-        data = Data(model, key_rows)
-        if not any(k[0] == id(model) for k in _DATA):
-            weakref.finalize(model, _forget, id(model))
-        _DATA[key] = data
+        data = cache[key] = Data(model, key_rows)
     return data
-
-
-def _forget(model_id) -> None:
-    for key in [k for k in _DATA if k[0] == model_id]:
-        del _DATA[key]
 
 
 def _data(model, data) -> Data:

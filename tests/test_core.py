@@ -211,3 +211,17 @@ def test_apply_minv_inverts_the_modified_mass_matrix():
     got = core.make_data(model).system.apply_minv(q, X)
     _close(got, np.linalg.solve(_modified_mass(model, q), X), 1e-12)
     _close(core.make_data(model).system.apply_minv(q, X[:, 0]), got[:, 0], 0.0)
+
+
+def test_data_lives_and_dies_with_its_model():
+    """make_data keeps the C tables on the model: a model no longer used is collected with
+    them (a sweep compiling many models in one process does not keep them all)."""
+    import gc
+    import weakref
+
+    model = compile_model(load_deck(ROOT / "models" / "slider_crank.yaml"))
+    core.make_data(model)
+    ref = weakref.ref(model)
+    del model
+    gc.collect()
+    assert ref() is None
