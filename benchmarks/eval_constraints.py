@@ -9,14 +9,17 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from mbsim import equations as eq
-from mbsim.deck import load_deck, load_deck_text
-from mbsim.model import compile_model
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.reference
+
+from mbsim.deck import load_deck, load_deck_text  # noqa: E402
+from mbsim.model import compile_model  # noqa: E402
+from tests.reference import equations as eq  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -37,13 +37,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT))  # tests.reference: the numpy reference
 
 from eval_constraints import chain_yaml  # noqa: E402
 
-from mbsim import equations as eq  # noqa: E402
 from mbsim import fast  # noqa: E402
 from mbsim.deck import load_deck, load_deck_text  # noqa: E402
 from mbsim.model import compile_model  # noqa: E402
+from tests.reference import equations as eq  # noqa: E402
 
 FIRST_USE = """
 import time

@@ -94,7 +94,7 @@ def run_model(model, mode: str, options: dict | None = None) -> Result:
 
 
 def _overflow(mode: str, exc: Exception) -> None:
-    """Safety net for overflow an analysis does not guard itself (equations.py guards the KKT
+    """Safety net for overflow an analysis does not guard itself (mbsim.core guards the KKT
     solve): LAPACK's "array must not contain infs or NaNs", "SVD did not converge" become an
     AnalysisError (exit 1).  Anything else is a bug and keeps its traceback."""
     import numpy as np

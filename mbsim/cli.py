@@ -522,12 +522,12 @@ def check(deck, sets, scene, worst):
 
     Example: mbsim check models/slider_crank.yaml
     """
-    from mbsim import equations as eq
+    from mbsim import core
     from mbsim.analyses.assembly import assemble
 
     try:
         spec, model = _load(deck, sets, scene)
-        ph0 = eq.phi(model, model.q0)
+        ph0 = core.phi(model, None, model.q0)
     except MbsimError as exc:
         _fail(exc, deck)
 
@@ -544,7 +544,7 @@ def check(deck, sets, scene, worst):
                    "assembly failed")
         estimates()
         _fail(exc, deck)
-    ph = eq.phi(model, asm.q)
+    ph = core.phi(model, None, asm.q)
     click.echo(f"{deck}: {model.nb} bodies, {model.m} constraint equations, DOF {asm.dof}")
     estimates()
     click.echo(f"assembled in {asm.iterations} Newton iterations: max |Phi| = "
@@ -580,7 +580,6 @@ def plot(args, ys, x, output, labels, title, list_only, units, data_file):
     Example: mbsim plot slider_inverse.h5 drivers.crank.torque -o torque.png
     """
     from mbsim.output import list_channels, plot_channels, plot_results, read_result, save_figure
-
     from mbsim.output.hdf5 import result_file_problem
 
     files = [a for a in args if Path(a).is_file()]

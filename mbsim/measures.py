@@ -79,8 +79,8 @@ def _axis(rd, node, where) -> np.ndarray:
 
 def read_output_measures(rd, node, where: Where, bodies: dict, joints: dict) -> dict:
     """Read ``outputs: measures: {name: {type: ..., ...}}`` with the loader's Reader."""
-    from mbsim.expr import parse_expression
     from mbsim.errors import ExpressionError
+    from mbsim.expr import parse_expression
 
     out: dict[str, OutputMeasure] = {}
     for name, child, w in rd.items(node, where):

@@ -1,7 +1,7 @@
 """compile_model(spec) -> Model: the one place where names become indices.
 
 After compilation the Model is frozen: arrays are read-only and every per-step quantity
-travels in function arguments (:mod:`mbsim.equations`).  Every constraint row keeps the
+travels in function arguments (:mod:`mbsim.core`).  Every constraint row keeps the
 name of the item it came from (``row_item``), so that errors and outputs name joints,
 not matrix rows (MuJoCo's ``efc_id``).
 """
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from mbsim import functions
-from mbsim.constraints.basic import KERNELS, Block
+from mbsim.constraints.blocks import KERNELS, Block
 from mbsim.constraints.joints import DRIVERS, JOINTS
 from mbsim.deck.spec import DeckSpec, PointSet
 from mbsim.errors import DeckError, Where
@@ -122,7 +122,7 @@ class _Rows:
         self.owner: list[int] = []
 
     def add(self, kernel, args, frames, bi, bj, target, func, squared, item_no, label):
-        ne = KERNELS[kernel][1]
+        ne = KERNELS[kernel]
         rows = np.arange(self.m, self.m + ne)
         self.m += ne
         vecs = {}
@@ -139,7 +139,7 @@ class _Rows:
     def blocks(self, nq: int) -> tuple[Block, ...]:
         out = []
         for kernel, entries in self.by_kernel.items():
-            ne = KERNELS[kernel][1]
+            ne = KERNELS[kernel]
             rows = np.array([e["rows"] for e in entries])
             bi = np.array([e["bi"] for e in entries], dtype=int)
             bj = np.array([e["bj"] for e in entries], dtype=int)

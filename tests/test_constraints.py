@@ -1,5 +1,5 @@
 """Every joint and driver type: analytic Phi_q, nu, gamma against finite differences of Phi,
-in both implementations: the numpy reference (mbsim.equations / constraints/basic.py) and the
+in both implementations: the numpy reference (tests/reference/equations.py, basic.py) and the
 C kernels the integrators use (mbsim.fast, kernels.c), each differentiated against its own Phi.
 
 Checks (q random, off the constraint manifold; |p| off 1 too, since Phi_q is the exact
@@ -15,11 +15,11 @@ derivative of Phi everywhere):
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
 from mbsim import fast
 from mbsim.constraints import DRIVERS, JOINTS
 from mbsim.model import compile_model
 from tests.helpers import body, driver, func, joint, pts, spec
+from tests.reference import equations as eq
 
 rng = np.random.default_rng(12345)
 

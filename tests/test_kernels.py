@@ -1,6 +1,6 @@
 """The C kernels (mbsim.fast: FastConstraints, System) against the numpy reference.
 
-References: :func:`mbsim.equations.constraints`, ``applied_forces``, ``mass_matrix`` and
+References: :func:`tests.reference.equations.constraints`, ``applied_forces``, ``mass_matrix`` and
 ``accelerations`` (dense KKT solve), on the random joint and driver specs of
 tests/test_constraints.py (q off the constraint manifold, |p| off 1), every deck in models/
 with each of its scenes, and the spatial chains of benchmarks/eval_constraints.py.  Also the
@@ -27,7 +27,6 @@ import numpy as np
 import pytest
 import scipy.linalg as la
 
-from mbsim import equations as eq
 from mbsim import fast
 from mbsim.constraints import DRIVERS, JOINTS
 from mbsim.deck import load_deck, load_deck_text
@@ -35,6 +34,7 @@ from mbsim.deck.loader import parse_deck, scene_names
 from mbsim.model import compile_model
 from tests.forces.builders import force, two_body_model
 from tests.helpers import body, joint, pts, spec
+from tests.reference import equations as eq
 from tests.test_constraints import _driver_specs, _joint_spec, _two_bodies
 
 ROOT = Path(__file__).resolve().parents[1]

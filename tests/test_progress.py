@@ -148,18 +148,19 @@ def run_on_terminal(*args, timeout=120):
 
 
 def test_progress_on_a_real_terminal(tmp_path):
-    """A 3 s kinematic run (601 output steps, about 1 s of wall time, far over the 0.2 s a
-    line waits for): on a terminal the line is redrawn in place with time, steps, rate and
-    ETA, then blanked; with -q the terminal gets nothing (--no-progress takes the same
-    path; without a terminal: test_run_without_terminal_prints_no_progress)."""
-    args = ["run", MODELS / "slider_crank.yaml", "--mode", "kinematic", "--t-end", "3"]
+    """A 100 s kinematic run (20001 output steps at about 0.1 ms each: about 2 s of wall
+    time, far over the 0.2 s a line waits for): on a terminal the line is redrawn in place
+    with time, steps, rate and ETA, then blanked; with -q the terminal gets nothing
+    (--no-progress takes the same path; without a terminal:
+    test_run_without_terminal_prints_no_progress)."""
+    args = ["run", MODELS / "slider_crank.yaml", "--mode", "kinematic", "--t-end", "100"]
     code, out, err = run_on_terminal(*args, "-o", tmp_path / "a.h5")
     assert code == 0, (out, err)
     assert "kinematic: complete" in out and "ETA" not in out  # the summary is on stdout
     updates = [u for u in err.split("\r") if u.strip()]
     assert updates and "\n" not in err, repr(err)
     for u in updates:
-        assert u.startswith("kinematic  t = ") and "/ 3 s" in u and "%" in u, u
+        assert u.startswith("kinematic  t = ") and "/ 100 s" in u and "%" in u, u
         assert "steps" in u and "steps/s" in u and "ETA " in u, u
     assert err.endswith("\r") and err.split("\r")[-2].strip() == ""  # blanked at the end
     code, out, err = run_on_terminal(*args, "-o", tmp_path / "b.h5", "-q")

@@ -500,9 +500,8 @@ def test_two_processes_writing_one_output(tmp_path):
     import signal
     import subprocess
     import sys
-    import time
-
     import threading
+    import time
 
     out, lock = tmp_path / "r.h5", tmp_path / "r.h5.lock"
     env = dict(os.environ, PYTHONPATH=str(ROOT))

@@ -15,9 +15,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.analyses import redundancy
-from mbsim.analyses.common import rank_and_redundant, singular_rows
+from mbsim.analyses.common import (
+    DENSE_NQ,
+    min_norm_step,
+    rank_and_redundant,
+    singular_rows,
+    weakest_directions,
+)
 from mbsim.errors import ConvergenceError, DeckError, ModelError, SingularJacobianError
 
 log = logging.getLogger(__name__)  # "mbsim.analyses.assembly": -v shows the iterations
@@ -130,18 +136,25 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
     q = normalize_q(model, np.array(q, float))
     hold = np.asarray([] if hold is None else hold, dtype=int)
     qh = q[hold].copy()
-    Ih = np.eye(model.nq)[hold]
+    sparse = model.nq >= DENSE_NQ  # sparse Phi_q and steps (mbsim.analyses.common)
+    if sparse:
+        import scipy.sparse as sp
+
+        Ih = sp.csr_matrix((np.ones(hold.size), (np.arange(hold.size), hold)),
+                           shape=(hold.size, model.nq))
+    else:
+        Ih = np.eye(model.nq)[hold]
 
     def system(qq):
-        T = eq.constraints(model, qq, t)
+        if not np.isfinite(qq).all():  # before LAPACK sees inf
+            core.require_finite(model, t, q=qq)
+        T = core.constraints(model, None, qq, t, sparse=sparse)  # non-finite: named error
         ph, J = T.phi, T.jac
-        if not (np.isfinite(ph).all() and np.isfinite(J).all()):  # before LAPACK sees inf
-            eq.require_finite(model, t, q=qq, phi=ph, J=J)
         if rows is not None:
             ph, J = ph[rows], J[rows]
         if hold.size:
             ph = np.concatenate([ph, qq[hold] - qh])
-            J = np.vstack([J, Ih])
+            J = sp.vstack([J, Ih], format="csr") if sparse else np.vstack([J, Ih])
         return ph, J
 
     ph, J = system(q)
@@ -149,7 +162,7 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
     for it in range(1, max_iter + 1):
         if res < tol:
             return q, it - 1, res
-        dq = np.linalg.lstsq(J, -ph, rcond=None)[0]
+        dq = min_norm_step(J, -ph)
         f0 = ph @ ph
         alpha = 1.0
         while True:
@@ -162,13 +175,13 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
         res = np.abs(ph).max(initial=0.0)
     if res < tol:
         return q, max_iter, res
-    full = eq.phi(model, q, t)
+    full = core.phi(model, None, q, t)
     # A stall with Phi != 0 ends near a least-squares minimum, J^T Phi = 0: when the residual
     # lies mostly (measured: 64-70 % for the slider-crank's rod too short by 1e-6 to 6e-3 m)
     # along the weakest left singular vector of a (nearly) singular J, no configuration
     # satisfies the constraints at this t (a lock-up: the mechanism cannot pass this
     # position), and the rows of that direction say which constraints are involved.
-    U, s, _ = np.linalg.svd(J)
+    U, s = weakest_directions(J)
     cond = s[0] / s[-1] if s[-1] > 0 else np.inf
     along = abs(U[:, -1] @ ph) / max(np.linalg.norm(ph), 1e-300) if J.shape[0] <= J.shape[1] \
         else 0.0
@@ -226,8 +239,8 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembl
         # A rank-deficient Phi_q where Newton stalls means constraints that contradict
         # each other: name them (drivers first) rather than only the residuals.
         qs = normalize_q(model, q0)
-        T = eq.constraints(model, qs, t)
-        rank, red = rank_and_redundant(model, T.jac)
+        T = core.constraints(model, None, qs, t)
+        rank, red = rank_and_redundant(model, T.jac)  # dense: C and the names need it
         if red.size:
             act = np.setdiff1d(np.arange(model.m), red)
             C = redundancy.dependency(T.jac, red, act)
@@ -240,7 +253,8 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembl
         raise _with_loop(model, exc) from None
     log.info("assembly at t = %g s: %d Newton iteration(s) from the estimates, max |Phi| = "
              "%.3g", t, its, res)
-    rank, red = rank_and_redundant(model, eq.phi_q(model, q, t))
+    rank, red = rank_and_redundant(model, core.phi_q(model, None, q, t,
+                                                            sparse=model.nq >= DENSE_NQ))
     warnings = []
     active = np.setdiff1d(np.arange(model.m), red)
     red_items = culprits(model, red) if red.size else []

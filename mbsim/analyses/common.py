@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg as la
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.errors import DeckError, Where
 from mbsim.result import Result
 from mbsim.rotations import A as rot_A
@@ -14,11 +14,68 @@ from mbsim.rotations import G as rot_G
 XYZ = ("x", "y", "z")
 
 
+DENSE_NQ = 400
+"""Set-up (rank, redundancy, assembly steps, initial velocities) uses dense rank-revealing
+factorizations (QR with column pivoting, SVD: O(nq^3), 0.1 s at nq = 400) below this many
+coordinates, and sparse factorizations with a fill-reducing ordering (linear in the size of
+chains, trees and loops) from it on, falling back to dense only where a sparse factor finds
+the rows dependent."""
+
+SPARSE_PIVOT = 1e-12
+"""Smallest pivot of the sparse LDL^T of Phi_q Phi_q^T, relative to its diagonal entry, that
+certifies full row rank (a singular value ratio of about 1e-6; dependent rows leave pivots
+of round-off size, 1e-16 relative): below it the dense QR decides which rows are redundant."""
+
+
+def sparse_gram_factor(J):
+    """SuperLU factor of S = J J^T ((m, m), symmetric positive definite when J (m, nq) has
+    full row rank) in a fill-reducing symmetric ordering (minimum degree on S), pivots on the
+    diagonal; None when some pivot is below SPARSE_PIVOT of its diagonal entry (dependent
+    rows) or the factorization fails."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    J = sp.csr_matrix(J)
+    S = (J @ J.T).tocsc()
+    diag = S.diagonal()
+    if J.shape[0] == 0 or not np.all(diag > 0):
+        return None
+    try:
+        lu = splu(S, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                  options={"SymmetricMode": True})
+    except RuntimeError:  # exactly singular
+        return None
+    piv = np.abs(lu.U.diagonal())
+    if not np.array_equal(lu.perm_r, lu.perm_c) or \
+            not np.all(piv > SPARSE_PIVOT * diag[lu.perm_c]):
+        return None
+    return lu
+
+
+def min_norm_step(J, rhs):
+    """dq (nq,) of least norm with J dq = rhs (least squares when inconsistent): dense lstsq,
+    or J^T (J J^T)^-1 rhs on the sparse factor when J is sparse with full row rank."""
+    import scipy.sparse as sp
+
+    if sp.issparse(J):
+        lu = sparse_gram_factor(J)
+        if lu is not None:
+            return J.T @ lu.solve(rhs)
+        J = J.toarray()
+    return np.linalg.lstsq(J, rhs, rcond=None)[0]
+
+
 def rank_and_redundant(model, J, tol=1e-9):
     """Rank of Phi_q by QR with column pivoting of Phi_q^T; the rows beyond the rank are the
-    (locally) redundant ones, named by their items.  tol is relative to the largest pivot."""
+    (locally) redundant ones, named by their items.  tol is relative to the largest pivot.
+    J dense or sparse; a sparse J (large models, DENSE_NQ) with full row rank is certified
+    by the sparse factor of J J^T without the dense QR."""
     if J.shape[0] == 0:
         return 0, np.zeros(0, int)
+    if not isinstance(J, np.ndarray):
+        if sparse_gram_factor(J) is not None:
+            return J.shape[0], np.zeros(0, int)
+        J = J.toarray()
     R, piv = la.qr(J.T, mode="r", pivoting=True)
     d = np.abs(np.diag(R))
     if d.size == 0 or d[0] == 0:
@@ -40,10 +97,37 @@ def require_dof_zero(model, dof: int, what: str) -> None:
                     f"{dof} driver(s), or run --mode dynamic", where)
 
 
+def weakest_directions(J, k=1):
+    """(U (m, k), s): the left singular vectors of the k smallest singular values of J
+    (m <= nq rows), and singular values with s[0] the largest and s[-1] the smallest.
+
+    Dense SVD below DENSE_NQ columns (or for a tall J); from there on the extreme eigenpairs
+    of the sparse S = J J^T by Lanczos (scipy eigsh; the smallest in shift-invert mode about
+    a shift of -1e-12 |S| below zero, so that a singular S factors): s then holds only the
+    extreme values [s_max, s_(k), ..., s_min]."""
+    import scipy.sparse as sp
+
+    m, nq = J.shape
+    if nq < DENSE_NQ or m > nq or m <= k + 1:
+        U, s, _ = np.linalg.svd(J.toarray() if sp.issparse(J) else J)
+        return U[:, m - k:] if m <= nq else U, s
+    from scipy.sparse.linalg import eigsh
+
+    J = sp.csr_matrix(J)
+    S = (J @ J.T).tocsc()
+    top = float(eigsh(S, k=1, which="LA", return_eigenvectors=False)[0])
+    lam, U = eigsh(S, k=k, sigma=-1e-12 * top, which="LM")
+    order = np.argsort(-lam)
+    lam, U = lam[order], U[:, order]
+    s = np.sqrt(np.maximum(np.concatenate([[top], lam]), 0.0))
+    return U, s
+
+
 def singular_rows(model, J, k=1):
-    """Rows taking part in the k most singular directions of J (left singular vectors)."""
-    U, s, _ = np.linalg.svd(J)
-    w = np.abs(U[:, -k:]).max(axis=1) if J.shape[0] <= J.shape[1] else np.abs(U[:, :]).max(1)
+    """Rows taking part in the k most singular directions of J (left singular vectors), and
+    the singular values (s[0] the largest, s[-1] the smallest: :func:`weakest_directions`)."""
+    U, s = weakest_directions(J, k)
+    w = np.abs(U).max(axis=1)
     return np.argsort(-w)[: min(6, len(w))], s
 
 
@@ -191,10 +275,8 @@ class Recorder:
         model = self.model
         if not model.forces:
             return
-        from mbsim.equations import State
-
         q, qd, ts = self.q, self.qd, self.t
-        st0 = State(model, q[0], qd[0])
+        st0 = core.State(model, q[0], qd[0])
         wanted = []
         for el in model.forces:
             keys = [k for k in el.channels(st0, ts[0]) if needed(f"forces/{el.name}/{k}")]
@@ -205,7 +287,7 @@ class Recorder:
         data: dict[str, list] = {}
         units: dict[str, str] = {}
         for k in range(self._n):
-            st = State(model, q[k], qd[k])
+            st = core.State(model, q[k], qd[k])
             for el, keys in wanted:
                 chans = el.channels(st, ts[k])
                 for key in keys:
@@ -259,7 +341,7 @@ def potential_energies(model, q, kin) -> np.ndarray:
     """(nt,) V: gravity (vectorised) plus the force elements' potentials (per output)."""
     V = -np.einsum("b,tbi,i->t", model.mass, kin["r"], model.gravity)
     if any(True for _ in model.forces):
-        V = V + np.array([_potential(model, eq.State(model, qk)) for qk in q])
+        V = V + np.array([_potential(model, core.State(model, qk)) for qk in q])
     return V
 
 

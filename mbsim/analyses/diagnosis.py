@@ -19,14 +19,14 @@ from mbsim.integrators.base import NUMERICAL_ERRORS
 
 def accelerations_lstsq(model, system, q, qd, t):
     """qdd and lam at a configuration where the active rows are singular (a change point):
-    the minimum-norm solution of the KKT equations on all rows (reference equations)."""
+    the minimum-norm solution of the KKT equations on all rows."""
     import scipy.linalg as la
 
-    from mbsim import equations as eq
+    from mbsim import core
 
-    T = eq.constraints(model, q, t, qd=qd, phi=False, gamma=True)
+    T = core.constraints(model, None, q, t, qd=qd, phi=False, gamma=True)
     Q = system.generalized_forces(q, qd, t)
-    M = eq.mass_matrix(model, q)
+    M = core.mass_matrix(model, None, q)
     J, g = T.jac, T.gamma
     n, m = model.nq, J.shape[0]
     K = np.zeros((n + m, n + m))
@@ -36,10 +36,11 @@ def accelerations_lstsq(model, system, q, qd, t):
 
 
 def jacobian(model, q, t):
-    """Phi_q (m, nq) at (q, t): all rows (reference equations)."""
-    from mbsim import equations as eq
+    """Phi_q (m, nq) at (q, t): all rows (CSR from DENSE_NQ coordinates)."""
+    from mbsim import core
+    from mbsim.analyses.common import DENSE_NQ
 
-    return eq.phi_q(model, q, t)
+    return core.phi_q(model, None, q, t, sparse=model.nq >= DENSE_NQ)
 
 
 def dropped_rows_conflict(model, system, t, q, ph, tol, cache):
@@ -123,7 +124,7 @@ def switching_forces(model, system, q, qd, t):
         qdd = system.accelerations(q, qd, t)[0]
     except NUMERICAL_ERRORS:
         return []
-    from mbsim import equations as eq
+    from mbsim import core
 
     e = SWITCH_PROBE
     states = [(q + sg * e * qd + 0.5 * e * e * qdd, qd + sg * e * qdd, t + sg * e)
@@ -134,7 +135,7 @@ def switching_forces(model, system, q, qd, t):
         try:
             for qs, vs, ts in states:
                 F, n = np.zeros((model.nb, 3)), np.zeros((model.nb, 3))
-                el.apply(eq.State(model, qs, vs), ts, F, n)
+                el.apply(core.State(model, qs, vs), ts, F, n)
                 loads.append(np.concatenate([F.ravel(), n.ravel()]))
         except Exception:  # noqa: BLE001 - the explanation must not hide the failure
             continue

@@ -64,7 +64,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as la
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.analyses.assembly import assemble, newton
 from mbsim.analyses.common import Recorder
 from mbsim.analyses.dynamic import dynamic
@@ -142,7 +142,7 @@ class Problem:
         self.force, self.energy, self.tangent = force, energy, tangent
 
     def basis(self, q):
-        J = eq.phi_q(self.model, q, self.t)[self.rows]
+        J = core.phi_q(self.model, None, q, self.t)[self.rows]
         C = J if self.tangent is None else np.vstack([J, self.tangent(q)[None, :]])
         return J, null_basis(C)
 
@@ -152,7 +152,7 @@ class Problem:
     def hessian(self, q, lam, N, h):
         """H = -N^T d(g - Phi_q^T lam)/dq N by central differences along the columns of N."""
         def resid(x):
-            return self.force(x) - eq.phi_q(self.model, x, self.t)[self.rows].T @ lam
+            return self.force(x) - core.phi_q(self.model, None, x, self.t)[self.rows].T @ lam
         if N.shape[1] == 0:
             return np.zeros((0, 0))
         KN = np.column_stack([(resid(q + h * n) - resid(q - h * n)) / (2 * h) for n in N.T])
@@ -269,7 +269,7 @@ def stationary_point(prob: Problem, q0, opt) -> Stationary:
     w, U = la.eigh(H) if H.size else (np.zeros(0), np.zeros((0, 0)))
     freq = w2 = None
     if H.size and prob.tangent is None:
-        Mr = N.T @ eq.mass_matrix(model, q) @ N
+        Mr = N.T @ core.mass_matrix(model, None, q) @ N
         try:
             w2 = la.eigh(H, 0.5 * (Mr + Mr.T), eigvals_only=True)
             freq = np.sign(w2) * np.sqrt(np.abs(w2))
@@ -331,8 +331,8 @@ def _result(model, mode_method, t, q, qd, qdd, lam, sol: Stationary | None, extr
 
 def _static_problem(model, t, rows):
     zero = np.zeros(model.nq)
-    return Problem(model, t, rows, lambda q: eq.applied_forces(model, q, zero, t)[0],
-                   lambda q: eq.potential_energy(model, q))
+    return Problem(model, t, rows, lambda q: core.generalized_forces(model, None, q, zero, t),
+                   lambda q: core.potential_energy(model, None, q))
 
 
 # -- methods -------------------------------------------------------------------------------
@@ -424,7 +424,7 @@ def spin_field(model, q, Omega, c, bodies):
     Qr = q.reshape(model.nb, 7)
     qd = np.zeros((model.nb, 7))
     qdd = np.zeros((model.nb, 7))
-    st = eq.State(model, q)
+    st = core.State(model, q)
     for b in bodies:
         rho = Qr[b, :3] - c
         qd[b, :3] = np.cross(Omega, rho)
@@ -451,7 +451,7 @@ def _spin_axis(model, opt):
             raise DeckError("equilibrium method 'steady' needs 'body' (spinning on a revolute or "
                             "cylindrical joint to ground) or 'axis' and 'point'")
         q = model.q0
-        st = eq.State(model, q)
+        st = core.State(model, q)
         for it in model.items:
             if it.kind == "joint" and it.type in ("revolute", "cylindrical") and \
                     {it.bi, it.bj} >= {b} and model.is_ground[it.bi if it.bj == b else it.bj]:
@@ -482,12 +482,13 @@ def steady(model, opt) -> Result:
 
     def q_eff(q, Omega):
         qd, qdd = spin_field(model, q, Omega, c, bodies)
-        return eq.applied_forces(model, q, qd, t)[0] - eq.mass_matrix(model, q) @ qdd, qd, qdd
+        Q = core.generalized_forces(model, None, q, qd, t)
+        return Q - core.mass_matrix(model, None, q) @ qdd, qd, qdd
 
     def tangent(q):
         return spin_field(model, q, axis, c, bodies)[0]
 
-    J0 = eq.phi_q(model, asm.q, t)[rows]
+    J0 = core.phi_q(model, None, asm.q, t)[rows]
     t0 = tangent(asm.q)
     if np.linalg.norm(J0 @ t0) > 1e-8 * max(1.0, np.linalg.norm(J0)) * np.linalg.norm(t0):
         raise ModelError("equilibrium 'steady': the constraints do not allow the rigid rotation "
@@ -500,10 +501,10 @@ def steady(model, opt) -> Result:
 
         def energy(q):
             qd, _ = spin_field(model, q, Omega, c, bodies)
-            st = eq.State(model, q, qd)
+            st = core.State(model, q, qd)
             rot = np.einsum("bi,bij,bj->b", st.omega_local, model.J_local, st.omega_local)
             kin = model.mass * np.sum(st.rd ** 2, 1) + rot
-            return eq.potential_energy(model, q) - 0.5 * float(kin[bodies].sum())
+            return core.potential_energy(model, None, q) - 0.5 * float(kin[bodies].sum())
 
         prob = Problem(model, t, rows, lambda q: q_eff(q, Omega)[0], energy, tangent)
         sol = stationary_point(prob, asm.q, opt)
@@ -514,7 +515,7 @@ def steady(model, opt) -> Result:
     q = asm.q
     g0 = q_eff(q, 0.0 * axis)[0]
     g1 = q_eff(q, axis)[0] - g0
-    J = eq.phi_q(model, q, t)[rows]
+    J = core.phi_q(model, None, q, t)[rows]
     N = null_basis(np.vstack([J, tangent(q)[None, :]]))
     a, r0 = N.T @ g1, N.T @ g0
     if np.abs(a).max(initial=0.0) == 0:
@@ -543,7 +544,7 @@ def steady(model, opt) -> Result:
 
 def _holding_torque(model, q, g, lam, tangent, t):
     """Torque about the spin axis needed to keep the speed constant (0 when none is)."""
-    J = eq.phi_q(model, q, t)
+    J = core.phi_q(model, None, q, t)
     return float(-(tangent(q) @ (g - J.T @ lam)))
 
 

@@ -17,8 +17,9 @@
    Whatever freedom is left is fixed by minimum kinetic energy, 1/2 qd^T M qd.
    Hook: further conditions (e.g. a joint's relative rate) are rows appended in
    :func:`given_conditions`; nothing else changes.
-3. Accelerations and multipliers: the KKT system (``equations.accelerations``) on the
-   active rows; the multipliers of dropped rows are 0.
+3. Accelerations and multipliers: the one solve of the equations of motion
+   (:func:`mbsim.core.accelerations`) on the active rows; the multipliers of dropped rows
+   are 0.
 """
 
 from __future__ import annotations
@@ -28,9 +29,10 @@ import logging
 import numpy as np
 import scipy.linalg as la
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.analyses import redundancy
 from mbsim.analyses.assembly import assemble
+from mbsim.analyses.common import DENSE_NQ
 from mbsim.rotations import A as rot_A
 from mbsim.rotations import E as rot_E
 from mbsim.rotations import G as rot_G
@@ -74,13 +76,21 @@ def given_conditions(model, q):
 
 
 def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
-    """(qd, info) from the constraints and the given velocities (module doc, step 2)."""
+    """(qd, info) from the constraints and the given velocities (module doc, step 2).
+
+    Below DENSE_NQ coordinates by SVDs of Phi_q and of the given conditions on its null
+    space; from there on (:func:`_sparse_velocities`) in O(nq) per given condition."""
     active = np.arange(model.m) if active is None else active
-    T = eq.constraints(model, q, t0, nu=True)
-    H, h = T.jac[active], T.nu[active]
-    M = eq.mass_matrix(model, q)
+    data = core.make_data(model, active)
     C, c, w, labels = given_conditions(model, q)
-    eq.require_finite(model, t0, M=M, J=H, nu=h)  # input guard: 1e308 inertia, points
+    if model.nq >= DENSE_NQ and not data.system.kkt:
+        h = core.nu(model, data, q, t0)
+        qd, free = _sparse_velocities(model, data, q, t0, C, c, w, rtol)
+        return qd, _report(labels, C, c, h, qd, free, rtol)
+    T = core.constraints(model, data, q, t0, nu=True)  # input guard: 1e308 points
+    H, h = T.jac, T.nu
+    M = core.mass_matrix(model, data, q)
+    core.require_finite(model, t0, M=M)  # input guard: 1e308 inertia
     # constraints: qd = qd_p + N z
     U, s, Vt = la.svd(H, full_matrices=True)
     rank = int(np.sum(s > rtol * max(1.0, s[0] if s.size else 1.0)))
@@ -105,8 +115,51 @@ def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
         qd = base + free @ z2
     else:
         qd = base
+    return qd, _report(labels, C, c, h, qd, int(free.shape[1]), rtol)
+
+
+def _sparse_velocities(model, data, q, t0, C, c, w, rtol):
+    """(qd, free velocity DOF) of step 2 (module doc) without a basis of null(Phi_q), for
+    large models: with Mt the modified mass matrix of :mod:`mbsim.fast.dynamics` (equal to
+    M on the constraint set, where p^T pd = 0) and S = Phi_q Mt^-1 Phi_q^T (the Schur
+    factor the integrators use, sparse: linear in the size of chains and trees),
+
+        qd0 = Mt^-1 Phi_q^T S^-1 nu             the least-kinetic-energy solution of the
+                                                constraints alone
+        B   = (I - Mt^-1 Phi_q^T S^-1 Phi_q) Mt^-1 C^T   (nq, nc) the least-energy directions
+                                                in null(Phi_q) that change the given components
+
+    and qd = qd0 + B z with z the weighted least-squares solution of C B z = c - C qd0 (a
+    small nc x nc system): the given components are met as closely as the constraints allow
+    and the rest has least kinetic energy, as the dense path's answer."""
+    sys = data.system
+    zero = np.zeros(model.nq)
+    qd0 = sys.project_velocities(q, zero, t0)  # = Mt^-1 J^T S^-1 nu
+    nc = C.shape[0]
+    if nc == 0:
+        return qd0, model.nq - data.rows.size
+    J = core.phi_q(model, data, q, t0, sparse=True)
+    Y = sys.apply_minv(q, C.T)  # (nq, nc)
+    B = np.empty_like(Y)
+    for k in range(nc):
+        B[:, k] = Y[:, k] - _correction(sys, q, t0, J @ Y[:, k])
+    G = C @ B
+    z, _, rank, _ = la.lstsq(w[:, None] * G, w * (c - C @ qd0),
+                             cond=rtol * max(1.0, np.abs(G).max(initial=0.0)))
+    return qd0 + B @ z, model.nq - data.rows.size - int(rank)
+
+
+def _correction(sys, q, t, rhs):
+    """Mt^-1 Phi_q^T S^-1 rhs on the active rows at q (one sparse Schur solve)."""
+    sys.fc.compact(q, t, jac=True)
+    return sys._correction(rhs).copy()
+
+
+def _report(labels, C, c, h, qd, free, rtol):
+    """info of :func:`initial_velocities`: the freedom left, and the given components the
+    constraints made change (with a warning naming them)."""
     info = {
-        "free_velocity_dof": int(free.shape[1]),
+        "free_velocity_dof": int(free),
         "given": len(labels),
         "changed": {},
         "warnings": [],
@@ -138,7 +191,7 @@ def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
             )
             info["warnings"].append(msg)
             log.warning(msg)
-    return qd, info
+    return info
 
 
 def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10):
@@ -167,28 +220,12 @@ def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10):
     info["warnings"] = list(asm.warnings) + info["warnings"]
     info["assembly"] = asm
     info["active_rows"] = active
-    if active.size == model.m:
-        qdd, lam = eq.accelerations(model, q, qd, t0)
-    else:
-        qdd, lam_a = _accelerations_on(model, q, qd, t0, active)
-        lam = np.zeros(model.m)
-        lam[active] = lam_a
+    qdd, lam = core.accelerations(model, core.make_data(model, active), q, qd, t0)
+    if active.size < model.m:
         # the dropped rows must hold at velocity and acceleration level too (a driver that
         # over-determines the mechanism holds at the assembled position only)
-        T = eq.constraints(model, q, t0, qd=qd, phi=False, gamma=True, nu=True)
+        T = core.constraints(model, None, q, t0, qd=qd, phi=False, gamma=True, nu=True)
         redundancy.check(model, T.jac, asm.redundant_rows, active, t0, qd=qd, nu=T.nu,
                          qdd=qdd, gamma=T.gamma, start=True)
     return q, qd, qdd, lam, info
 
-
-def _accelerations_on(model, q, qd, t, rows):
-    """The KKT solve of equations.accelerations restricted to ``rows``."""
-    T = eq.constraints(model, q, t, qd=qd, phi=False, gamma=True)
-    J, g = T.jac[rows], T.gamma[rows]
-    Q = eq.applied_forces(model, q, qd, t)[0]
-    M = eq.mass_matrix(model, q)
-    n, m = model.nq, len(rows)
-    K = np.zeros((n + m, n + m))
-    K[:n, :n], K[:n, n:], K[n:, :n] = M, J.T, J
-    sol = la.solve(K, np.concatenate([Q, g]))
-    return sol[:n], sol[n:]

@@ -24,7 +24,7 @@ import time as _time
 import numpy as np
 import scipy.linalg as la
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.analyses.assembly import assemble
 from mbsim.analyses.common import require_dof_zero
 from mbsim.analyses.kinematic import DEFAULTS as KIN_DEFAULTS
@@ -65,9 +65,11 @@ def states_from_result(model, res: Result):
 
 def multipliers(model, q, qd, qdd, t, rows):
     """lam (m,) from Phi_q^T lam = Q - M qdd on the active rows (square, DOF = 0)."""
-    J = eq.phi_q(model, q, t)[rows]
-    Q = eq.applied_forces(model, q, qd, t)[0]
-    rhs = Q - eq.mass_matrix(model, q) @ qdd
+    data = core.make_data(model, rows)
+    J = core.phi_q(model, data, q, t)
+    Q = core.generalized_forces(model, data, q, qd, t)
+    Mb = core.mass_blocks(model, data, q)
+    rhs = Q - np.einsum("bij,bj->bi", Mb, qdd.reshape(model.nb, 7)).reshape(-1)
     lu = la.lu_factor(J, check_finite=False)
     piv = np.abs(np.diag(lu[0]))
     if piv.min() <= 1e-14 * piv.max():

@@ -19,7 +19,7 @@ parameters enter only through rotations) the independent coordinates are the lin
 exact at any distance from q0: q(v) is the point on Phi = 0 with N^T (q - q0) = v (Newton
 along the complement Nc of N), qd(v, vd) solves [Phi_q; N^T] qd = [nu; vd].  The state
 z = (v, vd) obeys zd = F(z) = (vd, N^T qdd(q, qd)) with qdd from the reference KKT solve
-:func:`mbsim.equations.accelerations` (Haug eq. 11.1.x); the state matrix
+:func:`mbsim.core.accelerations` (Haug eq. 11.1.x); the state matrix
 
     A = dF/dz = [[0, I], [dvdd/dv, dvdd/dvd]]
 
@@ -61,13 +61,13 @@ import time as _time
 import numpy as np
 import scipy.linalg as la
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.analyses.assembly import assemble
 from mbsim.analyses.common import Recorder
 from mbsim.errors import ConvergenceError, DeckError
-from mbsim.rotations import G as rot_G
-from mbsim.result import Result
 from mbsim.options import analysis_options
+from mbsim.result import Result
+from mbsim.rotations import G as rot_G
 
 log = logging.getLogger(__name__)
 
@@ -103,7 +103,7 @@ class Chart:
 
     def __init__(self, model, q0, rows, t, spin=None, tol=1e-13):
         self.model, self.q0, self.rows, self.t, self.spin, self.tol = model, q0, rows, t, spin, tol
-        J = eq.phi_q(model, q0, t)[rows]
+        J = core.phi_q(model, None, q0, t)[rows]
         _, s, Vt = la.svd(J, full_matrices=True)
         rank = int(np.sum(s > 1e-10 * max(s[0], 1e-300))) if s.size else 0
         self.N = Vt[rank:].T  # (nq, n) tangent basis
@@ -115,19 +115,19 @@ class Chart:
         model, rows, t = self.model, self.rows, self.t
         q = self.q0 + self.N @ v
         for _ in range(30):
-            T = eq.constraints(model, q, t)
+            T = core.constraints(model, None, q, t)
             ph = T.phi[rows]
             if np.abs(ph).max(initial=0.0) < self.tol:
                 return q
             q = q - self.Nc @ la.lstsq(T.jac[rows] @ self.Nc, ph)[0]
-        if np.abs(eq.phi(model, q, t)[rows]).max(initial=0.0) < 1e3 * self.tol:
+        if np.abs(core.phi(model, None, q, t)[rows]).max(initial=0.0) < 1e3 * self.tol:
             return q
         raise ConvergenceError("linear: the perturbed configuration could not be assembled "
                                "(fd_step too large for this mechanism?)")
 
     def qd(self, q, vd):
         """Velocity (nq,) with N^T qd = vd and Phi_q qd = nu (relative to the spin frame)."""
-        T = eq.constraints(self.model, q, self.t, phi=False, nu=True)
+        T = core.constraints(self.model, None, q, self.t, phi=False, nu=True)
         K = np.vstack([T.jac[self.rows], self.N.T])
         return la.lstsq(K, np.concatenate([T.nu[self.rows], vd]))[0]
 
@@ -155,7 +155,8 @@ class Chart:
         q = self.q(v)
         qd_rel = self.qd(q, vd)
         qd, frame = self.spin_terms(q, qd_rel)
-        qdd = eq.accelerations(self.model, q, qd, self.t, rows=self.rows)[0]
+        qdd = core.accelerations(self.model, core.make_data(self.model, self.rows), q, qd,
+                                 self.t)[0]
         return self.N.T @ (qdd - frame)
 
     def F(self, z):
@@ -194,8 +195,8 @@ is 1e-15 of it; any law coupled to the spin changes by far more than 1e-9 over 0
 
 def _loads(model, q, qd, t):
     """(nb, 6): applied force (global) and torque (global) on each body, gravity included."""
-    _, F, n_local = eq.applied_forces(model, q, qd, t)
-    A = eq.State(model, q).A
+    _, F, n_local = core.applied_forces(model, None, q, qd, t)
+    A = core.State(model, q).A
     return np.concatenate([F, np.einsum("bij,bj->bi", A, n_local)], axis=1)
 
 
@@ -221,7 +222,7 @@ def free_spins(model, chart, qd0):
     scale = float(np.abs(base).max(initial=0.0)) + float(
         np.max(model.mass, initial=0.0) * max(np.linalg.norm(model.gravity), 1.0))
     phi_tol = max(1e3 * chart.tol, 1e-10)
-    st = eq.State(model, q0)
+    st = core.State(model, q0)
     dirs, names = [], []
     for b in range(model.nb):
         if model.is_ground[b]:
@@ -234,7 +235,7 @@ def free_spins(model, chart, qd0):
                                    np.sin(FREE_SPIN_ANGLE / 2) * u])
             q1 = q0.copy()
             q1[7 * b + 3: 7 * b + 7] = _qmul(p, turn)  # body-frame turn: A(p) A(turn)
-            if np.abs(eq.phi(model, q1, t)[rows]).max(initial=0.0) > phi_tol:
+            if np.abs(core.phi(model, None, q1, t)[rows]).max(initial=0.0) > phi_tol:
                 continue
             dq = np.zeros(model.nq)
             dq[7 * b + 3: 7 * b + 7] = 0.5 * rot_G(p).T @ u  # omega' = 2 G pd = u
@@ -297,7 +298,7 @@ def describe_mode(model, q0, shape_body, tol=0.1) -> str:
     body, 'translation of ... along (...)'.  shape_body: (nb, 6) complex body-coordinate shape."""
     S = np.real(shape_body * np.exp(-1j * np.angle(shape_body.flat[np.argmax(np.abs(
         shape_body))])))
-    A = eq.State(model, q0).A
+    A = core.State(model, q0).A
     rot_g = np.einsum("bij,bj->bi", A, S[:, 3:])  # global rotation vectors
     mags = np.maximum(np.linalg.norm(S[:, :3], axis=1), np.linalg.norm(S[:, 3:], axis=1))
     top = mags.max(initial=0.0)
@@ -349,7 +350,7 @@ def name_neutral(model, q0, dq, rtol=1e-3) -> list[str]:
     span = U[:, :rank]  # (6 nb, r) orthonormal, body coordinates
     nb = model.nb
     moving = [b for b in range(nb) if not model.is_ground[b]]
-    st = eq.State(model, q0)
+    st = core.State(model, q0)
     A = st.A
     candidates = []  # (name, (6 nb,) body-coordinate vector)
     for b in moving:
@@ -542,7 +543,7 @@ def linear(model, options=None) -> Result:
 
     rec = Recorder(model)
     qd_in, _ = chart.spin_terms(q0, qd_rel0) if spin is not None else (qd0, 0.0)
-    qdd0 = eq.accelerations(model, q0, qd_in, t, rows=rows)[0]
+    qdd0 = core.accelerations(model, core.make_data(model, rows), q0, qd_in, t)[0]
     rec.add(t, q0, qd_in, qdd0)
     res = rec.result("linear")
     labels_q = [f"{b}.{c}" for b in model.body_names for c in COORD]

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.rotations import A as rot_A
 from mbsim.rotations import G as rot_G
 
@@ -73,7 +73,8 @@ def reactions(model, q, lam, t=0.0, kinds=("joint",)) -> list[Reaction]:
     L = np.atleast_2d(np.asarray(lam, float))
     nt = Q.shape[0]
     tt = np.broadcast_to(np.asarray(t, float), (nt,))
-    jac = np.stack([eq.constraints(model, Q[k], tt[k], phi=False).jac for k in range(nt)])
+    data = core.make_data(model)
+    jac = np.stack([core.phi_q(model, data, Q[k], tt[k]) for k in range(nt)])
     P = Q.reshape(nt, model.nb, 7)[:, :, 3:]
     out: list[Reaction] = []
     for it in model.items:

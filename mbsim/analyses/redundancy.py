@@ -61,6 +61,8 @@ def dependency(J: np.ndarray, red: np.ndarray, act: np.ndarray) -> np.ndarray:
     """C (nred, nact) with J[red] = C J[act] in the least-squares sense (J: Phi_q, (m, nq))."""
     if red.size == 0:
         return np.zeros((0, act.size))
+    if hasattr(J, "toarray"):  # CSR of a large model: the dropped rows' solve is dense
+        J = J.toarray()
     C = np.linalg.lstsq(J[act].T, J[red].T, rcond=None)[0]
     return C.T
 

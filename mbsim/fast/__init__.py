@@ -1,17 +1,18 @@
-"""The physics the integrators use, in C: constraint terms and equations of motion.
+"""The physics in C: constraint terms and equations of motion, for every analysis.
 
-The numpy reference (:mod:`mbsim.constraints.basic`, :mod:`mbsim.equations`) evaluates
-each kernel on stacked arrays; it stays the plain, readable statement of the equations
-(assembly, kinematic, inverse and equilibrium analyses; the tests' finite-difference twins).
-This package evaluates the same equations (Haug 1989, Ch. 9 and eq. 11.1.x) in one C call
-per evaluation: mbsim/fast/kernels.c holds every basic kernel (dot1, dot2, spherical,
-distance, angle, absolute, ground, normalization: each one function with its Phi, Phi_q,
-nu and gamma), the applied forces, and the Schur-complement solve.
+This package is the one implementation of the equations in production (Haug 1989, Ch. 9
+and eq. 11.1.x): every analysis (assembly, kinematic, inverse, equilibrium, linear,
+dynamic, initial conditions, reactions, diagnosis) reaches it through the free functions of
+:mod:`mbsim.core`, the integrators through :class:`System`.  mbsim/fast/kernels.c holds
+every basic kernel (dot1, dot2, spherical, distance, angle, absolute, ground,
+normalization: each one function with its Phi, Phi_q, nu and gamma), the applied forces,
+the mass matrix and the Schur-complement and KKT solves.  The numpy statement of the same
+equations lives under tests/reference/ only, as the reference the tests compare this
+package against to round-off.
 
 - :class:`FastConstraints` ``(model, rows=None, sparse=None)``: Phi, Phi_q (dense, or CSR in
   a fixed pattern when nq >= ``SPARSE_NQ``), gamma, nu; ``evaluate`` writes into
-  preallocated buffers, ``constraints`` returns fresh arrays like
-  :func:`mbsim.equations.constraints`.
+  preallocated buffers, ``constraints`` returns fresh arrays (:class:`mbsim.core.Terms`).
 - :class:`System` ``(model, rows=None, sparse=None)``: the one equations-of-motion object
   every integrator calls (also exported as :class:`mbsim.integrators.System`): ``terms``,
   ``nu``, ``accelerations(q, qd, t, baumgarte=None, jac=None) -> (qdd, lam, power)``,

@@ -207,6 +207,8 @@ def _declare(lib):
                          P], I),
         "mb_rk_steps": ([P, P, P], I),
         "mb_loop_size": ([], ctypes.c_int64),
+        "mb_kinematic": ([P, ctypes.c_double, ctypes.c_int64, I, P, P, P], I),
+        "mb_apply_minv": ([P, I, ctypes.c_int64, P, P], None),
     }
     for name, (args, res) in sig.items():
         f = getattr(lib, name)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from mbsim.equations import Terms
+from mbsim.core import Terms
 from mbsim.fast import _lib
 
 KERNELS = ("dot1", "dot2", "spherical", "distance", "angle", "absolute", "ground", "normalization")
@@ -57,7 +57,7 @@ class FastConstraints:
 
     - :meth:`evaluate`: results in buffers owned by this object (no allocation; valid until
       the next call; copy what you keep);
-    - :meth:`constraints`: fresh arrays, the contract of :func:`mbsim.equations.constraints`
+    - :meth:`constraints`: fresh arrays (:class:`mbsim.core.Terms`)
       restricted to ``rows``.
     """
 
@@ -156,7 +156,7 @@ class FastConstraints:
     def constraints(
         self, q, t=0.0, qd=None, phi=True, jac=True, gamma=False, nu=False, sparse=None
     ) -> Terms:
-        """Like :func:`mbsim.equations.constraints` on ``rows``: fresh arrays, None for the
+        """Phi, Phi_q, gamma, nu on ``rows``: fresh arrays, None for the
         parts not asked for; the Jacobian dense or CSR (``sparse``, default as built)."""
         T = self.evaluate(q, t, qd, jac=jac, gamma=gamma, sparse=sparse)
         T.phi = T.phi.copy() if phi else None

@@ -50,7 +50,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.fast.constraints import FastConstraints
 
 NB = 24
@@ -118,8 +118,11 @@ class System:
             Q=np.zeros(nq), qdd=np.zeros(nq), lam=np.zeros(ma), dq=np.zeros(nq), out=np.ones(2))
         c.set(Qt=np.zeros(nq), g=np.zeros(ma), Mi=np.zeros((nb, 4, 4)), XG=np.zeros((ninc, 8)),
               JG=np.zeros((ninc, 8)), env=np.zeros(nenv), srhs=np.zeros(ma), z=np.zeros(ma),
-              K=np.zeros(nk * nk), kr=np.zeros(nk), A=np.zeros((nb, 3, 3)),
-              F=np.zeros((nb, 3)), n=np.zeros((nb, 3)), w=np.zeros((nb, 3)))
+              K=np.zeros(nk * nk), kr=np.zeros(nk), A=np.zeros((nb, 3, 3)))
+        # after mb_applied_forces: F (nb, 3) global forces, n (nb, 3) body torques with the
+        # gyroscopic term, w (nb, 3) body-frame angular velocities
+        self._F, self._n, self._w = c.set(F=np.zeros((nb, 3)), n=np.zeros((nb, 3)),
+                                          w=np.zeros((nb, 3)))
         (self._Mb,) = c.set(Mb=np.zeros((nb, 7, 7)))
         self._v = np.zeros(model.m)
         lib = self.fc.lib
@@ -148,13 +151,13 @@ class System:
         if self.py_forces:
             loads = self._loads
             loads[:] = 0.0
-            st = eq.State(self.model, fc._q, fc._qd)
+            st = core.State(self.model, fc._q, fc._qd)
             for el in self.py_forces:
                 el.apply(st, t, loads[0], loads[1])
 
     def applied_forces(self, st, t) -> np.ndarray:
-        """Q (nq,) at the state st (:class:`mbsim.equations.State`) as
-        :func:`mbsim.equations.applied_forces`: gravity, force elements, gyroscopic term."""
+        """Q (nq,) at the state st (:class:`mbsim.core.State`) as
+        :func:`mbsim.core.applied_forces`: gravity, force elements, gyroscopic term."""
         q = np.concatenate([st.r, st.p], axis=1).reshape(-1)
         qd = np.concatenate([st.rd, st.pd], axis=1).reshape(-1)
         return self.generalized_forces(q, qd, t)
@@ -165,6 +168,15 @@ class System:
         self._forces(self.c.ptr)
         return self._Q.copy()
 
+    def loads(self, q, qd, t=0.0):
+        """(Q (nq,), F (nb, 3), n_local (nb, 3)): the generalized forces and their parts,
+        F the global forces at the centroids and n_local the body torques without the
+        gyroscopic term (as :func:`mbsim.core.applied_forces` reports them)."""
+        Q = self.generalized_forces(q, qd, t)
+        w = self._w
+        gyro = np.cross(w, np.einsum("bij,bj->bi", self.model.J_local, w))
+        return Q, self._F.copy(), self._n + gyro
+
     def mass_blocks(self, q) -> np.ndarray:
         """(nb, 7, 7) diagonal blocks of M = diag(m I, 4 G^T J' G) (Haug eq. 11.1.x)."""
         self.fc.vector(q, "q", self.fc._q)
@@ -172,7 +184,7 @@ class System:
         return self._Mb.copy()
 
     def mass_matrix(self, q) -> np.ndarray:
-        """M (nq, nq) = diag(m I, 4 G^T J' G) (mbsim.equations.mass_matrix)."""
+        """M (nq, nq) = diag(m I, 4 G^T J' G) (Haug eq. 11.1.x)."""
         Mb = self.mass_blocks(q)
         M = np.zeros((self.nq, self.nq))
         for b in range(self.nb):
@@ -225,6 +237,41 @@ class System:
             raise ValueError("jac: entries outside the columns of the rows' bodies")
         Jc[self.rows] = 0.0
         Jc[r, 7 * slot + col] = coo.data
+
+    def kinematic(self, q, t, tol=1e-10, max_iter=25, cond=False):
+        """One output of a kinematic analysis (DOF 0: the active rows square, m_a = nq), in
+        one C call (``mb_kinematic``): Newton from the predictor q onto Phi(q, t) = 0, then
+        Phi_q qd = nu and Phi_q qdd = gamma on the LU of Phi_q at the solution.
+
+        Returns (status, q, qd, qdd, info): status 0 ok, 2 a zero pivot (singular Phi_q),
+        3 no convergence in max_iter steps; info (4,) = Newton iterations, max |Phi| on the
+        active rows, cond_2(Phi_q) (NaN unless ``cond``; Lanczos on J^T J and on its
+        inverse), smallest / largest LU pivot."""
+        if self.m != self.nq:
+            raise ValueError(f"kinematic: the active rows must be square, got {self.m} rows "
+                             f"for {self.nq} coordinates")
+        if getattr(self, "_kin", None) is None:
+            n = self.nq
+            self._kin = (np.zeros(3 * n * n + 4 * n), np.zeros(n, dtype=np.int64),
+                         np.zeros(4))
+        work, piv, info = self._kin
+        fc = self.fc
+        fc.load(q, t)
+        self.counters["constraint_evaluations"] += 1
+        status = self.fc.lib.mb_kinematic(self.c.ptr, float(tol), int(max_iter), bool(cond),
+                                          work.ctypes.data, piv.ctypes.data, info.ctypes.data)
+        self.counters["newton_iterations"] += int(info[0])
+        self.counters["factorizations"] += int(info[0]) + 1
+        return status, fc._q.copy(), fc._qd.copy(), self._qdd.copy(), info.copy()
+
+    def apply_minv(self, q, X) -> np.ndarray:
+        """Mt^-1 X at q: X (nq,) or (nq, k), Mt the modified mass matrix (module doc)."""
+        X = np.asarray(X, dtype=np.float64)
+        Xt = np.ascontiguousarray(X.reshape(self.nq, -1).T)  # (k, nq) rows
+        Yt = np.empty_like(Xt)
+        self.fc.vector(q, "q", self.fc._q)
+        self.fc.lib.mb_apply_minv(self.c.ptr, 0, Xt.shape[0], Xt.ctypes.data, Yt.ctypes.data)
+        return Yt.T.reshape(X.shape)
 
     def full_lam(self, lam):
         """(m,) multipliers on all rows, zero on the redundant ones."""
@@ -297,7 +344,7 @@ class System:
 
     def energy(self, q, qd):
         """(T, V): kinetic and potential energy (Haug eq. 11.x)."""
-        return eq.kinetic_energy(self.model, q, qd), eq.potential_energy(self.model, q)
+        return core.energy(self.model, None, q, qd)
 
 
 def _env_size(sidx):
@@ -314,7 +361,10 @@ def body_table(model):
     singular = []
     for b in range(nb):
         J = np.asarray(model.J_local[b], dtype=float)
-        ev = np.linalg.eigvalsh(0.5 * (J + J.T))
+        scale = float(np.abs(J).max())  # the test below is scale-free; 1e308 must not overflow
+        ok = np.isfinite(scale) and scale > 0.0
+        Js = J / scale if ok else J
+        ev = np.linalg.eigvalsh(0.5 * (Js + Js.T)) if ok else np.zeros(1)
         m = float(model.mass[b])
         bt[b, 0] = m
         bt[b, 1:10] = J.reshape(-1)

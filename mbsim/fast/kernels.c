@@ -931,3 +931,253 @@ int mb_project(const mb_model *M, int unit)
     }
     return STATUS_OK;
 }
+
+/* -- kinematic analysis: Phi = 0, Phi_q qd = nu, Phi_q qdd = gamma on one LU --------------- */
+
+enum { KIN_NOT_CONVERGED = 3 };
+
+/* LU with partial pivoting of the row-major (n, n) A in place (Golub & Van Loan Alg. 3.4.1),
+ * piv (n,) the row swapped with each row.  Returns the smallest |pivot| / largest |pivot|
+ * (0: an exactly zero pivot, factorisation stopped). */
+static double dense_lu(double *A, idx *piv, idx n)
+{
+    double pmin = INFINITY, pmax = 0.0;
+    for (idx k = 0; k < n; k++) {
+        idx p = k;
+        double big = fabs(A[k * n + k]);
+        for (idx i = k + 1; i < n; i++)
+            if (fabs(A[i * n + k]) > big) {
+                big = fabs(A[i * n + k]);
+                p = i;
+            }
+        piv[k] = p;
+        if (big == 0.0)
+            return 0.0;
+        if (p != k)
+            for (idx j = 0; j < n; j++) {
+                double t = A[k * n + j];
+                A[k * n + j] = A[p * n + j];
+                A[p * n + j] = t;
+            }
+        pmin = big < pmin ? big : pmin;
+        pmax = big > pmax ? big : pmax;
+        double inv = 1.0 / A[k * n + k];
+        for (idx i = k + 1; i < n; i++) {
+            double l = A[i * n + k] *= inv;
+            if (l != 0.0)
+                for (idx j = k + 1; j < n; j++)
+                    A[i * n + j] -= l * A[k * n + j];
+        }
+    }
+    return n > 0 ? pmin / pmax : 1.0;
+}
+
+/* x (n,) := A^-1 x (trans = 0) or A^-T x (trans = 1) from dense_lu's factors. */
+static void dense_lu_solve(const double *LU, const idx *piv, idx n, double *x, int trans)
+{
+    if (!trans) {
+        for (idx k = 0; k < n; k++) { /* P, then L (unit) forward, then U backward */
+            double t = x[k];
+            x[k] = x[piv[k]];
+            x[piv[k]] = t;
+        }
+        for (idx i = 0; i < n; i++)
+            for (idx j = 0; j < i; j++)
+                x[i] -= LU[i * n + j] * x[j];
+        for (idx i = n - 1; i >= 0; i--) {
+            for (idx j = i + 1; j < n; j++)
+                x[i] -= LU[i * n + j] * x[j];
+            x[i] /= LU[i * n + i];
+        }
+    } else { /* A^T = U^T L^T P: U^T forward, L^T backward, then P^T */
+        for (idx i = 0; i < n; i++) {
+            for (idx j = 0; j < i; j++)
+                x[i] -= LU[j * n + i] * x[j];
+            x[i] /= LU[i * n + i];
+        }
+        for (idx i = n - 1; i >= 0; i--)
+            for (idx j = i + 1; j < n; j++)
+                x[i] -= LU[j * n + i] * x[j];
+        for (idx k = n - 1; k >= 0; k--) {
+            double t = x[k];
+            x[k] = x[piv[k]];
+            x[piv[k]] = t;
+        }
+    }
+}
+
+/* Phi_q on the rows `rows` as a dense row-major (ma, nq) matrix (gather's mode 1). */
+static void dense_rows(const mb_model *M, double *J)
+{
+    memset(J, 0, (size_t)(M->ma * M->nq) * sizeof(double));
+    for (idx k = 0; k < M->ma; k++) {
+        idx r = M->rows[k], c0 = 7 * M->rb[2 * r], c1 = 7 * M->rb[2 * r + 1];
+        const double *Jr = M->Jc + 14 * r;
+        double *Jk = J + M->nq * k;
+        for (int c = 0; c < 7; c++)
+            Jk[c0 + c] += Jr[c];
+        if (c1 >= 0)
+            for (int c = 0; c < 7; c++)
+                Jk[c1 + c] += Jr[7 + c];
+    }
+}
+
+/* Largest eigenvalue of the symmetric tridiagonal T (diagonal a (k,), off-diagonal b (k-1,))
+ * by bisection on the Sturm count (Golub & Van Loan Sec. 8.4.1), to 1e-15 relative. */
+static double tridiagonal_max(const double *a, const double *b, idx k)
+{
+    double lo = a[0], hi = -INFINITY;
+    for (idx i = 0; i < k; i++) {
+        double r = (i > 0 ? fabs(b[i - 1]) : 0.0) + (i < k - 1 ? fabs(b[i]) : 0.0);
+        lo = fmax(lo, a[i]);
+        hi = fmax(hi, a[i] + r);
+    }
+    for (int it = 0; it < 200 && hi - lo > 1e-15 * fabs(hi); it++) {
+        double x = 0.5 * (lo + hi), d = 1.0;
+        idx below = 0; /* eigenvalues < x: negative pivots of T - x I */
+        for (idx i = 0; i < k; i++) {
+            d = a[i] - x - (i > 0 ? b[i - 1] * b[i - 1] / d : 0.0);
+            if (d == 0.0)
+                d = -1e-300;
+            below += d < 0.0;
+        }
+        if (below == k)
+            hi = x;
+        else
+            lo = x;
+    }
+    return hi;
+}
+
+/* Largest eigenvalue of J^T J (inv = 0) or of (J^T J)^-1 = J^-1 J^-T (inv = 1) by Lanczos
+ * with full reorthogonalisation (Golub & Van Loan Sec. 10.1), stopped when the largest Ritz
+ * value changes by less than 1e-10 relative (extreme eigenvalues converge first) or the
+ * Krylov space is invariant.  J (n, n) and its LU; V: work n (n + 1); w, a, b: work (n,). */
+static double lanczos_max(const double *J, const double *LU, const idx *piv, idx n, int inv,
+                          double *V, double *w, double *a, double *b)
+{
+    double nrm = 0.0, ritz = 0.0;
+    for (idx i = 0; i < n; i++) {
+        V[i] = 1.0 + 0.5 * sin(1.0 + 7.0 * (double)i); /* no special direction */
+        nrm += V[i] * V[i];
+    }
+    nrm = sqrt(nrm);
+    for (idx i = 0; i < n; i++)
+        V[i] /= nrm;
+    for (idx k = 0; k < n; k++) {
+        double *v = V + n * k;
+        if (inv) { /* w = J^-1 J^-T v */
+            memcpy(w, v, (size_t)n * sizeof(double));
+            dense_lu_solve(LU, piv, n, w, 1);
+            dense_lu_solve(LU, piv, n, w, 0);
+        } else { /* w = J^T (J v), through the next column of V as scratch */
+            double *y = V + n * (k + 1);
+            for (idx i = 0; i < n; i++) {
+                double s = 0.0;
+                for (idx j = 0; j < n; j++)
+                    s += J[i * n + j] * v[j];
+                y[i] = s;
+            }
+            memset(w, 0, (size_t)n * sizeof(double));
+            for (idx i = 0; i < n; i++)
+                for (idx j = 0; j < n; j++)
+                    w[j] += J[i * n + j] * y[i];
+        }
+        double al = 0.0;
+        for (idx i = 0; i < n; i++)
+            al += w[i] * v[i];
+        a[k] = al;
+        for (int pass = 0; pass < 2; pass++) /* w -= V_k (V_k^T w), twice */
+            for (idx j = 0; j <= k; j++) {
+                const double *u = V + n * j;
+                double h = 0.0;
+                for (idx i = 0; i < n; i++)
+                    h += u[i] * w[i];
+                for (idx i = 0; i < n; i++)
+                    w[i] -= h * u[i];
+            }
+        double bk = 0.0;
+        for (idx i = 0; i < n; i++)
+            bk += w[i] * w[i];
+        bk = sqrt(bk);
+        double prev = ritz;
+        ritz = tridiagonal_max(a, b, k + 1);
+        if (!isfinite(ritz) || (k > 0 && fabs(ritz - prev) <= 1e-10 * fabs(ritz)) ||
+            bk <= 1e-14 * fabs(ritz) || k == n - 1)
+            break;
+        b[k] = bk;
+        for (idx i = 0; i < n; i++)
+            V[n * (k + 1) + i] = w[i] / bk;
+    }
+    return ritz;
+}
+
+/* One output of a kinematic analysis (DOF 0: the rows `rows` square, ma == nq), Haug Sec.
+ * 10.x: Newton from the predictor M->q onto Phi(q, t) = 0 on `rows` until max |Phi| <= tol
+ * (at most max_iter steps, dense LU of Phi_q each), then qd from Phi_q qd = nu into M->qd
+ * and qdd from Phi_q qdd = gamma into M->qdd on the LU of Phi_q at the solution.  The time
+ * targets M->tv are the caller's.  work: 3 nq^2 + 4 nq doubles; piv: nq.  info[0] = Newton
+ * iterations, info[1] = max |Phi| on `rows`, info[2] = cond_2(Phi_q) when want_cond (power
+ * Lanczos on J^T J and on its inverse), info[3] = smallest / largest LU pivot.  Returns
+ * STATUS_OK, STATUS_SINGULAR (a zero pivot) or KIN_NOT_CONVERGED. */
+int mb_kinematic(const mb_model *M, double tol, int64_t max_iter, int want_cond, double *work,
+                 idx *piv, double *info)
+{
+    idx n = M->nq;
+    double *LU = work, *J = work + n * n, *V = J + n * n, *w = V + n * (n + 1), *q = M->q;
+    info[2] = NAN;
+    for (int64_t it = 0;; it++) {
+        mb_constraints(M, 1, 0);
+        double res = 0.0;
+        for (idx k = 0; k < n; k++)
+            res = fmax(res, fabs(M->phi[M->rows[k]]));
+        info[0] = (double)it;
+        info[1] = res;
+        dense_rows(M, LU);
+        if (!isfinite(res))
+            return KIN_NOT_CONVERGED;
+        if (res <= tol) {
+            if (want_cond)
+                memcpy(J, LU, (size_t)(n * n) * sizeof(double));
+            info[3] = dense_lu(LU, piv, n);
+            if (info[3] == 0.0)
+                return STATUS_SINGULAR;
+            break;
+        }
+        if (it == max_iter)
+            return KIN_NOT_CONVERGED;
+        info[3] = dense_lu(LU, piv, n);
+        if (info[3] == 0.0)
+            return STATUS_SINGULAR;
+        for (idx k = 0; k < n; k++)
+            M->dq[k] = -M->phi[M->rows[k]];
+        dense_lu_solve(LU, piv, n, M->dq, 0);
+        for (idx k = 0; k < n; k++)
+            q[k] += M->dq[k];
+    }
+    for (idx k = 0; k < n; k++) /* nu of the last evaluation (q, t) */
+        M->qd[k] = M->nu[M->rows[k]];
+    dense_lu_solve(LU, piv, n, M->qd, 0);
+    mb_constraints(M, 0, 1); /* gamma at (q, qd); Jc stays that of q */
+    for (idx k = 0; k < n; k++)
+        M->qdd[k] = M->gamma[M->rows[k]];
+    dense_lu_solve(LU, piv, n, M->qdd, 0);
+    if (want_cond) {
+        double smax2 = lanczos_max(J, LU, piv, n, 0, V, w, w + n, w + 2 * n);
+        double sinv2 = lanczos_max(J, LU, piv, n, 1, V, w, w + n, w + 2 * n);
+        info[2] = sqrt(smax2 * sinv2);
+    }
+    return STATUS_OK;
+}
+
+/* -- the modified mass matrix applied to vectors ------------------------------------------- */
+
+/* Y (k, nq) = Mt^-1 X (k, nq) at M->q, row by row: Mt = M + c p p^T on each Euler-parameter
+ * block (mbsim/fast/dynamics.py's module doc), identity when unit. */
+void mb_apply_minv(const mb_model *M, int unit, int64_t k, const double *X, double *Y)
+{
+    minv_blocks(M, unit);
+    for (int64_t r = 0; r < k; r++)
+        for (idx b = 0; b < M->nb; b++)
+            apply_minv(M, unit, b, X + r * M->nq + 7 * b, Y + r * M->nq + 7 * b);
+}

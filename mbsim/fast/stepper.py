@@ -34,7 +34,7 @@ import ctypes
 
 import numpy as np
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.fast import _lib
 
 ST_ACCEPTED, ST_REJECTED, ST_SOLVE, ST_ALARM, ST_PROJECTION, ST_NONFINITE, ST_CALLBACK = range(7)
@@ -227,7 +227,7 @@ def _load_callback(system, pending):
                 fc.targets(t)
             if forces and py:
                 loads[:] = 0.0
-                st = eq.State(model, fc._q, fc._qd)
+                st = core.State(model, fc._q, fc._qd)
                 for el in py:
                     el.apply(st, t, loads[0], loads[1])
         except Exception:  # noqa: BLE001 - re-raised by the Python path (docstring)

@@ -1,4 +1,4 @@
-"""Force elements (gravity is a model field, applied in :mod:`mbsim.equations`)."""
+"""Force elements (gravity is a model field, applied in :mod:`mbsim.core`)."""
 
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ Contract of a force type (a class registered in ``FORCES``):
    laws -> callables); raise DeckError with ``spec.where`` for what the loader cannot know.
 3. ``apply(st, t, F, n_local)``: ADD this element's loads to the accumulators
    ``F`` (nb, 3) global forces at the centroids and ``n_local`` (nb, 3) torques about the
-   centroids in body frames.  ``st`` is :class:`mbsim.equations.State` (r, p, rd, pd, A,
+   centroids in body frames.  ``st`` is :class:`mbsim.core.State` (r, p, rd, pd, A,
    omega, omega_local).  A point force F at body point s' contributes F to F[b] and
    s' x (A^T F) to n_local[b]; the equations turn these into Q_r = F and Q_p = 2 G^T n'
    (Haug eq. 11.1.x).

@@ -91,7 +91,7 @@ class Measure(ABC):
 
     @abstractmethod
     def value(self, st, t: float) -> float:
-        """The measure at state ``st`` (:class:`mbsim.equations.State`) and time t."""
+        """The measure at state ``st`` (:class:`mbsim.core.State`) and time t."""
 
 
 class _Pair(Measure):

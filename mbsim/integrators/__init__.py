@@ -9,7 +9,7 @@ follows is in :class:`mbsim.integrators.base.Integrator`.
 - rk.py: the RK tableaus and the step loop they share (the index-1 family takes its trial
   steps, outputs and runs of steps in C: mbsim/fast/step.c through :mod:`mbsim.fast.stepper`)
 - system.py: the equations of motion the integrators call: :class:`mbsim.fast.dynamics.System`,
-  the one implementation (C kernels); :mod:`mbsim.equations` is the plain numpy reference
+  the one implementation (C kernels); tests/reference/ holds the numpy reference
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 The one implementation is :class:`mbsim.fast.dynamics.System` (C kernels, its module doc
 states the equations and the solve); this module re-exports it with :class:`SolveError`
 where the integrators import them.  The plain numpy statement of the
-same equations is :mod:`mbsim.equations` (the reference the tests compare against).
+same equations is tests/reference/equations.py (the reference the tests compare against).
 """
 
 from __future__ import annotations

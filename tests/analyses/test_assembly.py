@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.analyses.kinematic import kinematic
 from mbsim.errors import ConvergenceError, ModelError
 from mbsim.expr import parse_expression
 from mbsim.model import compile_model
 from tests.helpers import body, driver, func, joint, pts, spec
+from tests.reference import equations as eq
 
 Z = ((0, 0, 0), (0, 0, 1), (1, 0, 0))  # P, Q (axis z), R
 

@@ -5,11 +5,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
 from mbsim.analyses.dynamic import dynamic
-from mbsim.integrators import DEFAULT
 from mbsim.errors import DeckError
+from mbsim.integrators import DEFAULT
 from tests.integrators import models as M
+from tests.reference import equations as eq
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -11,7 +11,6 @@ import pytest
 import scipy.linalg as la
 from scipy.integrate import solve_ivp
 
-from mbsim import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.analyses.common import Recorder
 from mbsim.analyses.equilibrium import equilibrium
@@ -19,6 +18,7 @@ from mbsim.analyses.kinematic import output_times
 from mbsim.model import compile_model
 from tests.forces.builders import force
 from tests.helpers import body, joint, pts, spec
+from tests.reference import equations as eq
 
 M, K, L0 = 2.0, 500.0, 0.3
 

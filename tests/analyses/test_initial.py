@@ -9,12 +9,12 @@ rod omega = (1.92, -0.96, 0.48) rad/s (shared/reference/geometry.md, Sec. 1.2).
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
 from mbsim.analyses.initial import initial_state
 from mbsim.model import compile_model
 from mbsim.rotations import E as rot_E
 from tests.analyses.test_kinematic_slider_crank import closed_form
 from tests.helpers import body, joint, pts, slider_crank_spec, spec
+from tests.reference import equations as eq
 
 W = -2 * np.pi
 

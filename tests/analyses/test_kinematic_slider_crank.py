@@ -54,19 +54,19 @@ def test_slider_matches_closed_form(ell, source):
 
 
 def test_ctrl_c_keeps_the_finished_output_times(monkeypatch):
-    """A KeyboardInterrupt in the 6th Newton solve ends the run as incomplete with the five
-    output times before it, every channel the same length."""
-    import mbsim.analyses.kinematic as kin
+    """A KeyboardInterrupt in the solve of the 7th output time (t = 0.06 s) ends the run as
+    incomplete with the six output times before it, every channel the same length."""
+    from mbsim import core
 
-    newton, calls = kin.newton, {"n": 0}
+    solve, calls = core.kinematic_state, {"n": 0}
 
     def interrupted(*args, **kwargs):
         calls["n"] += 1
-        if calls["n"] == 6:
+        if calls["n"] == 7:
             raise KeyboardInterrupt
-        return newton(*args, **kwargs)
+        return solve(*args, **kwargs)
 
-    monkeypatch.setattr(kin, "newton", interrupted)
+    monkeypatch.setattr(core, "kinematic_state", interrupted)
     res = kinematic(slider_crank_model(0.3, "deck"), {"t_end": 1.0, "step": 0.01})
     assert res.status == "incomplete" and "interrupted (Ctrl-C)" in res.message
     assert len(res.t) == 6 and res.t[-1] == pytest.approx(0.05)

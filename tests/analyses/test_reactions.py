@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
 from mbsim.analyses.inverse import inverse
 from mbsim.analyses.reactions import reactions
 from mbsim.model import compile_model
 from mbsim.rotations import A as rot_A
 from mbsim.rotations import G as rot_G
 from tests.helpers import body, driver, func, joint, pts, spec
+from tests.reference import equations as eq
 
 # Horizontal beam: length 2 along x, mass 3, hinge (revolute, axis y) at the origin, its tip
 # (2, 0, 0) held by a link to the ground point (0, 0, 1.5): link length 2.5, direction from the

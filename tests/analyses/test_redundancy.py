@@ -137,8 +137,8 @@ def test_planar_fourbar_of_revolute_joints_one_warning_and_exact_motion(tmp_path
 def test_check_names_the_dependent_items_and_passes_consistent_rows():
     """redundancy.check on the four-bar at its assembled state: the dropped rows hold at
     every level; a velocity that breaks one of them is named with the joints involved."""
-    from mbsim import equations as eq
     from mbsim.analyses.assembly import assemble
+    from tests.reference import equations as eq
 
     _, model = load_model(FOURBAR)
     asm = assemble(model)

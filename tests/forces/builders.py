@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from mbsim import equations as eq
 from mbsim.deck.spec import ForceSpec
 from mbsim.forces.measures import MeasureSpec
 from mbsim.model import compile_model
 from mbsim.rotations import E as rot_E
 from tests.helpers import body, joint, pts, spec
+from tests.reference import equations as eq
 
 
 def force(name, type_, bodies, points=None, **data):

@@ -4,10 +4,10 @@ docs/deck.md quotes), and deck errors that name the field."""
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
 from mbsim.deck import load_deck_text
 from mbsim.errors import DeckError
 from mbsim.model import compile_model
+from tests.reference import equations as eq
 
 DECK = """
 title: governor-style forces

@@ -9,7 +9,6 @@ round-off ~ 1e-16 |V| / h ~ 1e-10 for V ~ 1, so 1e-7 relative is a safe bound).
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
 from mbsim.errors import DeckError
 from mbsim.forces import FORCES
 from mbsim.model import compile_model
@@ -23,6 +22,7 @@ from tests.forces.builders import (
     two_body_model,
 )
 from tests.helpers import body, spec
+from tests.reference import equations as eq
 
 rng = np.random.default_rng(2024)
 

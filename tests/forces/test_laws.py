@@ -4,13 +4,13 @@ step in t, a one-way piston pressure force where(v < 0, ...), and the name check
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
 from mbsim.deck.spec import FunctionSpec
 from mbsim.errors import DeckError
 from mbsim.expr import parse_expression
 from mbsim.model import compile_model
 from tests.forces.builders import force, measure
 from tests.helpers import body, spec
+from tests.reference import equations as eq
 
 DL = measure(
     "dl",

@@ -5,12 +5,12 @@ round-off ~ 1e-16/1e-5 = 1e-11, bound 1e-7)."""
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
 from mbsim.forces.measures import MEASURES
 from mbsim.model import compile_model
 from mbsim.rotations import from_axis_angle, omega_to_pd
 from tests.forces.builders import measure
 from tests.helpers import body, pts, spec
+from tests.reference import equations as eq
 
 FRAMES = {"g": pts([0, 0, 0], [0, 0, 1], [1, 0, 0]), "b": pts([0, 0, 0], [0, 0, 1], [1, 0, 0])}
 

@@ -10,13 +10,13 @@ import math
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
 from mbsim.errors import DeckError
 from mbsim.forces.tire import slip_angle
 from mbsim.model import compile_model
 from mbsim.rotations import from_axis_angle, omega_local_to_pd
 from tests.forces.builders import force
 from tests.helpers import body, spec
+from tests.reference import equations as eq
 
 KT, R0, CA, MU, VMIN = 2.0e5, 0.30, 5.0e4, 0.8, 0.5
 

@@ -13,12 +13,12 @@ import functools
 
 import numpy as np
 
-from mbsim import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.deck.spec import ForceSpec
 from mbsim.model import compile_model
 from mbsim.rotations import from_axis_angle, omega_to_pd
 from tests.helpers import body, joint, pts, slider_crank_spec, spec
+from tests.reference import equations as eq
 
 
 def tsda(name, bi, bj, si=(0, 0, 0), sj=(0, 0, 0), k=0.0, c=0.0, L0=0.0):

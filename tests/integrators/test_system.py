@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.analyses.dynamic import dynamic
 from mbsim.integrators import ALIASES, INTEGRATORS, System
 from tests.integrators import models as M
+from tests.reference import equations as eq
 
 
 def _cases():

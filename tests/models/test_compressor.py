@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from mbsim import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.api import load_model
 from mbsim.cli import main
 from mbsim.study import run_study
+from tests.reference import equations as eq
 
 DECK = Path(__file__).resolve().parents[2] / "models" / "compressor.yaml"
 PSI = 6894.757293168  # Pa

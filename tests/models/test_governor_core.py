@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from mbsim import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.api import load_model
 from mbsim.cli import main
 from mbsim.rotations import from_axis_angle
+from tests.reference import equations as eq
 
 DECK = Path(__file__).resolve().parents[2] / "models" / "governor.yaml"
 

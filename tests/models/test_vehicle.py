@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from mbsim import equations as eq
 from mbsim.analyses.assembly import assemble
 from mbsim.api import load_model, run_model
 from mbsim.cli import main
 from mbsim.study import run_study
+from tests.reference import equations as eq
 
 DECK = Path(__file__).resolve().parents[2] / "models" / "vehicle.yaml"
 G = 9.81

@@ -1,4 +1,7 @@
-"""The one place that knows the global row/column layout.
+"""The numpy reference of the equations (tests only): Phi, Phi_q, nu, gamma, M, Q, KKT solve.
+
+Production evaluates the same equations in C through :mod:`mbsim.core`; the tests compare
+the two to round-off (tests/test_kernels.py).
 
 q = [r_1, p_1, ..., r_nb, p_nb] (7 per body); rows in the order of ``model.items``.
 Phi(q, t) = phi(q) - c(t);  Phi_q qd = nu = c'(t);  Phi_q qdd = gamma (Haug eqs. 9.1.x).
@@ -16,52 +19,8 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 
-from mbsim.constraints.basic import KERNELS
-from mbsim.rotations import A as rot_A
-from mbsim.rotations import E as rot_E
-from mbsim.rotations import G as rot_G
-
-
-class State:
-    """Per-evaluation body quantities: r, p (nb, 3/4), rd, pd, A (nb, 3, 3), omega(_local)."""
-
-    __slots__ = ("A", "_G", "_om", "p", "pd", "r", "rd")
-
-    def __init__(self, model, q, qd=None):
-        qq = np.asarray(q, dtype=float).reshape(model.nb, 7)
-        self.r, self.p = qq[:, :3], qq[:, 3:]
-        self.A = rot_A(self.p)
-        if qd is not None:
-            vv = np.asarray(qd, dtype=float).reshape(model.nb, 7)
-            self.rd, self.pd = vv[:, :3], vv[:, 3:]
-        else:
-            self.rd = self.pd = None
-        self._G = None
-        self._om = None
-
-    @property
-    def G(self):
-        if self._G is None:
-            self._G = rot_G(self.p)
-        return self._G
-
-    @property
-    def omega_local(self):
-        """(nb, 3) body-frame angular velocity 2 G pd (Haug eq. 6.3.18)."""
-        if self._om is None:
-            self._om = 2 * np.einsum("bij,bj->bi", self.G, self.pd)
-        return self._om
-
-    @property
-    def omega(self):
-        """(nb, 3) global angular velocity 2 E pd."""
-        return 2 * np.einsum("bij,bj->bi", rot_E(self.p), self.pd)
-
-
-class Terms:
-    """What :func:`constraints` computed: phi (m,), jac (m, nq) dense or csr, nu, gamma."""
-
-    __slots__ = ("gamma", "jac", "nu", "phi")
+from mbsim.core import State, Terms
+from tests.reference.basic import KERNELS
 
 
 def constraints(model, q, t=0.0, qd=None, phi=True, jac=True, gamma=False, nu=False,

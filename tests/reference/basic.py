@@ -1,4 +1,7 @@
-"""The basic constraints of Haug Ch. 9, evaluated in batches.
+"""The numpy reference of the basic constraints of Haug Ch. 9, evaluated in batches.
+
+Tests only: production evaluates the same equations in C (mbsim/fast/kernels.c through
+:mod:`mbsim.core`); tests/test_kernels.py compares the two to round-off.
 
 Every joint and driver is compiled into rows of a few *kernels* (dot-1, dot-2, spherical,
 distance, angle, absolute coordinate, ground, normalisation).  All rows of one kernel,
@@ -14,30 +17,13 @@ A kernel returns, for its k constraints of ne equations each:
 
 Notation: for a body-fixed vector a' on body b, a = A_b a', a_p = B(p_b, a') and
 ad = B(p_b, a') pd_b; ``bdot`` = B(pd_b, a') pd_b is the term that enters gamma.
-Time targets c(t) are handled generically by :mod:`mbsim.equations`:
+Time targets c(t) are handled generically by :mod:`tests.reference.equations`:
 Phi = phi(q) - c(t), nu = c'(t), gamma += c''(t)  (the angle kernel wraps its own target).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
-
-
-@dataclass(frozen=True)
-class Block:
-    """k constraints of one kernel. Arrays are read-only after compile."""
-
-    kernel: str
-    rows: np.ndarray  # (k, ne) global row numbers
-    bi: np.ndarray  # (k,) body i index
-    bj: np.ndarray  # (k,) body j index, -1 for one-body kernels
-    vecs: dict[str, np.ndarray]  # kernel arguments, (k, 3) local vectors or (k,) flags
-    c_const: np.ndarray  # (k, ne) constant targets
-    funcs: tuple = ()  # ((flat row in block, TimeFunction, squared), ...) time targets
-    ne: int = 1
-    scatter: dict = field(default_factory=dict)  # precomputed index arrays for assembly
 
 
 class Vec:
