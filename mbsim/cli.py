@@ -416,7 +416,7 @@ def _summary(result, out) -> None:
             click.echo(f"  {k}: {_describe_estimate(k, v)}")
             continue
         if isinstance(v, dict):
-            v = f"({len(v)} entries, stored in the file's summary attribute)"
+            v = f"({len(v)} entries, stored in the file's summary)"
         click.echo(f"  {k}: {_value_text(v)}")
     counters = {k: v for k, v in result.counters.items() if verbose or v}
     if counters:

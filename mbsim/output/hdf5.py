@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -170,22 +171,29 @@ def _channel_table(result: Result, paths: list[str]) -> tuple[np.ndarray, dict[s
             raise ValueError(f"channel {path!r} has shape {data.shape}; the time axis has "
                              f"{nt} outputs")
         datas.append(data)
-        shapes.append(list(data.shape[1:]))
-        widths.append(int(np.prod(data.shape[1:])) if data.ndim > 1 else 1)
+        shapes.append(data.shape[1:])
+        widths.append(math.prod(data.shape[1:]))
     column = np.concatenate([[0], np.cumsum(widths, dtype=np.int64)]) if widths else \
         np.zeros(1, np.int64)
     values = np.empty((nt, int(column[-1])))
     for data, start, width in zip(datas, column, widths):
         values[:, start:start + width] = data.reshape(nt, width)
     chans = list(result.channels.values())
+    text: dict[tuple, str] = {}  # the few distinct component lists and shapes, dumped once
+
+    def dump(value: tuple) -> str:
+        if value not in text:
+            text[value] = json.dumps(list(value))
+        return text[value]
+
     table = {
         "name": paths,
         "unit": [c.unit for c in chans],
         "description": [c.description for c in chans],
-        "components": [json.dumps(list(c.components)) for c in chans],
+        "components": [dump(tuple(c.components)) for c in chans],
         "column": column[:-1],
         "width": np.asarray(widths, dtype=np.int64),
-        "shape": [json.dumps(s) for s in shapes],
+        "shape": [dump(s) for s in shapes],
     }
     return values, table
 
@@ -222,7 +230,8 @@ def _write_arrays(f: h5py.File, arrays: dict[str, tuple[np.ndarray, dict]]) -> N
                for _, d, a in members):
             raise ValueError(f"arrays {group}/*/{leaf} differ in shape, type or attributes")
         g = f.create_group(f"{group}/{leaf}")
-        ds = g.create_dataset("data", data=np.concatenate([d for _, d, _ in members]))
+        data = np.concatenate([d for _, d, _ in members])
+        ds = g.create_dataset("data", data=data, **_dataset_options(data.shape))
         for k, v in members[0][2].items():
             ds.attrs[k] = v
         _strings(g, "item", [m[0] for m in members])
@@ -523,7 +532,7 @@ def _read_channels(f: h5py.File, nt: int) -> dict[str, Channel]:
             data = np.asarray(f[name][()], dtype=np.float64)
         else:  # a view of its columns (no copy)
             start = int(table.column[k])
-            width = int(np.prod(shape)) if shape else 1
+            width = math.prod(shape)
             data = values[:, start:start + width].reshape(nt, *shape)
         channels[name] = Channel(data, table.unit[k], table.description[k], table.components[k])
     return channels
