@@ -21,6 +21,7 @@ import argparse
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -79,12 +80,12 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as d:
             path = Path(d) / f"chain{n}.h5"
             try:
-                ww, wc = timed(lambda: write_result(res, path), args.repeat)
+                ww, wc = timed(partial(write_result, res, path), args.repeat)
             except Exception as exc:  # noqa: BLE001 - the old layout's failure is a finding
                 print(f"{n:>6} {len(res.channels):>8} {len(res.arrays):>6}  write failed: "
                       f"{' '.join(str(exc).split())[:150]}")
                 continue
-            rw, rc = timed(lambda: read_result(path), args.repeat)
+            rw, rc = timed(partial(read_result, path), args.repeat)
             back = read_result(path)
             assert list(back.channels) == list(res.channels)
             size = path.stat().st_size / 1e6

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as la
 
 from mbsim import equations as eq
 from mbsim.errors import DeckError, Where
@@ -19,6 +18,8 @@ def rank_and_redundant(model, J, tol=1e-9):
     (locally) redundant ones, named by their items.  tol is relative to the largest pivot."""
     if J.shape[0] == 0:
         return 0, np.zeros(0, int)
+    import scipy.linalg as la  # here: scipy.linalg costs ~0.4 s to import
+
     R, piv = la.qr(J.T, mode="r", pivoting=True)
     d = np.abs(np.diag(R))
     if d.size == 0 or d[0] == 0:

@@ -55,7 +55,7 @@ class OutputError(MbsimError):
 
     exit_code = 1
 
-RESERVED = ("time", "deck", "names", "linear", "shapes")  # top-level names that channels may not use
+RESERVED = ("time", "deck", "names", "linear", "shapes")  # names that channels may not start with
 LAYOUT_VERSION = 2  # root attribute layout_version; files without it are version 1
 JSON_DATASETS = ("settings", "counters", "summary")  # scalar JSON strings (attributes in v1)
 EXTRA_ATTRS = ("stable", "stability", "error_estimate", "error_estimate_reason")  # Result.attrs
