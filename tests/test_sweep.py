@@ -396,7 +396,7 @@ def test_usage_errors_exit_2_before_running(tmp_path, args, says):
 
 def test_unreachable_scheduler_is_a_usage_error(tmp_path, monkeypatch):
     pytest.importorskip("distributed")
-    monkeypatch.setattr("mbsim.sweep.CONNECT_TIMEOUT", 1.0)
+    monkeypatch.setattr("mbsim.batch.CONNECT_TIMEOUT", 1.0)
     r = invoke("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3", "-o",
                tmp_path / "u", "--scheduler", "tcp://127.0.0.1:9")  # discard port: nobody
     assert r.exit_code == 2 and "--scheduler tcp://127.0.0.1:9: cannot connect" in r.output

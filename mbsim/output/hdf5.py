@@ -465,7 +465,7 @@ def _str_list(ds: h5py.Dataset) -> list[str]:
     return [str(s) for s in ds.asstr()[()]]
 
 
-def _json_of(f: h5py.File, key: str) -> Any:
+def json_document(f: h5py.File, key: str) -> Any:
     """settings/counters/summary: a scalar JSON dataset (v2) or root attribute (v1)."""
     if key in f and isinstance(f[key], h5py.Dataset):
         return from_json(f[key].asstr()[()])
@@ -596,9 +596,9 @@ def read_result(path: str | Path) -> Result:
             channels=channels,
             status=_attr_str(a, "status", STATUS_COMPLETE),
             message=_attr_str(a, "message"),
-            settings=_json_of(f, "settings"),
-            counters=_json_of(f, "counters"),
-            summary=_json_of(f, "summary"),
+            settings=json_document(f, "settings"),
+            counters=json_document(f, "counters"),
+            summary=json_document(f, "summary"),
             deck_file=_attr_str(a, "deck_file"),
             deck_text=f["deck"].asstr()[()] if "deck" in f else "",
             wall_time=float(a.get("wall_time_s", 0.0)),
@@ -637,7 +637,7 @@ def read_info(path: str | Path) -> dict[str, Any]:
             info[key] = value.decode() if isinstance(value, bytes) else value
         info["layout_version"] = layout_version(f)
         for key in JSON_DATASETS:
-            info[key] = _json_of(f, key)
+            info[key] = json_document(f, key)
         info["channels"] = channel_table(f).name
         return info
 
