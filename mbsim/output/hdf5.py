@@ -298,7 +298,9 @@ def write_result(result: Result, path: str | Path) -> Path:
     ------
     ValueError
         A channel name clashes with a reserved name (``time``, ``deck``, ``names``) or is
-        the group of another channel (``a/b`` and ``a/b/c``).
+        the group of another channel (``a/b`` and ``a/b/c``); a channel's first axis is not
+        the time axis; arrays ``shapes/*/<leaf>`` that cannot be stacked (differing shapes
+        after the first axis, types or attributes).
     """
     path = Path(path)
     paths = _check_names(result.channels)
