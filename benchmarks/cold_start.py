@@ -1,6 +1,15 @@
 """First run after a fresh install, and the runs after it: CPU and wall seconds (issue 12).
 
 Run: python benchmarks/cold_start.py [--keep]
+     python benchmarks/cold_start.py --startup [--repeat 5] [--tree DIR]
+
+``--startup`` (issue 24, item 5): the wall seconds of ``python -m mbsim --help`` and
+``python -m mbsim check models/governor.yaml`` from the source tree (or the tree DIR, e.g.
+an export of an older commit for a before/after), each run --repeat times after one
+unmeasured warm-up (compile cache and bytecode warm): median, min and max, the median CPU
+seconds (user + system; steadier than wall on a shared machine), and whether the
+process imported scipy (``-X importtime``).  Nothing else runs in these processes, so on an
+idle machine this is the start-up a user waits for.
 
 1. Installed: a new venv (``--system-site-packages``: numpy, scipy, h5py, matplotlib are
    reused, as a user's environment would already hold them), ``pip install wheel`` (the
@@ -67,11 +76,45 @@ def run_both(label, prefix, cwd, env, out):
                   f"{'yes' if compiled else 'no'}", flush=True)
 
 
+STARTUP = {"mbsim --help": ["--help"], "mbsim check governor": ["check", "models/governor.yaml"]}
+
+
+def startup(tree: Path, repeat: int) -> None:
+    """Median wall seconds of the start-up commands (module docstring, --startup)."""
+    import statistics
+
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(f"tree {tree}; load average {load} on {os.cpu_count()} CPUs")
+    print(f"{'command':<22} {'wall median':>11} {'min':>6} {'max':>6} {'CPU median':>11}"
+          "   scipy imported")
+    for name, args in STARTUP.items():
+        cmd = [sys.executable, "-m", "mbsim", *args]
+        subprocess.run(cmd, cwd=tree, env=env, capture_output=True)  # warm-up
+        walls, cpus = [], []
+        for _ in range(repeat):
+            cpu, wall, _ = timed(cmd, tree, env)
+            walls.append(wall)
+            cpus.append(cpu)
+        imports = subprocess.run([sys.executable, "-X", "importtime", *cmd[1:]], cwd=tree,
+                                 env=env, capture_output=True, text=True).stderr
+        scipy = any(line.split("|")[-1].strip() == "scipy" for line in imports.splitlines())
+        print(f"{name:<22} {statistics.median(walls):11.3f} {min(walls):6.3f} {max(walls):6.3f}"
+              f" {statistics.median(cpus):11.3f}   {'yes' if scipy else 'no'}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--keep", action="store_true", help="keep the temporary venv and caches")
+    ap.add_argument("--startup", action="store_true",
+                    help="only the start-up commands' wall time (issue 24)")
+    ap.add_argument("--repeat", type=int, default=5, help="runs per start-up command")
+    ap.add_argument("--tree", type=Path, default=ROOT, help="source tree for --startup")
     args = ap.parse_args()
+    if args.startup:
+        startup(args.tree.resolve(), args.repeat)
+        return
     tmp = Path(tempfile.mkdtemp(prefix="mbsim-cold-"))
     try:
         load = ", ".join(f"{x:.1f}" for x in os.getloadavg())

@@ -13,10 +13,11 @@ import sys
 from pathlib import Path
 
 import click
-import numpy as np
 
 from mbsim import __version__
-from mbsim.errors import DeckError, MbsimError, UsageError
+from mbsim.cli_options import (MODES, SETTING_OPTIONS, analysis_settings, deck_options,
+                               mode_option, quiet_option, settings_of)
+from mbsim.errors import DeckError, MbsimError, UsageError, Where
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -142,6 +143,14 @@ def setup_logging(verbose: int, quiet: bool = False) -> None:
     logging.getLogger("py.warnings").setLevel(logging.DEBUG if verbose >= 2 else logging.ERROR)
 
 
+class _NoErrstate:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
 class LazyGroup(click.Group):
     """Commands contributed by other modules, imported only when listed or invoked (keeps
     `mbsim --help` fast and avoids import cycles: those modules import helpers from here).
@@ -177,7 +186,9 @@ class LazyGroup(click.Group):
         # numpy's floating-point warnings are off and other warnings are log records (shown
         # with -vv): overflow and NaN are reported as errors where they matter, never as
         # stray lines; both are restored afterwards (the CLI also runs in-process in tests).
-        errstate = np.errstate(all="ignore")
+        # (numpy is imported here only for a command that runs: `mbsim --help` needs none)
+        help_only = cmd is None or any(a in ("-h", "--help", "--version") for a in args[:cut])
+        errstate = _NoErrstate() if help_only else __import__("numpy").errstate(all="ignore")
         errstate.__enter__()
         logging.captureWarnings(True)
         try:
@@ -246,30 +257,17 @@ def main(verbose: int, quiet: bool) -> None:
     mbsim.fast.on_compile = lambda line: click.echo(line, err=True)  # one line, first run only
 
 
-MODES = ["kinematic", "equilibrium", "inverse", "dynamic", "linear"]
-
-
 @main.command()
 @click.argument("deck", type=click.Path(dir_okay=False))
-@click.option("--mode", "-m", type=click.Choice(MODES), required=True, help="Analysis to run.")
+@mode_option()
 @click.option("-o", "--output", help="Results file (HDF5); may hold {param} fields. "
               "Default: <deck>_<mode>.h5")
-@click.option("--set", "sets", multiple=True, metavar="PATH=VALUE",
-              help="Override a deck value, e.g. parameters.k=2000 (repeatable).")
-@click.option("--scene", help="Apply a named scene of the deck.")
-@click.option("--t-end", type=float, help="End time, s.")
-@click.option("--step", type=float, help="Output step, s (fixed step for fixed-step methods).")
-@click.option("--integrator", help="Integrator name (dynamic mode); see `mbsim list integrators`.")
-@click.option("--rtol", type=float, help="Relative tolerance (dynamic mode).")
-@click.option("--atol", type=float, help="Absolute tolerance (dynamic mode).")
-@click.option("--accuracy", type=float, metavar="TOL",
-              help="Dynamic mode: the position error wanted (m; orientation, rad): mbsim "
-                   "chooses the tolerance, checks its error estimate, refines once.")
-@click.option("--error-estimate/--no-error-estimate", "error_estimate", default=None,
-              help="Dynamic mode: estimate the global error by a companion run (default on).")
-@click.option("--method", help="Equilibrium method: minimum | settle | steady.")
+@deck_options(set_help="Override a deck value, e.g. parameters.k=2000 (repeatable).")
+@analysis_settings(step_help="Output step, s (fixed step for fixed-step methods).",
+                   integrator_help="Integrator name (dynamic mode); see `mbsim list "
+                                   "integrators`.")
 @click.option("--plot", "make_plot", is_flag=True, help="Also write a PNG of the main outputs.")
-@click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
+@quiet_option()
 @click.option("--progress/--no-progress", default=None,
               help="Progress line on stderr (default: when stderr is a terminal and not -q).")
 def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, accuracy,
@@ -288,14 +286,9 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
     try:
         spec, model = _load(deck, sets, scene)
         out = output_path(output, deck, mode, spec.parameters, scene)
-        opts = {"t_end": t_end, "step": step, "integrator": integrator, "rtol": rtol,
-                "atol": atol, "accuracy": accuracy, "error_estimate": error_estimate,
-                "method": method}
+        opts = settings_of(locals())
         opts = {k: v for k, v in opts.items() if v is not None}
-        opts = _check_settings(deck, mode, spec, opts, {
-            "t_end": "--t-end", "step": "--step", "rtol": "--rtol", "atol": "--atol",
-            "accuracy": "--accuracy", "integrator": "--integrator",
-            "error_estimate": "--error-estimate", "method": "--method"})
+        opts = _check_settings(deck, mode, spec, opts, SETTING_OPTIONS)
         prepare_output(out)  # before the analysis: a bad -o costs nothing
         # SIGTERM as Ctrl-C from before the lock is taken: a kill at any point after it
         # goes through the finally below, never leaving the lock behind
@@ -361,6 +354,8 @@ class _sigterm_as_interrupt:  # noqa: N801 - used as a statement: `with _sigterm
 
 def _describe_estimate(key, v) -> str:
     """One line for the dynamic analysis' error estimate or accuracy choice."""
+    import numpy as np
+
     if key == "accuracy":
         step = f", h = {v['h']:.3g} s" if v.get("h") else f", rtol = atol = {v['rtol']:.3g}"
         if v.get("estimate") is None or not np.isfinite(v["estimate"]):
@@ -384,6 +379,8 @@ SUMMARY_DIGITS = 4  # significant digits of the numbers a summary prints (the fi
 
 def _value_text(v) -> str:
     """A summary value for the terminal: floats to SUMMARY_DIGITS significant digits."""
+    import numpy as np
+
     if isinstance(v, (bool, type(None), str, int)):
         return str(v)
     if isinstance(v, (float, np.floating)):
@@ -416,7 +413,7 @@ def _summary(result, out) -> None:
             click.echo(f"  {k}: {_describe_estimate(k, v)}")
             continue
         if isinstance(v, dict):
-            v = f"({len(v)} entries, stored in the file's summary attribute)"
+            v = f"({len(v)} entries, stored in the file's summary)"
         click.echo(f"  {k}: {_value_text(v)}")
     counters = {k: v for k, v in result.counters.items() if verbose or v}
     if counters:
@@ -426,6 +423,8 @@ def _summary(result, out) -> None:
 def _linear_table(result) -> None:
     """The linear analysis: verdict, neutral modes and one line per eigenvalue (units in
     the header; conjugate pairs shown once)."""
+    import numpy as np
+
     s = result.summary
     click.echo(f"  about: {s['about']}; {s['dof']} independent coordinates")
     click.echo(f"  stability: {s['stability']} (stable: {s['stable']})")
@@ -464,8 +463,7 @@ def _default_plot(result, path: Path, quiet: bool = False) -> None:
 
 @main.command()
 @click.argument("deck", type=click.Path(dir_okay=False))
-@click.option("--set", "sets", multiple=True, metavar="PATH=VALUE", help="Override a deck value.")
-@click.option("--scene", help="Apply a named scene of the deck.")
+@deck_options()
 def info(deck, sets, scene):
     """Print the kinematic model as the book lists it: bodies, nc, constraints, nh, DOF,
     and the rank of Phi_q at the assembled configuration.
@@ -514,14 +512,15 @@ def info(deck, sets, scene):
 
 @main.command()
 @click.argument("deck", type=click.Path(dir_okay=False))
-@click.option("--set", "sets", multiple=True, metavar="PATH=VALUE", help="Override a deck value.")
-@click.option("--scene", help="Apply a named scene of the deck.")
+@deck_options()
 @click.option("-n", "--worst", default=5, show_default=True, help="How many residuals to print.")
 def check(deck, sets, scene, worst):
     """Validate DECK, assemble it, and print the worst constraint residuals before and after.
 
     Example: mbsim check models/slider_crank.yaml
     """
+    import numpy as np
+
     from mbsim import core
     from mbsim.analyses.assembly import assemble
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import click
 
+from mbsim.cli_options import deck_options
 from mbsim.errors import DeckError, MbsimError
 
 
@@ -28,8 +29,7 @@ def _floats(text, what):
 @click.option("--outputs", default="bodies/*/r", show_default=True,
               help="Channels whose error is measured (globs, comma-separated).")
 @click.option("--repeats", default=1, show_default=True, help="Runs per point (median wall).")
-@click.option("--set", "sets", multiple=True, metavar="PATH=VALUE", help="Override a deck value.")
-@click.option("--scene", help="Apply a named scene of the deck.")
+@deck_options()
 @click.option("-o", "--output", help="Write the work-precision plot here (.png/.svg/.pdf).")
 def bench_command(deck, integrators, tolerances, steps_, t_end, outputs, repeats, sets, scene,
                   output):

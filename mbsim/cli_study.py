@@ -13,6 +13,7 @@ from pathlib import Path
 import click
 
 from mbsim.cli import EXIT_FAILED, _fail, _warn, check_output
+from mbsim.cli_options import jobs_option, quiet_option
 from mbsim.errors import MbsimError, UsageError
 from mbsim.progress import Progress, format_duration
 
@@ -35,12 +36,10 @@ def _table(header: list[str], rows: list[list[str]], indent: str = "  ") -> None
     default=None,
     help="Output folder; each study writes into <folder>/<study>/. Default: <deck stem>_studies",
 )
-@click.option(
-    "-j", "--jobs", type=int, default=1, show_default=True, help="Cases run at once (processes)."
-)
+@jobs_option(default=1, help="Cases run at once (processes).")
 @click.option("--list", "list_only", is_flag=True, help="List the deck's studies.")
 @click.option("--dpi", type=float, default=110, show_default=True, help="Figure resolution.")
-@click.option("-q", "--quiet", is_flag=True, help="Print only errors and the tables.")
+@quiet_option(help="Print only errors and the tables.")
 def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
     """Run study NAME of DECK (`all`: every study): every case to HDF5, every figure to PNG,
     and a table of the key numbers.

@@ -12,7 +12,14 @@ import sys
 
 import click
 
-from mbsim.api import ANALYSES
+from mbsim.cli_options import (
+    analysis_settings,
+    deck_options,
+    jobs_option,
+    mode_option,
+    quiet_option,
+    settings_of,
+)
 
 
 def _echo(line: str, err: bool = False) -> None:
@@ -34,10 +41,9 @@ def _echo(line: str, err: bool = False) -> None:
                    "(forces.spring.c=10,20); repeatable: the cases are the product.")
 @click.option("--zip", "zip_", is_flag=True,
               help="Take the --param lists element by element (equal lengths), not the product.")
-@click.option("--mode", "-m", type=click.Choice(list(ANALYSES)), required=True,
-              help="Analysis to run for every case.")
-@click.option("-j", "--jobs", type=click.IntRange(min=1),
-              help="Parallel processes (default: min(CPUs, cases)); ignored with --scheduler.")
+@mode_option(help="Analysis to run for every case.")
+@jobs_option(minimum=1,
+             help="Parallel processes (default: min(CPUs, cases)); ignored with --scheduler.")
 @click.option("-o", "--output", "out_dir",
               help="Folder for the case files and the index (default <deck>_<mode>_sweep).")
 @click.option("--summary", "summaries", multiple=True, metavar="CHANNEL:NAME[:from=T]",
@@ -46,23 +52,12 @@ def _echo(line: str, err: bool = False) -> None:
                    "NAME is a study statistic: final, initial, min, max, absmax, mean, range, "
                    "t_max, t_min, t_absmax, period, settle (band=B, default 0.02), growth "
                    "(repeatable).")
-@click.option("--set", "sets", multiple=True, metavar="PATH=VALUE",
-              help="Override a deck value in every case (repeatable).")
-@click.option("--scene", help="Apply a named scene of the deck to every case.")
-@click.option("--t-end", type=float, help="End time, s.")
-@click.option("--step", type=float, help="Output step, s.")
-@click.option("--integrator", help="Integrator name (dynamic mode).")
-@click.option("--rtol", type=float, help="Relative tolerance (dynamic mode).")
-@click.option("--atol", type=float, help="Absolute tolerance (dynamic mode).")
-@click.option("--accuracy", type=float, metavar="TOL",
-              help="Dynamic mode: the position error wanted (m; orientation, rad): mbsim "
-                   "chooses the tolerance, checks its error estimate, refines once.")
-@click.option("--error-estimate/--no-error-estimate", "error_estimate", default=None,
-              help="Dynamic mode: estimate the global error by a companion run (default on).")
-@click.option("--method", help="Equilibrium method: minimum | settle | steady.")
+@deck_options(set_help="Override a deck value in every case (repeatable).",
+              scene_help="Apply a named scene of the deck to every case.")
+@analysis_settings()
 @click.option("--scheduler", metavar="ADDRESS",
               help="Run on a Dask cluster, e.g. tcp://host:8786 (pip install 'mbsim[cluster]').")
-@click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
+@quiet_option()
 def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scene, t_end, step,
                   integrator, rtol, atol, accuracy, error_estimate, method, scheduler, quiet):
     """Run DECK once per combination of --param values, in parallel; one HDF5 file per case
@@ -84,9 +79,7 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
         signal.signal(signal.SIGPIPE, signal.SIG_IGN)
     from mbsim.sweep import default_out_dir, parse_param, parse_summary, plan_sweep
 
-    options = {"t_end": t_end, "step": step, "integrator": integrator, "rtol": rtol,
-               "atol": atol, "accuracy": accuracy, "error_estimate": error_estimate,
-               "method": method}
+    options = settings_of(locals())
     # the command line's tolerances and step are the same for every case: a bad one is a
     # usage error now (exit 2), not one failed case after another
     from mbsim.deck.limits import OPEN_UNIT

@@ -23,10 +23,9 @@ scene and overrides in its ``settings``); each figure ``<out_dir>/<study>/<figur
 A case that raises (a bad value, an analysis error) is ``failed`` with the message and the
 others go on; an analysis that stops part-way is ``incomplete``, as for ``mbsim run``.
 
-``STATS`` maps a statistic name to ``f(t, y, number) -> float`` over the output times
-``t`` (nt,) and one scalar column ``y`` (nt,); ``number`` is the deck's entry (keys
-``from``: start of the window in s, ``band``: relative settling band).  The names are
-``mbsim.deck.schema.STUDY_STATS``.
+The statistics of ``numbers:`` (``STATS``: final, max, period, settle, growth, ...) are
+those of :mod:`mbsim.output.stats`, shared with a sweep's ``--summary``.  Cases run on the
+batch runner (:mod:`mbsim.batch`) when ``jobs`` > 1.
 
 :func:`threshold` finds by bisection the value of one deck setting at which a case turns
 from one behaviour to another (the governor's feedback gain at which it becomes unstable).
@@ -34,7 +33,6 @@ from one behaviour to another (the governor's feedback gain at which it becomes 
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import json
 import logging
 import time
@@ -46,6 +44,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mbsim.errors import DeckError, MbsimError
+from mbsim.output.stats import (  # noqa: F401 - the statistics, here since studies named them
+    RATIO_STATS,
+    STATS,
+    TIME_STATS,
+    growth,
+    period,
+    settle,
+    upcrossings,
+)
 from mbsim.result import STATUS_COMPLETE, Result
 
 if TYPE_CHECKING:
@@ -54,95 +61,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 STATUS_FAILED = "failed"  # the case raised: no file (or an older one) on disk
-
-
-# --------------------------------------------------------------------------- statistics
-
-
-def _window(t: np.ndarray, y: np.ndarray, number: dict) -> tuple[np.ndarray, np.ndarray]:
-    """The samples at t >= number['from'] (all samples when it is None)."""
-    start = number.get("from")
-    if start is None:
-        return t, y
-    keep = t >= start - 1e-12
-    return t[keep], y[keep]
-
-
-def upcrossings(t: np.ndarray, y: np.ndarray, level: float) -> np.ndarray:
-    """Times at which y crosses `level` upwards, by linear interpolation (s)."""
-    d = y - level
-    k = np.nonzero((d[:-1] < 0) & (d[1:] >= 0))[0]
-    return t[k] - d[k] * (t[k + 1] - t[k]) / (d[k + 1] - d[k])
-
-
-def period(t: np.ndarray, y: np.ndarray, number: dict | None = None) -> float:
-    """Mean time between upward crossings of the mean of y over the window (s); NaN with
-    fewer than two crossings.  For a periodic signal with one maximum and one minimum per
-    cycle this is its period."""
-    t, y = _window(t, y, number or {})
-    if len(y) < 3:
-        return float("nan")
-    times = upcrossings(t, y, float(np.mean(y)))
-    return float(np.mean(np.diff(times))) if len(times) >= 2 else float("nan")
-
-
-def settle(t: np.ndarray, y: np.ndarray, number: dict | None = None) -> float:
-    """Transition time: from the window's start t0 until y enters, for good, the band
-    ``|y - y_end| <= band |y_end - y(t0)|`` around its final value (the 2 % settling time
-    with the default band 0.02).  0 when y never leaves it; NaN ("does not settle") when y
-    is still outside the band in the last tenth of the window: then ``y_end`` is no steady
-    state (a growing or undamped oscillation, or a run too short)."""
-    number = number or {}
-    t, y = _window(t, y, number)
-    change = abs(y[-1] - y[0])
-    if change == 0.0:
-        return 0.0
-    outside = np.nonzero(np.abs(y - y[-1]) > number.get("band", 0.02) * change)[0]
-    if len(outside) == 0:
-        return 0.0
-    k = outside[-1]
-    if t[k] > t[-1] - 0.1 * (t[-1] - t[0]):
-        return float("nan")
-    return float(t[min(k + 1, len(t) - 1)] - t[0])
-
-
-def growth(t: np.ndarray, y: np.ndarray, number: dict | None = None) -> float:
-    """Growth of an oscillation: peak-to-peak range of y in the last quarter of the window
-    over that in the third quarter.  Below 1 the motion dies out (stable), above 1 it grows
-    (unstable); a constant-amplitude oscillation gives 1.  The quarters must span at least
-    one period of the oscillation."""
-    t, y = _window(t, y, number or {})
-    q = np.linspace(t[0], t[-1], 5)
-    third = y[(t >= q[2]) & (t <= q[3])]
-    last = y[t >= q[3]]
-    if len(third) < 2 or len(last) < 2:
-        return float("nan")
-    r3, r4 = float(np.ptp(third)), float(np.ptp(last))
-    return r4 / r3 if r3 > 0 else (1.0 if r4 == 0 else float("inf"))
-
-
-def _at(t, y, number, pick):
-    t, y = _window(t, y, number)
-    return float(t[pick(y)])
-
-
-STATS: dict[str, Callable[[np.ndarray, np.ndarray, dict], float]] = {
-    "final": lambda t, y, n: float(_window(t, y, n)[1][-1]),
-    "initial": lambda t, y, n: float(_window(t, y, n)[1][0]),
-    "max": lambda t, y, n: float(np.max(_window(t, y, n)[1])),
-    "min": lambda t, y, n: float(np.min(_window(t, y, n)[1])),
-    "absmax": lambda t, y, n: float(np.max(np.abs(_window(t, y, n)[1]))),
-    "mean": lambda t, y, n: float(np.mean(_window(t, y, n)[1])),
-    "range": lambda t, y, n: float(np.ptp(_window(t, y, n)[1])),
-    "t_max": lambda t, y, n: _at(t, y, n, np.argmax),
-    "t_min": lambda t, y, n: _at(t, y, n, np.argmin),
-    "t_absmax": lambda t, y, n: _at(t, y, n, lambda v: np.argmax(np.abs(v))),
-    "period": period,
-    "settle": settle,
-    "growth": growth,
-}
-TIME_STATS = ("t_max", "t_min", "t_absmax", "period", "settle")  # results in s
-RATIO_STATS = ("growth",)  # dimensionless
 
 
 # --------------------------------------------------------------------------- data
@@ -291,6 +209,12 @@ def _run_in_pool(text: str, file: str, study: str, case: dict, path: str) -> Cas
     return out
 
 
+@dataclass(frozen=True)
+class _StudyTask:
+    number: int  # index into the study's cases
+    args: tuple  # _run_in_pool(*args)
+
+
 def run_cases(
     deck: str | Path | ParsedDeck,
     study: str,
@@ -299,8 +223,10 @@ def run_cases(
     jobs: int = 1,
     on_case: Callable[[CaseOutcome], None] | None = None,
 ) -> list[CaseOutcome]:
-    """Run `cases` (``jobs`` > 1: in that many processes) into ``out_dir/<name>.h5``;
-    `deck` a file name or a ParsedDeck (read once here)."""
+    """Run `cases` (``jobs`` > 1: in that many processes, on :func:`mbsim.batch.run_batch`;
+    each worker writes its case's file, read back here) into ``out_dir/<name>.h5``; `deck`
+    a file name or a ParsedDeck (read once here).  Ctrl-C or SIGTERM while cases run in
+    processes: the running ones are stopped, KeyboardInterrupt raised."""
     from mbsim.output import read_result
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -313,21 +239,24 @@ def run_cases(
             if on_case:
                 on_case(outcomes[-1])
         return outcomes
-    import multiprocessing as mp
+    from mbsim.batch import WorkerLost, run_batch
 
-    ctx = mp.get_context("spawn")  # no forked copies of the parent's state
     outcomes: list[CaseOutcome | None] = [None] * len(cases)
-    with cf.ProcessPoolExecutor(max_workers=min(jobs, len(cases)), mp_context=ctx) as ex:
-        futures = {ex.submit(_run_in_pool, deck.text, deck.file, study, c, p): i
-                   for i, (c, p) in enumerate(zip(cases, paths))}  # fmt: skip
-        for fut in cf.as_completed(futures):
-            i = futures[fut]
-            out = fut.result()
-            if out.path is not None:
-                out.result = read_result(out.path)
-            outcomes[i] = out
-            if on_case:
-                on_case(out)
+
+    def finish(task: _StudyTask, out: CaseOutcome | WorkerLost) -> None:
+        case = cases[task.number]
+        if isinstance(out, WorkerLost):
+            out = CaseOutcome(case["name"], case["label"], case["mode"], STATUS_FAILED,
+                              out.message)
+        if out.path is not None:
+            out.result = read_result(out.path)
+        outcomes[task.number] = out
+        if on_case:
+            on_case(out)
+
+    tasks = [_StudyTask(i, (deck.text, deck.file, study, c, p))
+             for i, (c, p) in enumerate(zip(cases, paths))]
+    run_batch(tasks, _run_in_pool, finish, jobs=min(jobs, len(cases)))
     return [o for o in outcomes if o is not None]
 
 

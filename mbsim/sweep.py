@@ -18,8 +18,9 @@ Cases
     output folder (characters other than letters, digits and ``. + - =`` become ``-``).
 
 Running
-    Every case runs :func:`run_case` on an executor, a :class:`concurrent.futures.Executor`:
-    a local process pool or a Dask cluster's executor, one code path. A worker gets the deck
+    Every case runs :func:`run_case` on the batch runner (:mod:`mbsim.batch`: executor,
+    spool, Ctrl-C), a local process pool or a Dask cluster's executor, one code path. A
+    worker gets the deck
     *text* and returns the :class:`~mbsim.result.Result`, so workers need mbsim but neither
     the deck file nor the output folder. A worker parses the text once
     (:func:`mbsim.deck.loader.parse_deck_cached`; forked workers inherit the deck parsed
@@ -36,7 +37,7 @@ Resuming
     index). So re-running an interrupted or partly failed sweep runs only what is missing.
 
 Interrupting
-    Ctrl-C (SIGINT) or SIGTERM while cases run (caught by :func:`run_sweep` and raised as a
+    Ctrl-C (SIGINT) or SIGTERM while cases run (caught by the batch runner and raised as a
     ``KeyboardInterrupt`` from its wait loop) cancels the cases not started, stops the
     running ones (their results are lost; nothing of theirs was written), keeps every
     finished file and writes the index with the unfinished cases as ``cancelled``, then
@@ -55,7 +56,7 @@ Index
 
 Summaries
     ``--summary CHANNEL:NAME[:from=T][:band=B]``: NAME is a statistic of a deck study's
-    ``numbers:`` (``SUMMARIES`` is :data:`mbsim.study.STATS`: final, min, max, mean,
+    ``numbers:`` (``SUMMARIES`` is :data:`mbsim.output.stats.STATS`: final, min, max, mean,
     absmax, range, t_max, period, settle, growth, ...), computed by the same function over
     the time axis and one scalar column (a channel or one component, ``bodies.collar.r.y``),
     with ``from`` (window start, s) and ``band`` (settle) as the study keys of those names.
@@ -66,38 +67,29 @@ Summaries
 from __future__ import annotations
 
 import concurrent.futures as cf
-import contextlib
 import csv
 import itertools
 import json
 import math
-import multiprocessing
 import os
-import pickle
 import re
-import signal
-import sys
-import tempfile
-import threading
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
+from mbsim.batch import WorkerLost, open_executor, run_batch
 from mbsim.errors import AnalysisError, DeckError, MbsimError, Where
+from mbsim.output.stats import RATIO_STATS, STATS, TIME_STATS
 from mbsim.result import STATUS_COMPLETE, STATUS_INCOMPLETE, Result
-from mbsim.study import RATIO_STATS, STATS, TIME_STATS
 
 STATUS_FAILED = "failed"  # the case raised: no results file
 STATUS_CANCELLED = "cancelled"  # interrupted before it finished: no results file
 INDEX_INTERVAL = 1.0  # s: the index is rewritten at most this often while cases finish
-POLL = 0.1  # s: how often the wait for cases looks for a Ctrl-C / SIGTERM
-ORPHAN_POLL = 0.5  # s: how often a pool worker checks that the sweep process is still there
 MAX_NAME = 150  # longer case names are replaced by case<number>
-CONNECT_TIMEOUT = 20.0  # s to reach a Dask scheduler
 _UNSAFE = re.compile(r"[^A-Za-z0-9.+=-]+")
 
 
@@ -118,7 +110,7 @@ SUMMARY_OPTIONS = ("from", "band")  # CHANNEL:NAME:from=T:band=B (the study numb
 @dataclass(frozen=True)
 class Summary:
     """``--summary CHANNEL:NAME[:from=T][:band=B]``: the statistic `name` (a key of
-    :data:`SUMMARIES`, i.e. :data:`mbsim.study.STATS`) of one scalar column `channel`,
+    :data:`SUMMARIES`, i.e. :data:`mbsim.output.stats.STATS`) of one scalar column `channel`,
     over the samples at t >= `from` (all when None); `band` is the relative band of
     ``settle`` (default 0.02)."""
 
@@ -445,29 +437,6 @@ def run_case(deck_text: str, deck_file: str, overrides: dict[str, str], scene: s
     return CaseRun(result, "", time.perf_counter() - t0)
 
 
-def run_case_spooled(spool: str, number: int, *args) -> str:
-    """:func:`run_case` in a local pool worker: the CaseRun is pickled to a file in the
-    folder `spool` and only its name goes back through the pool's pipe.
-
-    A Result is megabytes; sent through the pipe, it takes many writes, and a worker stopped
-    part-way (Ctrl-C stops the running cases) leaves half a message there, on which the
-    pool's result thread then waits forever (and with it the exit of the process). A name
-    is one write of a few bytes, which a signal cannot split.
-    """
-    run = run_case(*args)
-    path = os.path.join(spool, f"case{number}.pkl")
-    with open(path, "wb") as fh:
-        pickle.dump(run, fh, protocol=pickle.HIGHEST_PROTOCOL)
-    return path
-
-
-def _unspool(path: str) -> CaseRun:
-    with open(path, "rb") as fh:
-        run = pickle.load(fh)
-    os.unlink(path)
-    return run
-
-
 @dataclass
 class CaseRecord:
     """One row of the index."""
@@ -497,7 +466,7 @@ def up_to_date(sweep: Sweep, case: Case) -> bool:
     """True when the case's file exists, is complete and was made by this very case."""
     import h5py
 
-    from mbsim.output.hdf5 import from_json
+    from mbsim.output.hdf5 import json_document
 
     path = sweep.case_file(case)
     if not path.is_file():
@@ -508,7 +477,7 @@ def up_to_date(sweep: Sweep, case: Case) -> bool:
             a = f.attrs
             if str(a.get("status", "")) != STATUS_COMPLETE or str(a.get("mode", "")) != sweep.mode:
                 return False
-            settings = from_json(str(a.get("settings", "")))
+            settings = json_document(f, "settings")
             deck = f["deck"].asstr()[()] if "deck" in f else ""
     except (OSError, KeyError, ValueError):
         return False  # unreadable or foreign: run it again
@@ -558,129 +527,6 @@ def skipped_case(sweep: Sweep, case: Case) -> CaseRecord:
     return rec
 
 
-# --------------------------------------------------------------------------- executors
-
-
-def _init_worker() -> None:
-    """Pool workers leave Ctrl-C to the parent, which cancels and stops them; SIGTERM (the
-    parent's terminate()) ends them, whatever handler a forked worker inherited; and a
-    worker whose parent is gone (``kill -9`` of the sweep alone) ends itself within a
-    second, instead of waiting forever for work on a queue whose other end it holds."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    parent = os.getppid()  # the sweep, or the forkserver that exits with it
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(ORPHAN_POLL)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="mbsim-parent-watch", daemon=True).start()
-
-
-@contextlib.contextmanager
-def _stop_requests() -> Iterator[threading.Event]:
-    """An Event set by Ctrl-C (SIGINT) or SIGTERM while the sweep waits for cases.
-
-    Python raises KeyboardInterrupt wherever the main thread happens to be: inside the
-    locks of concurrent.futures (a later exit then waits forever on the executor's thread)
-    or in a weakref callback (where it is printed and dropped, and the sweep goes on). So
-    the first signal only sets the event, and the wait loop raises KeyboardInterrupt at a
-    safe point; a second one raises at once. SIGTERM (``kill PID``, a batch system's time
-    limit) is treated as Ctrl-C. Signals whose handler is not Python's default, and calls
-    from another thread, are left alone (the event then stays clear).
-    """
-    stop = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
-
-    def handler(signum, frame):
-        if stop.is_set():
-            raise KeyboardInterrupt
-        stop.set()
-
-    defaults = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: signal.SIG_DFL}
-    previous = {}
-    try:
-        for sig, default in defaults.items():
-            if signal.getsignal(sig) is default:
-                previous[sig] = signal.signal(sig, handler)
-        yield stop
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
-
-
-def _mp_context():
-    """fork on Linux while this process has a single thread (workers start at once and
-    inherit the imports); otherwise forkserver (spawn where there is none), which re-imports
-    the main module in each worker: a script calling run_sweep needs an
-    ``if __name__ == "__main__":`` guard there, as for any process pool."""
-    methods = multiprocessing.get_all_start_methods()
-    if sys.platform.startswith("linux") and "fork" in methods and threading.active_count() == 1:
-        return multiprocessing.get_context("fork")
-    return multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-
-
-@contextlib.contextmanager
-def open_executor(jobs: int | None = None, scheduler: str | None = None,
-                  ncases: int | None = None) -> Iterator[cf.Executor]:  # fmt: skip
-    """A concurrent.futures Executor for the cases.
-
-    Without `scheduler`: a process pool of `jobs` workers (default min(CPUs, `ncases`)).
-    With `scheduler` (``tcp://host:8786``): the executor of a ``distributed.Client``
-    connected to that Dask scheduler; `jobs` is ignored (the cluster's workers decide).
-    On leaving, the pool is shut down; after an exception (Ctrl-C) without waiting, and
-    running workers are stopped.
-    """
-    if scheduler:
-        try:
-            from distributed import Client
-        except ImportError:
-            raise SweepError("--scheduler needs Dask distributed: pip install 'mbsim[cluster]'") \
-                from None
-        try:
-            client = Client(scheduler, set_as_default=False, timeout=CONNECT_TIMEOUT)
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise SweepError(f"--scheduler {scheduler}: cannot connect: {exc}") from None
-        ex = client.get_executor(pure=False)
-        try:
-            yield ex
-        except BaseException:
-            ex.shutdown(wait=False)  # cancels what has not finished
-            raise
-        finally:
-            client.close()
-        return
-    n = jobs or min(os.cpu_count() or 1, max(ncases or 1, 1))
-    if n < 1:
-        raise SweepError(f"--jobs {jobs}: expected a positive number")
-    ex = cf.ProcessPoolExecutor(max_workers=n, mp_context=_mp_context(),
-                                initializer=_init_worker)
-    try:
-        yield ex
-    except BaseException:
-        procs = list((getattr(ex, "_processes", None) or {}).values())  # our own workers
-        manager = getattr(ex, "_executor_manager_thread", None)  # shutdown() forgets it
-        ex.shutdown(wait=False, cancel_futures=True)
-        for p in procs:
-            if p.is_alive():
-                p.terminate()
-        for p in procs:
-            p.join(timeout=5)
-            if p.is_alive():  # did not take SIGTERM
-                p.kill()
-                p.join()
-        # let the pool's result thread see the workers gone and finish now, not in the
-        # interpreter's exit (where it races with concurrent.futures' own exit hook)
-        if manager is not None:
-            manager.join(timeout=10)
-        raise
-    else:
-        ex.shutdown(wait=True)
-
-
 # --------------------------------------------------------------------------- the sweep
 
 
@@ -701,6 +547,13 @@ class SweepOutcome:
     @property
     def summary_errors(self) -> list[str]:
         return sorted({e for r in self.records for e in r.summary_errors})
+
+
+@dataclass(frozen=True)
+class _SweepTask:
+    number: int
+    args: tuple  # run_case(*args)
+    case: Case
 
 
 def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
@@ -746,53 +599,19 @@ def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
                                    f"{exc.strerror or exc}"]
             last_index = time.monotonic()
 
+    def finish(task: _SweepTask, run: CaseRun | WorkerLost) -> None:
+        if isinstance(run, WorkerLost):
+            run = CaseRun(None, run.message, float("nan"))
+        records[task.case.number] = finish_case(sweep, task.case, run)
+        if on_case:
+            on_case(records[task.case.number])
+        index_now()
+
     try:
-        if todo:
-            with contextlib.ExitStack() as stack:
-                # local processes send their results through a folder (run_case_spooled),
-                # removed after the pool has stopped (an ExitStack exits in reverse order)
-                local = isinstance(executor, cf.ProcessPoolExecutor) or (
-                    executor is None and not scheduler)
-                # named after this process: a sweep killed with kill -9 leaves it, and the
-                # next run or sweep here removes it (output.hdf5.remove_stale_temporaries)
-                spool = stack.enter_context(tempfile.TemporaryDirectory(
-                    prefix=f".spool-{os.getpid()}-", dir=sweep.out_dir,
-                    ignore_cleanup_errors=True)) if local else None
-                ex = executor or stack.enter_context(
-                    open_executor(jobs, scheduler, ncases=len(todo)))
-
-                def submit(c: Case) -> cf.Future:
-                    args = (sweep.deck_text, sweep.deck, sweep.case_overrides(c), sweep.scene,
-                            sweep.mode, sweep.options)
-                    if spool:
-                        return ex.submit(run_case_spooled, spool, c.number, *args)
-                    return ex.submit(run_case, *args)
-
-                futures = {submit(c): c for c in todo}
-                pending = set(futures)
-                try:
-                    with _stop_requests() as stop:  # after submit: forked workers get none
-                        while pending and not stop.is_set():
-                            done, pending = cf.wait(pending, timeout=POLL,
-                                                    return_when=cf.FIRST_COMPLETED)
-                            for fut in sorted(done, key=lambda f: futures[f].number):
-                                case = futures[fut]
-                                try:
-                                    run = fut.result()
-                                    run = _unspool(run) if isinstance(run, str) else run
-                                except Exception as exc:  # the worker died (killed, no memory)
-                                    run = CaseRun(None, f"{type(exc).__name__}: {exc}",
-                                                  float("nan"))
-                                records[case.number] = finish_case(sweep, case, run)
-                                if on_case:
-                                    on_case(records[case.number])
-                                index_now()
-                        if stop.is_set():
-                            raise KeyboardInterrupt
-                except BaseException:
-                    for fut in futures:
-                        fut.cancel()
-                    raise
+        tasks = [_SweepTask(c.number, (sweep.deck_text, sweep.deck, sweep.case_overrides(c),
+                                       sweep.scene, sweep.mode, sweep.options), c)
+                 for c in todo]  # fmt: skip
+        run_batch(tasks, run_case, finish, jobs, scheduler, executor, spool_dir=sweep.out_dir)
     except BaseException:  # Ctrl-C, or an error of this process: the index of what finished
         index_now(force=True)
         raise

@@ -589,12 +589,12 @@ def test_a_second_sweep_into_a_folder_in_use_is_refused(tmp_path):
 def test_sweep_whose_folder_fills_before_the_cases_run_ends_in_one_line(tmp_path, monkeypatch):
     """The spool folder of the workers' results cannot be made (ENOSPC): one error line,
     exit 1, nothing half-written left as a result."""
-    import mbsim.sweep
+    import mbsim.batch
 
     def full(*a, **k):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "spool")
 
-    monkeypatch.setattr(mbsim.sweep.tempfile, "TemporaryDirectory", full)
+    monkeypatch.setattr(mbsim.batch.tempfile, "TemporaryDirectory", full)
     out = tmp_path / "sw"
     res = small_sweep(out)
     one_error(res, 1, f"sweep into {out} stopped after 0 of 2 case(s)", os.strerror(errno.ENOSPC))

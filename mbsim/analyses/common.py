@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as la
 
 from mbsim import core
 from mbsim.errors import DeckError, Where
@@ -72,6 +71,8 @@ def rank_and_redundant(model, J, tol=1e-9):
     by the sparse factor of J J^T without the dense QR."""
     if J.shape[0] == 0:
         return 0, np.zeros(0, int)
+    import scipy.linalg as la  # here: scipy.linalg costs ~0.4 s to import
+
     if not isinstance(J, np.ndarray):
         if sparse_gram_factor(J) is not None:
             return J.shape[0], np.zeros(0, int)

@@ -22,7 +22,6 @@ Tables (k = 0 .. nc-1):
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 from mbsim.core import Terms
 from mbsim.fast import _lib
@@ -190,6 +189,8 @@ class FastConstraints:
 
 def _csr(data, indices, indptr, shape):
     """A csr_matrix on given arrays without the O(nnz) format check (they are canonical)."""
+    import scipy.sparse as sp
+
     J = sp.csr_matrix(shape)
     J.data, J.indices, J.indptr = data, indices, indptr
     J.has_sorted_indices = True

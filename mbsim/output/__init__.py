@@ -8,7 +8,9 @@ Data flows one way, ``Result -> file/figure``; nothing here runs an analysis.
   (matplotlib ``Figure`` objects, no pyplot state; imported lazily, matplotlib is slow
   to import);
 - :mod:`mbsim.output.compare`: ``compare_results``, ``compare_files``, ``Difference``;
-- :mod:`mbsim.output.export`: ``export_csv`` and the channel selectors shared with plots.
+- :mod:`mbsim.output.export`: ``export_csv`` and the channel selectors shared with plots;
+- :mod:`mbsim.output.stats`: statistics of one signal (``STATS``: final, period, settle, ...),
+  a study's ``numbers:`` and a sweep's ``--summary``.
 """
 
 from __future__ import annotations

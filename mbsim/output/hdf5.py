@@ -1,17 +1,27 @@
 """HDF5 storage of a :class:`~mbsim.result.Result`: one file per analysis run.
 
-Layout (see ``docs/hdf5.md`` for an ``h5ls -r`` listing)::
+Layout version 2 (root attribute ``layout_version``; ``docs/hdf5.md`` has the full table and
+an ``h5ls -r`` listing).  Channels are data, not one dataset each: every channel is a block
+of columns of one 2-D array, and a table of equal-length string and integer datasets says
+which, so no attribute or header grows with the model and the file is written in a few bulk
+writes whatever its size::
 
-    /                 attrs: mbsim_version, mode, status, message, deck_file, wall_time_s,
-                             created, settings (JSON), counters (JSON), summary (JSON),
-                             channels (JSON list of channel names, in order)
-    /deck             scalar variable-length UTF-8 string: the deck YAML text
+    /                 attrs: layout_version (2), mbsim_version, mode, status, message,
+                             deck_file, wall_time_s, created; Result.attrs (stable, ...)
+    /deck, /settings, /counters, /summary   scalar UTF-8 strings (deck YAML; JSON)
     /time             (nt,) float64, attr unit = 's'
-    /<channel path>   (nt,) or (nt, k) float64, attrs unit, description, components
+    /values           (nt, ncol) float64: every channel's columns side by side
+    /channels/name, unit, description, components (JSON list), shape (JSON, after time)
+                      (nch,) strings; /channels/column, width (nch,) int64: channel k is
+                      values[:, column[k]:column[k] + width[k]] reshaped to (nt, *shape[k])
     /names/<kind>     (n,) UTF-8 strings: result.names[kind]
-    /linear/...       arrays without a time axis (Result.arrays, listed in the root attribute
-                      ``arrays``; complex kept complex), e.g. linear/eigenvalues; extra root
-                      attributes from Result.attrs (``stable``, ``stability``)
+    /arrays           (na,) strings: the Result.arrays stored at their own path (linear/...)
+    /shapes/<leaf>/data, item, start   shapes/<body>/<leaf> of every body stacked by rows
+
+Version 1 (a dataset per channel at its slash path with attributes unit, description,
+components; settings, counters, summary and the list of channels as root attributes) is
+still read: it failed for large models ("object header message is too large", the root
+attribute listing 7000 channels) and cost about 1 ms per channel to write.
 
 Writes are atomic: the file is built in memory, written as ``.<name>.tmp-<pid>`` next to the
 target and moved onto it with :func:`os.replace` only once it is complete and closed; a failed
@@ -23,8 +33,10 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import re
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -43,10 +55,15 @@ class OutputError(MbsimError):
 
     exit_code = 1
 
-RESERVED = ("time", "deck", "names", "linear", "shapes")  # top-level names that channels may not use
+RESERVED = ("time", "deck", "names", "linear", "shapes")  # names that channels may not start with
+LAYOUT_VERSION = 2  # root attribute layout_version; files without it are version 1
+JSON_DATASETS = ("settings", "counters", "summary")  # scalar JSON strings (attributes in v1)
+EXTRA_ATTRS = ("stable", "stability", "error_estimate", "error_estimate_reason")  # Result.attrs
+STACKED = ("shapes",)  # arrays <group>/<item>/<leaf> stored one dataset per leaf for all items
 COMPRESS_MIN_SIZE = 1000  # datasets with more elements are chunked and gzip-compressed
 GZIP_LEVEL = 4
 CHUNK_ELEMENTS = 65536  # target elements per chunk (chunks span whole rows, cut along time)
+CHUNK_COLUMNS = 256  # columns of /values per chunk: reading one channel reads few chunks
 
 _STR = h5py.string_dtype("utf-8")
 
@@ -113,15 +130,21 @@ def _check_names(channels: dict[str, Channel]) -> list[str]:
     return paths
 
 
-def _dataset_options(shape: tuple[int, ...]) -> dict[str, Any]:
-    """Compression and chunking (along time) for datasets above COMPRESS_MIN_SIZE elements."""
+def _dataset_options(shape: tuple[int, ...], chunk_cols: int | None = None) -> dict[str, Any]:
+    """Compression and chunking for datasets above COMPRESS_MIN_SIZE elements: chunks cut
+    along time (whole rows of ``shape[1:]``), or for the 2-D ``/values`` tiles of
+    ``chunk_cols`` columns by as many rows as make about CHUNK_ELEMENTS."""
     size = int(np.prod(shape)) if shape else 1
     if size <= COMPRESS_MIN_SIZE or shape[0] == 0:
         return {}
-    row = int(np.prod(shape[1:])) if len(shape) > 1 else 1
-    rows = max(1, min(shape[0], CHUNK_ELEMENTS // max(row, 1)))
+    if chunk_cols is not None:
+        cols = max(1, min(shape[1], chunk_cols))
+        chunks: tuple[int, ...] = (max(1, min(shape[0], CHUNK_ELEMENTS // cols)), cols)
+    else:
+        row = int(np.prod(shape[1:])) if len(shape) > 1 else 1
+        chunks = (max(1, min(shape[0], CHUNK_ELEMENTS // max(row, 1))), *shape[1:])
     return {
-        "chunks": (rows, *shape[1:]),
+        "chunks": chunks,
         "compression": "gzip",
         "compression_opts": GZIP_LEVEL,
         "shuffle": True,
@@ -133,17 +156,95 @@ def _write_dataset(f: h5py.File, path: str, data: np.ndarray) -> h5py.Dataset:
     return f.create_dataset(path, data=data, **_dataset_options(data.shape))
 
 
-def _write_channel(f: h5py.File, path: str, channel: Channel) -> None:
-    ds = _write_dataset(f, path, channel.data)
-    ds.attrs["unit"] = channel.unit
-    ds.attrs["description"] = channel.description
-    ds.attrs["components"] = np.array(list(channel.components), dtype=_STR)
+def _strings(f: h5py.File | h5py.Group, path: str, items) -> None:
+    f.create_dataset(path, data=np.array([str(s) for s in items], dtype=object), dtype=_STR)
+
+
+def _channel_table(result: Result, paths: list[str]) -> tuple[np.ndarray, dict[str, Any]]:
+    """Every channel side by side in one (nt, ncol) array, and the channel table (name, unit,
+    description, components, column, width, shape) that says which columns are whose."""
+    nt = len(np.asarray(result.t).reshape(-1))
+    datas, widths, shapes = [], [], []
+    for path, ch in zip(paths, result.channels.values()):
+        data = np.asarray(ch.data, dtype=np.float64)
+        if data.ndim == 0 or data.shape[0] != nt:
+            raise ValueError(f"channel {path!r} has shape {data.shape}; the time axis has "
+                             f"{nt} outputs")
+        datas.append(data)
+        shapes.append(data.shape[1:])
+        widths.append(math.prod(data.shape[1:]))
+    column = np.concatenate([[0], np.cumsum(widths, dtype=np.int64)]) if widths else \
+        np.zeros(1, np.int64)
+    values = np.empty((nt, int(column[-1])))
+    for data, start, width in zip(datas, column, widths):
+        values[:, start:start + width] = data.reshape(nt, width)
+    chans = list(result.channels.values())
+    text: dict[tuple, str] = {}  # the few distinct component lists and shapes, dumped once
+
+    def dump(value: tuple) -> str:
+        if value not in text:
+            text[value] = json.dumps(list(value))
+        return text[value]
+
+    table = {
+        "name": paths,
+        "unit": [c.unit for c in chans],
+        "description": [c.description for c in chans],
+        "components": [dump(tuple(c.components)) for c in chans],
+        "column": column[:-1],
+        "width": np.asarray(widths, dtype=np.int64),
+        "shape": [dump(s) for s in shapes],
+    }
+    return values, table
+
+
+def _stack_key(path: str) -> tuple[str, str, str] | None:
+    """(group, item, leaf) of an array stored stacked with its siblings (``shapes/<body>/
+    vertices``: one dataset per leaf for all bodies), else None."""
+    parts = path.split("/")
+    if len(parts) == 3 and parts[0] in STACKED:
+        return parts[0], parts[1], parts[2]
+    return None
+
+
+def _write_arrays(f: h5py.File, arrays: dict[str, tuple[np.ndarray, dict]]) -> None:
+    """Result.arrays (no time axis; complex kept complex): ``shapes/<body>/<leaf>`` stacked
+    per leaf (``/shapes/<leaf>/data`` rows of every body, ``item`` the bodies, ``start`` the
+    first row of each and the total), the others each at its own path, listed in ``/arrays``."""
+    stacks: dict[tuple[str, str], list[tuple[str, np.ndarray, dict]]] = {}
+    single = []
+    for path, (data, attrs) in arrays.items():
+        data = np.asarray(data)
+        key = _stack_key(path)
+        if key is None or data.ndim == 0 or data.dtype.kind in "USO":
+            single.append(path)
+            ds = f.create_dataset(path, data=data.astype(_STR) if data.dtype.kind in "US"
+                                  else data)
+            for k, v in attrs.items():
+                ds.attrs[k] = v
+        else:
+            stacks.setdefault((key[0], key[2]), []).append((key[1], data, attrs))
+    for (group, leaf), members in stacks.items():
+        first = members[0][1]
+        if any(d.shape[1:] != first.shape[1:] or d.dtype != first.dtype or a != members[0][2]
+               for _, d, a in members):
+            raise ValueError(f"arrays {group}/*/{leaf} differ in shape, type or attributes")
+        g = f.create_group(f"{group}/{leaf}")
+        data = np.concatenate([d for _, d, _ in members])
+        ds = g.create_dataset("data", data=data, **_dataset_options(data.shape))
+        for k, v in members[0][2].items():
+            ds.attrs[k] = v
+        _strings(g, "item", [m[0] for m in members])
+        g.create_dataset("start", data=np.concatenate(
+            [[0], np.cumsum([len(d) for _, d, _ in members])]).astype(np.int64))
+    _strings(f, "arrays", single)
 
 
 def _write_file(f: h5py.File, result: Result, paths: list[str]) -> None:
     from mbsim import __version__
 
     a = f.attrs
+    a["layout_version"] = LAYOUT_VERSION
     a["mbsim_version"] = __version__
     a["mode"] = result.mode
     a["status"] = result.status
@@ -151,27 +252,26 @@ def _write_file(f: h5py.File, result: Result, paths: list[str]) -> None:
     a["deck_file"] = str(result.deck_file)
     a["wall_time_s"] = float(result.wall_time)
     a["created"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    a["settings"] = to_json(result.settings)
-    a["counters"] = to_json(result.counters)
-    a["summary"] = to_json(result.summary)
-    a["channels"] = json.dumps(paths)
-    f.create_dataset("deck", data=result.deck_text or "", dtype=_STR)
-    _write_dataset(f, "time", np.asarray(result.t, dtype=np.float64).reshape(-1))
-    f["time"].attrs["unit"] = "s"
-    for path, channel in zip(paths, result.channels.values()):
-        _write_channel(f, path, channel)
-    names = f.create_group("names")
-    for kind, items in result.names.items():
-        names.create_dataset(kind, data=np.array([str(s) for s in items], dtype=_STR))
     for key, value in result.attrs.items():  # e.g. 'stable' (bool) of a linear analysis
         a[key] = value
-    for path, (data, attrs) in result.arrays.items():  # no time axis; complex kept complex
-        data = np.asarray(data)
-        ds = f.create_dataset(path, data=data.astype(_STR) if data.dtype.kind in "US" else data)
-        for k, v in attrs.items():
-            ds.attrs[k] = v
-    if result.arrays:
-        a["arrays"] = json.dumps(list(result.arrays))
+    f.create_dataset("deck", data=result.deck_text or "", dtype=_STR)
+    for key in JSON_DATASETS:
+        f.create_dataset(key, data=to_json(getattr(result, key)), dtype=_STR)
+    _write_dataset(f, "time", np.asarray(result.t, dtype=np.float64).reshape(-1))
+    f["time"].attrs["unit"] = "s"
+    values, table = _channel_table(result, paths)
+    f.create_dataset("values", data=values,
+                     **_dataset_options(values.shape, chunk_cols=CHUNK_COLUMNS))
+    g = f.create_group("channels")
+    for key, items in table.items():
+        if isinstance(items, np.ndarray):
+            g.create_dataset(key, data=items)
+        else:
+            _strings(g, key, items)
+    names = f.create_group("names")
+    for kind, items in result.names.items():
+        _strings(names, kind, items)
+    _write_arrays(f, result.arrays)
 
 
 def write_result(result: Result, path: str | Path) -> Path:
@@ -198,7 +298,9 @@ def write_result(result: Result, path: str | Path) -> Path:
     ------
     ValueError
         A channel name clashes with a reserved name (``time``, ``deck``, ``names``) or is
-        the group of another channel (``a/b`` and ``a/b/c``).
+        the group of another channel (``a/b`` and ``a/b/c``); a channel's first axis is not
+        the time axis; arrays ``shapes/*/<leaf>`` that cannot be stacked (differing shapes
+        after the first axis, types or attributes).
     """
     path = Path(path)
     paths = _check_names(result.channels)
@@ -356,7 +458,53 @@ def _attr_str(attrs: h5py.AttributeManager, key: str, default: str = "") -> str:
     return value.decode() if isinstance(value, bytes) else str(value)
 
 
-def _channel_paths(f: h5py.File) -> list[str]:
+def layout_version(f: h5py.File) -> int:
+    """The file's layout: 2 (channels as columns of /values), 1 (a dataset per channel)."""
+    return int(f.attrs.get("layout_version", 1))
+
+
+def _str_list(ds: h5py.Dataset) -> list[str]:
+    return [str(s) for s in ds.asstr()[()]]
+
+
+def json_document(f: h5py.File, key: str) -> Any:
+    """settings/counters/summary: a scalar JSON dataset (v2) or root attribute (v1)."""
+    if key in f and isinstance(f[key], h5py.Dataset):
+        return from_json(f[key].asstr()[()])
+    return from_json(_attr_str(f.attrs, key))
+
+
+@dataclass
+class ChannelTable:
+    """The channel table of a file: per channel its name, unit, description, components,
+    first column in /values, width and shape after time (a v1 file: shape only)."""
+
+    name: list[str]
+    unit: list[str]
+    description: list[str]
+    components: list[tuple[str, ...]]
+    column: np.ndarray  # (nch,) int64; -1 in a v1 file (each channel its own dataset)
+    shape: list[tuple[int, ...]]  # trailing shape: () for (nt,), (3,) for (nt, 3)
+
+
+def channel_table(f: h5py.File) -> ChannelTable:
+    """The channels of an open result file, without their data, in written order."""
+    if layout_version(f) >= 2:
+        g = f["channels"]
+        return ChannelTable(
+            _str_list(g["name"]), _str_list(g["unit"]), _str_list(g["description"]),
+            [tuple(json.loads(c)) for c in g["components"].asstr()[()]],
+            np.asarray(g["column"][()], dtype=np.int64),
+            [tuple(json.loads(s)) for s in g["shape"].asstr()[()]])  # fmt: skip
+    names = _channel_paths_v1(f)
+    dss = [f[n] for n in names]
+    return ChannelTable(
+        names, [_attr_str(d.attrs, "unit") for d in dss],
+        [_attr_str(d.attrs, "description") for d in dss], [_components(d) for d in dss],
+        np.full(len(names), -1, dtype=np.int64), [tuple(d.shape[1:]) for d in dss])
+
+
+def _channel_paths_v1(f: h5py.File) -> list[str]:
     """Channel paths in written order (root attr ``channels``), else found by walking."""
     if "channels" in f.attrs:
         return json.loads(_attr_str(f.attrs, "channels"))
@@ -376,8 +524,52 @@ def _components(ds: h5py.Dataset) -> tuple[str, ...]:
     return tuple(c.decode() if isinstance(c, bytes) else str(c) for c in np.atleast_1d(comps))
 
 
+def _read_channels(f: h5py.File, nt: int) -> dict[str, Channel]:
+    table = channel_table(f)
+    values = np.asarray(f["values"][()], dtype=np.float64) if "values" in f else None
+    channels = {}
+    for k, name in enumerate(table.name):
+        shape = table.shape[k]
+        if values is None:  # v1: a dataset per channel
+            data = np.asarray(f[name][()], dtype=np.float64)
+        else:  # a view of its columns (no copy)
+            start = int(table.column[k])
+            width = math.prod(shape)
+            data = values[:, start:start + width].reshape(nt, *shape)
+        channels[name] = Channel(data, table.unit[k], table.description[k], table.components[k])
+    return channels
+
+
+def _read_arrays(f: h5py.File) -> dict[str, tuple[np.ndarray, dict]]:
+    """Result.arrays: those at their own path (listed in /arrays, v1: the root attribute
+    ``arrays``), then the stacked ``shapes/<leaf>`` split back per body."""
+    def read(ds: h5py.Dataset) -> np.ndarray:
+        return np.asarray(ds.asstr()[()] if ds.dtype.kind == "O" else ds[()])
+
+    arrays = {}
+    if "arrays" in f and isinstance(f["arrays"], h5py.Dataset):
+        paths = _str_list(f["arrays"])
+    else:
+        paths = json.loads(_attr_str(f.attrs, "arrays", "[]"))
+    for path in paths:
+        ds = f[path]
+        arrays[path] = (read(ds), {k: ds.attrs[k] for k in ds.attrs})
+    for group in STACKED:
+        if layout_version(f) < 2 or group not in f:
+            continue
+        for leaf, g in f[group].items():
+            if not (isinstance(g, h5py.Group) and {"data", "item", "start"} <= set(g)):
+                continue
+            data, start = read(g["data"]), g["start"][()]
+            attrs = {k: g["data"].attrs[k] for k in g["data"].attrs}
+            for k, item in enumerate(_str_list(g["item"])):
+                arrays[f"{group}/{item}/{leaf}"] = (data[start[k]:start[k + 1]], dict(attrs))
+    return arrays
+
+
 def read_result(path: str | Path) -> Result:
-    """Read a file written by :func:`write_result` back into a :class:`Result`.
+    """Read a file written by :func:`write_result` back into a :class:`Result` (either
+    layout: version 2, or version 1 of files written before it).
 
     Parameters
     ----------
@@ -387,44 +579,33 @@ def read_result(path: str | Path) -> Result:
     Returns
     -------
     Result
-        Channels with unit, description and components; settings, counters and summary
-        parsed from JSON (tuples come back as lists).
+        Channels with unit, description and components (a channel's data is a view of the
+        file's /values columns); settings, counters and summary parsed from JSON (tuples
+        come back as lists).
     """
     with h5py.File(path, "r") as f:
         a = f.attrs
-        channels = {}
-        for name in _channel_paths(f):
-            ds = f[name]
-            channels[name] = Channel(
-                np.asarray(ds[()], dtype=np.float64),
-                _attr_str(ds.attrs, "unit"),
-                _attr_str(ds.attrs, "description"),
-                _components(ds),
-            )
-        arrays = {}
-        for path in json.loads(_attr_str(a, "arrays", "[]")):
-            ds = f[path]
-            data = ds.asstr()[()] if ds.dtype.kind == "O" else ds[()]
-            arrays[path] = (np.asarray(data), {k: ds.attrs[k] for k in ds.attrs})
-        extra = {k: a[k] for k in ("stable", "stability") if k in a}
+        t = np.asarray(f["time"][()], dtype=np.float64)
+        channels = _read_channels(f, len(t))
+        extra = {k: a[k] for k in EXTRA_ATTRS if k in a}
         names = {}
         if "names" in f:
             for kind, ds in f["names"].items():
-                names[kind] = [str(s) for s in ds.asstr()[()]]
+                names[kind] = _str_list(ds)
         return Result(
             mode=_attr_str(a, "mode"),
-            t=np.asarray(f["time"][()], dtype=np.float64),
+            t=t,
             channels=channels,
             status=_attr_str(a, "status", STATUS_COMPLETE),
             message=_attr_str(a, "message"),
-            settings=from_json(_attr_str(a, "settings")),
-            counters=from_json(_attr_str(a, "counters")),
-            summary=from_json(_attr_str(a, "summary")),
+            settings=json_document(f, "settings"),
+            counters=json_document(f, "counters"),
+            summary=json_document(f, "summary"),
             deck_file=_attr_str(a, "deck_file"),
             deck_text=f["deck"].asstr()[()] if "deck" in f else "",
             wall_time=float(a.get("wall_time_s", 0.0)),
             names=names,
-            arrays=arrays,
+            arrays=_read_arrays(f),
             attrs=extra,
         )
 
@@ -448,17 +629,18 @@ def result_file_problem(path: str | Path) -> str | None:
 
 
 def read_info(path: str | Path) -> dict[str, Any]:
-    """The root attributes of a result file (version, status, created, ...), JSON parsed."""
+    """The root attributes of a result file (version, status, created, ...), with
+    ``settings``, ``counters``, ``summary`` parsed from JSON, ``channels`` (the channel
+    names) and ``layout_version`` (1 for files without it)."""
     with h5py.File(path, "r") as f:
         info: dict[str, Any] = {}
         for key in f.attrs:
             value = f.attrs[key]
             info[key] = value.decode() if isinstance(value, bytes) else value
-        for key in ("settings", "counters", "summary"):
-            if key in info:
-                info[key] = from_json(str(info[key]))
-        if "channels" in info:
-            info["channels"] = json.loads(str(info["channels"]))
+        info["layout_version"] = layout_version(f)
+        for key in JSON_DATASETS:
+            info[key] = json_document(f, key)
+        info["channels"] = channel_table(f).name
         return info
 
 
@@ -468,15 +650,10 @@ def list_channels(path: str | Path) -> list[tuple[str, tuple, str, str]]:
     Returns
     -------
     list of (name, shape, unit, description)
-        `name` is the slash path, `shape` the dataset shape (time first).
+        `name` is the slash path, `shape` the channel's shape (time first).
     """
     with h5py.File(path, "r") as f:
-        return [
-            (
-                name,
-                tuple(f[name].shape),
-                _attr_str(f[name].attrs, "unit"),
-                _attr_str(f[name].attrs, "description"),
-            )
-            for name in _channel_paths(f)
-        ]
+        nt = f["time"].shape[0]
+        table = channel_table(f)
+        return [(name, (nt, *table.shape[k]), table.unit[k], table.description[k])
+                for k, name in enumerate(table.name)]

@@ -20,6 +20,7 @@ import yaml
 from mbsim.analyses import redundancy
 from mbsim.api import load_model
 from mbsim.errors import ModelError
+from mbsim.output import read_result
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).resolve().parent / "data"
@@ -87,7 +88,7 @@ def test_conflict_appearing_part_way_keeps_the_consistent_outputs(tmp_path):
         assert f.attrs["status"] == "incomplete"
         t = f["time"][()]
         assert t[-1] == pytest.approx(0.095)
-        x = f["points/slider/position"][()][:, 0]
+    x = read_result(out).channels["points/slider/position"].data[:, 0]
     # the kept outputs are right: the slider where the crank puts it (Newton tol 1e-10 on
     # Phi, Jacobian condition below 1e2 here: 1e-8 m)
     ell, omega = 0.3, -2 * np.pi
@@ -116,9 +117,8 @@ def test_planar_fourbar_of_revolute_joints_one_warning_and_exact_motion(tmp_path
     assert r.returncode == 0, r.stderr
     lines = [line for line in r.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("warning: redundant constraints removed")
-    with h5py.File(out) as f:
-        t = f["time"][()]
-        C = f["points/C/position"][()]
+    res = read_result(out)
+    t, C = res.t, res.channels["points/C/position"].data
     # closed form: B on the crank circle, C on the circles of radius 3 about B and 2.5 about
     # D = (3.5, 0), the branch of the deck's estimates (above the line B-D)
     th = np.pi / 2 + 2 * t

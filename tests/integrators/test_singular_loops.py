@@ -158,25 +158,25 @@ def test_cli_accuracy_on_the_deck(tmp_path):
     exit 0; the HDF5 file's bodies and output point are within 3e-6 m of the reduction
     (3 x the request, issue 11) and its root attribute error_estimate is within a factor 10
     of that true position error."""
-    import h5py
     from click.testing import CliRunner
 
     from mbsim.cli import main
+    from mbsim.output import read_result
 
     out = tmp_path / "pf.h5"
     r = CliRunner().invoke(main, ["run", "models/parallel_fourbar.yaml", "--mode", "dynamic",
                                   "--accuracy", "1e-6", "--t-end", "1", "-o", str(out)])
     assert r.exit_code == 0, r.output
     P = M.FOURBAR
-    with h5py.File(out) as f:
-        t = f["time"][()]
-        ref = M.parallel_fourbar_reference(t)
-        err = max(np.linalg.norm(f[f"bodies/{b}/r"][()] - rb, axis=1).max()
-                  for b, (rb, _) in R.bodies_of(ref).items())
-        th = ref["theta"]
-        tip = P["L"] * np.stack([np.cos(th), np.sin(th), 0 * th], axis=1)
-        err = max(err, np.linalg.norm(f["points/tip0/position"][()] - tip, axis=1).max())
-        estimate = float(f.attrs["error_estimate"])
+    res = read_result(out)
+    t = res.t
+    ref = M.parallel_fourbar_reference(t)
+    err = max(np.linalg.norm(res.channels[f"bodies/{b}/r"].data - rb, axis=1).max()
+              for b, (rb, _) in R.bodies_of(ref).items())
+    th = ref["theta"]
+    tip = P["L"] * np.stack([np.cos(th), np.sin(th), 0 * th], axis=1)
+    err = max(err, np.linalg.norm(res.channels["points/tip0/position"].data - tip, axis=1).max())
+    estimate = float(res.attrs["error_estimate"])
     assert err <= 3e-6
     assert 0.1 <= estimate / err <= 10, (estimate, err)
 

@@ -74,23 +74,96 @@ def test_round_trip(tmp_path):
 
 
 def test_layout(tmp_path):
+    """Layout version 2 (docs/hdf5.md): the channels are columns of /values, named by the
+    table under /channels; settings, counters and summary are JSON datasets."""
     path = write_result(make_result(), tmp_path / "out.h5")
     with h5py.File(path) as f:
+        assert f.attrs["layout_version"] == 2
         assert f.attrs["mbsim_version"] == mbsim.__version__
         assert f.attrs["status"] == "complete"
-        assert json.loads(f.attrs["counters"]) == {"steps": 200, "newton_iterations": 612}
+        assert json.loads(f["counters"].asstr()[()]) == {"steps": 200, "newton_iterations": 612}
         assert "T" in f.attrs["created"]
         assert f["time"].attrs["unit"] == "s"
-        ds = f["bodies/crank/r"]
-        assert ds.dtype == np.float64 and ds.shape == (2001, 3)
-        assert ds.attrs["unit"] == "m" and list(ds.attrs["components"]) == ["x", "y", "z"]
-        assert ds.compression == "gzip" and ds.shuffle and ds.chunks[1] == 3
-        assert f["drivers/crank/torque"].compression == "gzip"
+        names = list(f["channels/name"].asstr()[()])
+        assert names == ["bodies/crank/r", "drivers/crank/torque", "joints/REV1/force"]
+        assert list(f["channels/column"][()]) == [0, 3, 4]
+        assert list(f["channels/width"][()]) == [3, 1, 3]
+        assert list(f["channels/shape"].asstr()[()]) == ["[3]", "[]", "[3]"]
+        assert json.loads(f["channels/components"].asstr()[0]) == ["x", "y", "z"]
+        assert list(f["channels/unit"].asstr()[()]) == ["m", "N m", "N"]
+        values = f["values"]
+        assert values.dtype == np.float64 and values.shape == (2001, 7)
+        assert values.compression == "gzip" and values.shuffle
         assert "µ" in f["deck"].asstr()[()]
         assert list(f["names/joints"].asstr()[()]) == ["REV1", "REV2"]
+        assert set(f.attrs) == {"layout_version", "mbsim_version", "mode", "status", "message",
+                                "deck_file", "wall_time_s", "created"}
     small = write_result(make_result(nt=11), tmp_path / "small.h5")
     with h5py.File(small) as f:
-        assert f["bodies/crank/r"].compression is None
+        assert f["values"].compression is None
+
+
+def test_h5py_recipe_of_the_docs(tmp_path):
+    """The five lines of docs/hdf5.md that read one channel with h5py alone."""
+    r = make_result(nt=20)
+    path = write_result(r, tmp_path / "slider_crank.h5")
+    with h5py.File(path, "r") as f:
+        names = list(f["channels/name"].asstr()[()])
+        k = names.index("bodies/crank/r")
+        start, width = f["channels/column"][k], f["channels/width"][k]
+        x = f["values"][:, start:start + width]  # (nt, 3) m
+        unit = f["channels/unit"].asstr()[k]
+    np.testing.assert_array_equal(x, r.channels["bodies/crank/r"].data)
+    assert unit == "m"
+
+
+def test_a_model_of_thousands_of_channels_writes(tmp_path):
+    """No attribute or header grows with the model: 30 000 channels (a 4096-link chain has
+    about 29 000) write and read back; version 1 failed at ~7000 ("object header message
+    is too large")."""
+    r = Result(mode="dynamic", t=np.linspace(0, 1, 3))
+    for i in range(10_000):
+        r.add(f"bodies/link{i}/r", np.full((3, 3), float(i)), "m", "centroid", ("x", "y", "z"))
+        r.add(f"bodies/link{i}/p", np.full((3, 4), -float(i)), "", "Euler parameters")
+        r.add(f"measures/m{i}", np.full(3, 0.5 * i), "rad")
+        r.arrays[f"shapes/link{i}/vertices"] = (np.full((4, 3), float(i)), {"unit": "m"})
+        r.arrays[f"shapes/link{i}/faces"] = (np.arange(6, dtype=np.int32).reshape(2, 3), {})
+    r.arrays["linear/eigenvalues"] = (np.array([1j, -1j]), {"unit": "1/s"})
+    r.summary["redundant"] = [f"S{i}" for i in range(10_000)]  # a summary can grow too
+    back = read_result(write_result(r, tmp_path / "big.h5"))
+    assert list(back.channels) == list(r.channels)
+    assert back.channels["bodies/link9999/p"].data[2, 3] == -9999.0
+    assert back.channels["measures/m7"].data.shape == (3,)
+    assert back.summary["redundant"][-1] == "S9999"
+    assert set(back.arrays) == set(r.arrays)
+    np.testing.assert_array_equal(back.arrays["shapes/link77/vertices"][0], np.full((4, 3), 77.0))
+    assert back.arrays["shapes/link77/vertices"][1] == {"unit": "m"}
+    assert back.arrays["shapes/link3/faces"][0].dtype == np.int32
+    assert back.arrays["linear/eigenvalues"][0].dtype == np.complex128
+    with h5py.File(tmp_path / "big.h5") as f:
+        assert len(f) < 20  # a few datasets and groups at the root, not one per channel
+
+
+def test_files_of_layout_version_1_are_read(tmp_path):
+    """A file of the old layout (written here by old_layout.write_v1, the version-1 writer
+    as it was) reads back into the same Result through read_result, list_channels and
+    read_info."""
+    from tests.output.old_layout import write_v1
+
+    r = make_result(nt=9)
+    r.arrays["linear/eigenvalues"] = (np.array([1 + 2j, 1 - 2j]), {"unit": "1/s"})
+    r.arrays["shapes/crank/vertices"] = (np.ones((4, 3)), {"unit": "m", "frame": "body"})
+    r.attrs["stable"] = True
+    path = write_v1(r, tmp_path / "v1.h5")
+    back = read_result(path)
+    assert_same(back, r)
+    assert back.summary["eig"] == [1 + 2j, 1 - 2j]
+    assert back.settings["x"] == [1, 2]
+    assert set(back.arrays) == set(r.arrays) and bool(back.attrs["stable"])
+    assert list_channels(path) == list_channels(write_result(r, tmp_path / "v2.h5"))
+    info = hdf5.read_info(path)
+    assert info["layout_version"] == 1 and info["counters"]["steps"] == 200
+    assert info["channels"] == list(r.channels)
 
 
 def test_list_channels(tmp_path):
@@ -121,15 +194,11 @@ def test_atomic_write_keeps_old_file(tmp_path, monkeypatch):
     old = make_result(nt=5)
     write_result(old, target)
 
-    calls = []
+    def boom(f, arrays):
+        f.create_dataset("half", data=np.zeros(3))
+        raise RuntimeError("disk on fire")
 
-    def boom(f, path, channel):
-        calls.append(path)
-        if len(calls) == 2:
-            raise RuntimeError("disk on fire")
-        f.create_dataset(path, data=channel.data)
-
-    monkeypatch.setattr(hdf5, "_write_channel", boom)
+    monkeypatch.setattr(hdf5, "_write_arrays", boom)
     new = make_result(nt=9)
     with pytest.raises(hdf5.OutputError, match="disk on fire.*left as it was"):
         write_result(new, target)  # h5py's RuntimeError becomes one clean error (exit 1)

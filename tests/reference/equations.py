@@ -16,8 +16,6 @@ where the normalisation row p^T p = 1 in Phi removes the null direction p of 4 G
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as la
-import scipy.sparse as sp
 
 from mbsim.core import State, Terms
 from tests.reference.basic import KERNELS
@@ -81,6 +79,8 @@ def constraints(model, q, t=0.0, qd=None, phi=True, jac=True, gamma=False, nu=Fa
             out.gamma[rows] = res["gamma"].reshape(-1)
     if jac:
         if sparse:
+            import scipy.sparse as sp  # here: scipy costs ~0.4 s to import (mbsim check: none)
+
             out.jac = sp.csr_matrix((np.concatenate(vv), (np.concatenate(rr), np.concatenate(cc))),
                                     shape=(m, nq))
         else:
@@ -112,8 +112,13 @@ def mass_matrix(model, q, sparse=False):
     blocks[:, 0, 0] = blocks[:, 1, 1] = blocks[:, 2, 2] = model.mass
     blocks[:, 3:, 3:] = Mp
     if sparse:
+        import scipy.sparse as sp
+
         return sp.block_diag(list(blocks), format="csr")
-    return la.block_diag(*blocks)
+    M = np.zeros((model.nq, model.nq))
+    for b in range(model.nb):
+        M[7 * b:7 * b + 7, 7 * b:7 * b + 7] = blocks[b]
+    return M
 
 
 def applied_forces(model, q, qd, t=0.0, st=None):
@@ -194,6 +199,8 @@ def accelerations(model, q, qd, t=0.0, Q=None, rows=None):
     rhs = np.concatenate([Q, g])
     if not (np.isfinite(K).all() and np.isfinite(rhs).all()):
         require_finite(model, t, M=M, Q=Q, J=J, gamma=g)
+    import scipy.linalg as la
+
     sol = la.solve(K, rhs)
     lam = sol[n:]
     if rows is not None:

@@ -28,17 +28,15 @@ def slider_h5(tmp_path_factory):
 
 def test_vtk_series_reads_back_with_meshio(slider_h5, tmp_path):
     meshio = pytest.importorskip("meshio")
-    import h5py
+    from mbsim.output import read_result
 
     res = CliRunner().invoke(main, ["export", str(slider_h5), "--vtk", str(tmp_path / "vtk")])
     assert res.exit_code == 0, res.output
-    with h5py.File(slider_h5) as f:
-        t = f["time"][:]
-        names = list(f["names/bodies"].asstr()[:])
-        k = 17
-        r = {b: f[f"bodies/{b}/r"][k] for b in names}
-        p = {b: f[f"bodies/{b}/p"][k] for b in names}
-        verts = f["shapes/slider/vertices"][:]
+    result = read_result(slider_h5)
+    t, names, k = result.t, result.names["bodies"], 17
+    r = {b: result.channels[f"bodies/{b}/r"].data[k] for b in names}
+    p = {b: result.channels[f"bodies/{b}/p"].data[k] for b in names}
+    verts = result.arrays["shapes/slider/vertices"][0]
     pvd = (tmp_path / "vtk" / "slider_shapes.pvd").read_text()
     steps = [float(x) for x in re.findall(r'timestep="([^"]+)"', pvd)]
     assert steps == pytest.approx(t, rel=0, abs=0)  # repr of each float64: exact
