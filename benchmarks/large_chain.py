@@ -1,0 +1,111 @@
+"""Large models set up and written: a spherical chain of 1024 links run for two steps (CPU
+and peak memory), and one of 4096 links run and written (wall, file size) (issue 24).
+
+    python benchmarks/large_chain.py [--size 1024] [--big 4096] [--repeats 3]
+                                     [--timeout 900] [--memory-limit 12000] [--quick]
+
+Each run is the command a user types, in a fresh process:
+
+    python -m mbsim run chainN.yaml --mode dynamic -o chainN.h5
+
+on common.chain_deck's chain with t_end 0.01 s and output step 0.005 s (two steps of the
+default integrator at rtol 1e-6, the error estimate on, three outputs): nearly all of its
+cost is set-up (load, compile, initial state) and writing the results file.  Measured from
+outside with os.wait4 (common.run_child): the process's CPU (user + system) and its peak
+resident memory (ru_maxrss).  Figures:
+
+- N = size: CPU of the whole process (imports, set-up, two steps, writing);
+- N = size less N = 4: the same minus the same run of a 4-link chain (imports and what
+  every run costs once), i.e. what the size costs in set-up, two steps and writing;
+- N = size: peak memory (MB);
+- N = big: wall time and the size of the file written (one run), or the error line when
+  the run fails, runs out of --memory-limit (MB of address space) or of --timeout.
+
+A run that exits non-zero or writes no file is a failed figure with the process's last
+error line.  ``--quick``: sizes 64 and 256, one repeat.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import (  # noqa: E402
+    ROOT,
+    chain_deck,
+    figure,
+    figure_failed,
+    mbsim_command,
+    mbsim_env,
+    run_child,
+)
+
+T_END, STEP = 0.01, 0.005
+
+
+def run_chain(n, tmp, timeout, memory_limit):
+    """(ChildRun, file size in MB or None) of one `mbsim run` of an n-link chain."""
+    deck = Path(tmp) / f"chain{n}.yaml"
+    if not deck.exists():
+        deck.write_text(chain_deck(n, T_END, STEP))
+    out = Path(tmp) / f"chain{n}.h5"
+    if out.exists():
+        out.unlink()
+    child = run_child(mbsim_command() + ["run", str(deck), "--mode", "dynamic", "-o", str(out),
+                                         "--no-progress"],
+                      cwd=str(ROOT), env=mbsim_env(), timeout=timeout,
+                      memory_limit_mb=memory_limit)
+    size = out.stat().st_size / 2**20 if out.exists() else None
+    print(f"    N = {n}: exit {child.code}, wall {child.wall:.2f} s, CPU {child.cpu:.2f} s, "
+          f"peak {child.maxrss_mb:.0f} MB, file "
+          + (f"{size:.1f} MB" if size is not None else "none")
+          + ("" if child.code == 0 else f"; {child.error_line()}"), flush=True)
+    return child, size
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", type=int, default=1024)
+    ap.add_argument("--big", type=int, default=4096)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--timeout", type=float, default=900.0, help="s, per run")
+    ap.add_argument("--memory-limit", type=float, default=12000.0,
+                    help="MB of address space per run (RLIMIT_AS)")
+    ap.add_argument("--quick", action="store_true", help="sizes 64 and 256, one repeat")
+    a = ap.parse_args(argv)
+    if a.quick:
+        a.size, a.big, a.repeats = 64, 256, 1
+    with tempfile.TemporaryDirectory() as tmp:
+        small = [run_chain(4, tmp, a.timeout, a.memory_limit) for _ in range(a.repeats)]
+        runs = [run_chain(a.size, tmp, a.timeout, a.memory_limit) for _ in range(a.repeats)]
+        bad = [c for c, size in runs if c.code != 0 or size is None]
+        name = f"chain N = {a.size}, 2-step run and file"
+        if bad:
+            for what in ("CPU", "CPU less N = 4", "peak memory"):
+                figure_failed(f"{name}: {what}", bad[0].error_line() if bad[0].code
+                              else "no file written")
+        else:
+            figure(f"{name}: CPU", [c.cpu for c, _ in runs], "s")
+            figure(f"{name}: CPU less N = 4", [c.cpu - s.cpu for (c, _), (s, _) in
+                                               zip(runs, small)], "s")
+            figure(f"{name}: peak memory", [c.maxrss_mb for c, _ in runs], "MB")
+        child, size = run_chain(a.big, tmp, a.timeout, a.memory_limit)
+        name = f"chain N = {a.big}, 2-step run and file"
+        if child.code != 0 or size is None:
+            msg = child.error_line() if child.code else "no file written"
+            figure_failed(f"{name}: wall", msg)
+            figure_failed(f"{name}: file size", msg)
+        else:
+            figure(f"{name}: wall", [child.wall], "s")
+            figure(f"{name}: CPU", [child.cpu], "s")
+            figure(f"{name}: peak memory", [child.maxrss_mb], "MB")
+            figure(f"{name}: file size", [size], "MB")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
