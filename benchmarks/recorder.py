@@ -17,10 +17,10 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 import mbsim.analyses.common as common
 import mbsim.analyses.dynamic as dynamic
+import numpy as np
+
 from mbsim.api import load_model
 from mbsim.measures import OutputMeasure
 from mbsim.output import write_result

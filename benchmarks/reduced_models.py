@@ -20,9 +20,9 @@ import argparse
 import time
 from pathlib import Path
 
+import mbsim  # noqa: F401  first: one BLAS thread, as the mbsim command runs (mbsim/__init__)
 import numpy as np  # noqa: E402
 
-import mbsim  # noqa: F401  first: one BLAS thread, as the mbsim command runs (mbsim/__init__)
 from mbsim.api import load_model, run_model  # noqa: E402
 from mbsim.study import load_studies, number_values, overrides_of  # noqa: E402
 
