@@ -386,13 +386,14 @@ def exudyn_chain_tree(model, n, g=9.81):
 #
 #     figure: <name> = <value> <unit> (median of <N>, spread <lo>..<hi>)
 #
-# <name> holds no " = "; <value>, <lo>, <hi> are numbers (4 significant digits); a figure
+# <name> is any text ("chain N = 64: CPU per step"; the last " = " ends it), <unit> holds no
+# " = "; <value>, <lo>, <hi> are numbers (4 significant digits); a figure
 # that could not be measured (the run failed, timed out, ran out of memory) is printed as
 #
 #     figure: <name> = failed (<the error line>)
 #
 # so that the table shows why.  Everything else a script prints is commentary.
-FIGURE_RE = re.compile(r"^figure: (?P<name>.+?) = (?:failed \((?P<error>.*)\)|"
+FIGURE_RE = re.compile(r"^figure: (?P<name>.+) = (?:failed \((?P<error>.*)\)|"
                        r"(?P<value>\S+) (?P<unit>.*?) \(median of (?P<n>\d+), "
                        r"spread (?P<lo>\S+)\.\.(?P<hi>\S+)\))\s*$")
 
