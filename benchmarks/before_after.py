@@ -2,7 +2,8 @@
 
     python benchmarks/before_after.py --before /work/before --after /work/main
         [--before-python PY] [--after-python PY] [--python PY] [--quick]
-        [--scripts startup,share,...] [--rounds 1] [--timeout S] [--log-dir DIR]
+        [--scripts startup,share,...] [--rounds 1] [--timeout S] [--side both]
+        [--log-dir DIR]
         [--markdown OUT] [--json OUT]
 
 Each script of ``SCRIPTS`` (this file's folder) prints its figures as lines
@@ -166,6 +167,9 @@ def main(argv=None):
     ap.add_argument("--scripts", default=",".join(DEFAULT_SCRIPTS),
                     help=f"comma list of {', '.join(SCRIPTS)}")
     ap.add_argument("--quick", action="store_true", help="each script's --quick (smoke test)")
+    ap.add_argument("--side", choices=("both", "before", "after"), default="both",
+                    help="measure one side only (its column alone: a first look, not the "
+                         "back-to-back table)")
     ap.add_argument("--rounds", type=int, default=1, help="before/after runs of each script")
     ap.add_argument("--timeout", type=float, default=None,
                     help="seconds one script run may take (default 600 quick, 10800 full)")
@@ -173,6 +177,7 @@ def main(argv=None):
     ap.add_argument("--markdown", type=Path, help="also write the table to this file")
     ap.add_argument("--json", type=Path, help="also write every figure to this file")
     a = ap.parse_args(argv)
+    argv_text = list(sys.argv[1:] if argv is None else argv)
     names = [s.strip() for s in a.scripts.split(",") if s.strip()]
     unknown = [s for s in names if s not in SCRIPTS]
     if unknown:
@@ -201,6 +206,8 @@ def main(argv=None):
         args = quick if a.quick else full
         for rnd in range(max(1, a.rounds)):
             for side, checkout, python in sides:
+                if a.side not in ("both", side):
+                    continue
                 cmd, child = run_side(python, checkout, script, args, timeout)
                 got = collect(child.out)
                 for fname, fig in got.items():
@@ -223,8 +230,8 @@ def main(argv=None):
              for r in failures]
     text = (table + "\n\n" + (("Script runs that did not end with exit 0:\n" + "\n".join(notes)
                                + "\n\n") if notes else "")
-            + f"Measured by `python benchmarks/before_after.py --before {a.before} --after "
-              f"{a.after}{' --quick' if a.quick else ''}` in {time.perf_counter() - t0:.0f} s "
+            + f"Measured by `python benchmarks/before_after.py {' '.join(argv_text)}` in "
+              f"{time.perf_counter() - t0:.0f} s "
               f"wall; load average {load0[0]:.2f} at the start, {load1[0]:.2f} at the end "
               f"({os.cpu_count()} CPUs).")
     print("\n" + text)
