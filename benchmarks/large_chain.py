@@ -2,7 +2,7 @@
 and peak memory), and one of 4096 links run and written (wall, file size) (issue 24).
 
     python benchmarks/large_chain.py [--size 1024] [--big 4096] [--repeats 3]
-                                     [--timeout 900] [--memory-limit 12000] [--quick]
+                                     [--timeout 900] [--memory-limit 8000] [--quick]
 
 Each run is the command a user types, in a fresh process:
 
@@ -73,7 +73,7 @@ def main(argv=None):
     ap.add_argument("--big", type=int, default=4096)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--timeout", type=float, default=900.0, help="s, per run")
-    ap.add_argument("--memory-limit", type=float, default=12000.0,
+    ap.add_argument("--memory-limit", type=float, default=8000.0,
                     help="MB of address space per run (RLIMIT_AS)")
     ap.add_argument("--quick", action="store_true", help="sizes 64 and 256, one repeat")
     a = ap.parse_args(argv)
