@@ -14,15 +14,16 @@ cost is set-up (load, compile, initial state) and writing the results file.  Mea
 outside with os.wait4 (common.run_child): the process's CPU (user + system) and its peak
 resident memory (ru_maxrss).  Figures:
 
-- N = size: CPU of the whole process (imports, set-up, two steps, writing);
-- N = size less N = 4: the same minus the same run of a 4-link chain (imports and what
-  every run costs once), i.e. what the size costs in set-up, two steps and writing;
-- N = size: peak memory (MB);
-- N = big: wall time and the size of the file written (one run), or the error line when
-  the run fails, runs out of --memory-limit (MB of address space) or of --timeout.
+- N = size: CPU of the whole process (imports, set-up, two steps, writing), and the same
+  less the same run of a 4-link chain (imports and what every run costs once), i.e. what
+  the size costs in set-up, two steps and writing; peak memory (MB); wall and file size;
+- N = big (one run): CPU, peak memory, wall and file size.
 
-A run that exits non-zero or writes no file is a failed figure with the process's last
-error line.  ``--quick``: sizes 64 and 256, one repeat.
+CPU and peak memory are figures of every process that ran to its end, also one that then
+failed (a run that cannot write its file has still paid for its set-up); wall and file size
+only of runs that wrote their file, else a failed figure with the process's last error line
+(exit 1 at writing, a memory error under --memory-limit MB of address space, or the
+--timeout).  ``--quick``: sizes 64 and 256, one repeat.
 """
 
 from __future__ import annotations
@@ -67,6 +68,33 @@ def run_chain(n, tmp, timeout, memory_limit):
     return child, size
 
 
+def report(name, runs, small):
+    """The figures of the runs of one size: CPU (and, with `small`, the runs of the 4-link
+    chain, CPU less theirs) and peak memory of every process that ran to its end, whatever
+    its exit (a run that fails at writing has still paid for its set-up); wall and the
+    file's size only from runs that wrote their file, else the first failure's error line."""
+    ended = [(c, size) for c, size in runs if not c.timed_out]
+    wrote = [(c, size) for c, size in runs if c.code == 0 and size is not None]
+    bad = next((c for c, size in runs if c.code != 0 or size is None), None)
+    why = (bad.error_line() if bad.code or bad.timed_out else "no file written") if bad else ""
+    if ended:
+        figure(f"{name}: CPU", [c.cpu for c, _ in ended], "s")
+        if small:
+            figure(f"{name}: CPU less N = 4", [c.cpu - s.cpu for (c, _), (s, _) in
+                                               zip(ended, small)], "s")
+        figure(f"{name}: peak memory", [c.maxrss_mb for c, _ in ended], "MB")
+    else:
+        for what in ("CPU", "CPU less N = 4", "peak memory") if small else ("CPU",
+                                                                            "peak memory"):
+            figure_failed(f"{name}: {what}", why)
+    if bad is None:
+        figure(f"{name}: wall", [c.wall for c, _ in wrote], "s")
+        figure(f"{name}: file size", [size for _, size in wrote], "MB")
+    else:
+        figure_failed(f"{name}: wall", why)
+        figure_failed(f"{name}: file size", why)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=1024)
@@ -82,28 +110,9 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as tmp:
         small = [run_chain(4, tmp, a.timeout, a.memory_limit) for _ in range(a.repeats)]
         runs = [run_chain(a.size, tmp, a.timeout, a.memory_limit) for _ in range(a.repeats)]
-        bad = [c for c, size in runs if c.code != 0 or size is None]
-        name = f"chain N = {a.size}, 2-step run and file"
-        if bad:
-            for what in ("CPU", "CPU less N = 4", "peak memory"):
-                figure_failed(f"{name}: {what}", bad[0].error_line() if bad[0].code
-                              else "no file written")
-        else:
-            figure(f"{name}: CPU", [c.cpu for c, _ in runs], "s")
-            figure(f"{name}: CPU less N = 4", [c.cpu - s.cpu for (c, _), (s, _) in
-                                               zip(runs, small)], "s")
-            figure(f"{name}: peak memory", [c.maxrss_mb for c, _ in runs], "MB")
-        child, size = run_chain(a.big, tmp, a.timeout, a.memory_limit)
-        name = f"chain N = {a.big}, 2-step run and file"
-        if child.code != 0 or size is None:
-            msg = child.error_line() if child.code else "no file written"
-            figure_failed(f"{name}: wall", msg)
-            figure_failed(f"{name}: file size", msg)
-        else:
-            figure(f"{name}: wall", [child.wall], "s")
-            figure(f"{name}: CPU", [child.cpu], "s")
-            figure(f"{name}: peak memory", [child.maxrss_mb], "MB")
-            figure(f"{name}: file size", [size], "MB")
+        report(f"chain N = {a.size}, 2-step run and file", runs, small)
+        report(f"chain N = {a.big}, 2-step run and file",
+               [run_chain(a.big, tmp, a.timeout, a.memory_limit)], None)
     return 0
 
 
