@@ -65,7 +65,6 @@ import json
 import math
 import os
 import pstats
-import subprocess
 import sys
 import tempfile
 import time
@@ -94,6 +93,7 @@ from common import (  # noqa: E402
     load,
     mbsim_command,
     mbsim_env,
+    run_child,
 )
 
 TARGETS = (1e-3, 1e-6)
@@ -489,22 +489,26 @@ def user_case(a):
                          step=float(opts.get("t_end", 1.0)) - float(opts.get("t_start", 0))),
                     False),
             }
-            got, cpu_of = {}, {}
+            got = {}
             user_key, nofile_key, noest_key, bare_key = variants
             # warm-up, not timed: first-use imports (h5py, the integrator's modules) and the
             # kernels' loading would land in the first variant's first repeat
             write_result(run_model(model, "dynamic", dict(opts)), Path(tmp) / "run.h5")
-            for name, (o, write) in variants.items():
-                cpus = []
-                for _ in range(max(1, a.repeats)):
+            # the variants in turn within each repeat, so that the ratios of one repeat
+            # compare runs made at nearly the same time (the machine's load drifts)
+            cpu_of, status = {name: [] for name in variants}, {}
+            for _ in range(max(1, a.repeats)):
+                for name, (o, write) in variants.items():
                     c0 = time.process_time()
                     res = run_model(model, "dynamic", o)
                     if write:
                         write_result(res, Path(tmp) / "run.h5")
-                    cpus.append((time.process_time() - c0) / t_end)
-                got[name], cpu_of[name] = spread(cpus), cpus
+                    cpu_of[name].append((time.process_time() - c0) / t_end)
+                    status[name] = res.status
+            for name in variants:
+                got[name] = spread(cpu_of[name])
                 print(f"    {label:<18} {name:<42} CPU s/s {got[name][0]:8.4f} "
-                      f"[{got[name][1]:.4f}-{got[name][2]:.4f}]  ({res.status})", flush=True)
+                      f"[{got[name][1]:.4f}-{got[name][2]:.4f}]  ({status[name]})", flush=True)
             user, nofile, noest, bare = (got[k][0] for k in variants)
             each = {k: cpu_of[k] for k in variants}
             figure(f"user run / bare integration, {label}",
@@ -608,23 +612,25 @@ def compiled_share(a):
 def startup(a):
     """Wall time of `mbsim --help` and `mbsim check models/governor.yaml` in fresh
     processes (``python -m mbsim``, the imports of the ``mbsim`` script, with the measured
-    checkout on PYTHONPATH), median of 5 (3 with --quick)."""
+    checkout on PYTHONPATH), median of 5 (3 with --quick); also the process's CPU (user +
+    system, os.wait4), which a loaded machine inflates less than the wall time."""
     cmd = mbsim_command()
     print(f"\n=== start-up ({' '.join(cmd)}) ===", flush=True)
     out = {"command": cmd}
     for label, args in (("mbsim --help", ["--help"]),
                         ("mbsim check models/governor.yaml", ["check", "models/governor.yaml"])):
-        walls = []
+        walls, cpus = [], []
         for _ in range(3 if a.quick else 5):
-            w0 = time.perf_counter()
-            p = subprocess.run(cmd + args, cwd=ROOT, capture_output=True, env=mbsim_env())
-            walls.append(time.perf_counter() - w0)
-            if p.returncode:
-                raise RuntimeError(f"{label}: exit {p.returncode}: {p.stderr.decode()[-300:]}")
+            p = run_child(cmd + args, cwd=ROOT, env=mbsim_env(), timeout=120)
+            if p.code:
+                raise RuntimeError(f"{label}: {p.error_line()}")
+            walls.append(p.wall)
+            cpus.append(p.cpu)
         out[label] = spread(walls)
         print(f"    {label:<36} wall {out[label][0]:.3f} s [{out[label][1]:.3f}-"
-              f"{out[label][2]:.3f}]", flush=True)
+              f"{out[label][2]:.3f}], CPU {np.median(cpus):.3f} s", flush=True)
         figure(f"{label} wall", walls, "s")
+        figure(f"{label} CPU", cpus, "s")
     return {"case": "startup", **out}
 
 
