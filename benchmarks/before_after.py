@@ -67,12 +67,6 @@ SCRIPTS = {
 DEFAULT_SCRIPTS = tuple(SCRIPTS)
 
 
-def kinematic_script():
-    """The core helper's benchmarks/kinematic.py where it exists (it prints the same
-    figure), else kinematic_outputs.py."""
-    return "kinematic.py" if (HERE / "kinematic.py").exists() else "kinematic_outputs.py"
-
-
 # ------------------------------------------------------------------ collecting figures
 def collect(text):
     """{figure name: parsed figure} of a script's output (common.parse_figure); a name
@@ -202,8 +196,6 @@ def main(argv=None):
     runs = []
     for name in names:
         script, full, quick = SCRIPTS[name]
-        if name == "kinematic":
-            script = kinematic_script()
         args = quick if a.quick else full
         if args is None:
             print(f"  {name:<16} not run with --quick", flush=True)
