@@ -147,9 +147,10 @@ def side_env(checkout):
     return env
 
 
-def run_side(python, checkout, script, args, timeout):
+def run_side(python, checkout, script, args, timeout, log=None):
     cmd = [python, str(HERE / script)] + list(args)
-    return cmd, run_child(cmd, cwd=str(checkout), env=side_env(checkout), timeout=timeout)
+    return cmd, run_child(cmd, cwd=str(checkout), env=side_env(checkout), timeout=timeout,
+                          log=log)
 
 
 def main(argv=None):
@@ -168,7 +169,8 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=1, help="before/after runs of each script")
     ap.add_argument("--timeout", type=float, default=None,
                     help="seconds one script run may take (default 600 quick, 10800 full)")
-    ap.add_argument("--log-dir", type=Path, help="keep every run's output here")
+    ap.add_argument("--log-dir", type=Path,
+                    help="every run's output, written as it runs (<script>.<side>.<round>.log)")
     ap.add_argument("--markdown", type=Path, help="also write the table to this file")
     ap.add_argument("--json", type=Path, help="also write every figure to this file")
     a = ap.parse_args(argv)
@@ -204,7 +206,8 @@ def main(argv=None):
             for side, checkout, python in sides:
                 if a.side not in ("both", side):
                     continue
-                cmd, child = run_side(python, checkout, script, args, timeout)
+                log = a.log_dir / f"{name}.{side}.{rnd}.log" if a.log_dir else None
+                cmd, child = run_side(python, checkout, script, args, timeout, log)
                 got = collect(child.out)
                 for fname, fig in got.items():
                     figs[side].setdefault(fname, []).append(fig)
@@ -215,9 +218,9 @@ def main(argv=None):
                 print(f"  {name:<16} {side:<6} exit {child.code} wall {child.wall:7.1f} s "
                       f"CPU {child.cpu:7.1f} s  {len(got)} figures"
                       + ("" if child.code == 0 else f"  {status}"), flush=True)
-                if a.log_dir:
-                    (a.log_dir / f"{name}.{side}.{rnd}.log").write_text(
-                        " ".join(cmd) + "\n\n" + child.out + "\n--- stderr ---\n" + child.err)
+                if log:
+                    log.write_text(" ".join(cmd) + "\n\n" + child.out + "\n--- stderr ---\n"
+                                   + child.err)
     merged = {s: {n: merge_rounds(r) for n, r in figs[s].items()} for s in figs}
     table = format_table(merged["before"], merged["after"], labels)
     load1 = os.getloadavg()

@@ -452,11 +452,13 @@ class ChildRun:
         return f"exit {self.code}: {last.strip()}"
 
 
-def run_child(cmd, cwd=None, env=None, timeout=None, memory_limit_mb=None):
+def run_child(cmd, cwd=None, env=None, timeout=None, memory_limit_mb=None, log=None):
     """Run `cmd` to its end (killed after `timeout` s) and measure it with os.wait4, which
     gives this child's own resource usage (RUSAGE_CHILDREN would mix all children).
     memory_limit_mb: an address-space limit (RLIMIT_AS) for the child, so that a model too
-    large for the code fails with a memory error instead of swapping a shared machine."""
+    large for the code fails with a memory error instead of swapping a shared machine.
+    log: a file that receives the child's standard output as it runs (to follow a long
+    run), else a temporary file."""
     import tempfile
 
     def limit():
@@ -464,7 +466,8 @@ def run_child(cmd, cwd=None, env=None, timeout=None, memory_limit_mb=None):
             b = int(memory_limit_mb * 2**20)
             resource.setrlimit(resource.RLIMIT_AS, (b, b))
 
-    with tempfile.TemporaryFile() as fo, tempfile.TemporaryFile() as fe:
+    out_file = open(log, "w+b") if log else tempfile.TemporaryFile()  # noqa: SIM115
+    with out_file as fo, tempfile.TemporaryFile() as fe:
         w0 = time.perf_counter()
         p = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=fo, stderr=fe, stdin=subprocess.DEVNULL,
                              preexec_fn=limit if memory_limit_mb else None,
