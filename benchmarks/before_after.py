@@ -39,7 +39,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from common import parse_figure, run_child  # noqa: E402
+from common import exit_on_sigterm, parse_figure, run_child  # noqa: E402
 
 # label: (script, arguments of the full run, arguments of --quick or None: not run with
 # --quick); every "Must show"
@@ -174,6 +174,7 @@ def main(argv=None):
     ap.add_argument("--markdown", type=Path, help="also write the table to this file")
     ap.add_argument("--json", type=Path, help="also write every figure to this file")
     a = ap.parse_args(argv)
+    exit_on_sigterm()
     argv_text = list(sys.argv[1:] if argv is None else argv)
     names = [s.strip() for s in a.scripts.split(",") if s.strip()]
     unknown = [s for s in names if s not in SCRIPTS]

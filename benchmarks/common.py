@@ -474,16 +474,21 @@ def run_child(cmd, cwd=None, env=None, timeout=None, memory_limit_mb=None, log=N
                              start_new_session=True)
         timed_out = False
         deadline = None if timeout is None else w0 + timeout
-        while True:
-            pid, status, ru = os.wait4(p.pid, os.WNOHANG)
-            if pid:
-                break
-            if deadline is not None and time.perf_counter() > deadline:
-                timed_out = True
-                os.killpg(p.pid, 9)
-                pid, status, ru = os.wait4(p.pid, 0)
-                break
-            time.sleep(0.005)
+        try:
+            while True:
+                pid, status, ru = os.wait4(p.pid, os.WNOHANG)
+                if pid:
+                    break
+                if deadline is not None and time.perf_counter() > deadline:
+                    timed_out = True
+                    os.killpg(p.pid, 9)
+                    pid, status, ru = os.wait4(p.pid, 0)
+                    break
+                time.sleep(0.005)
+        except BaseException:  # Ctrl-C, or SIGTERM via exit_on_sigterm: no orphan left running
+            os.killpg(p.pid, 9)
+            os.wait4(p.pid, 0)
+            raise
         wall = time.perf_counter() - w0
         p.returncode = os.waitstatus_to_exitcode(status)
         fo.seek(0)
@@ -493,6 +498,14 @@ def run_child(cmd, cwd=None, env=None, timeout=None, memory_limit_mb=None, log=N
     # ru_maxrss: kilobytes on Linux, bytes on macOS
     rss = ru.ru_maxrss / (2**20 if sys.platform == "darwin" else 2**10)
     return ChildRun(p.returncode, wall, ru.ru_utime + ru.ru_stime, rss, out, err, timed_out)
+
+
+def exit_on_sigterm():
+    """Make SIGTERM end this process through SystemExit, so that run_child kills the child
+    it waits for (children run in their own session and would outlive a plain SIGTERM)."""
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
 
 
 def mbsim_command():

@@ -38,6 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import (  # noqa: E402
     ROOT,
     chain_deck,
+    exit_on_sigterm,
     figure,
     figure_failed,
     mbsim_command,
@@ -105,6 +106,7 @@ def main(argv=None):
                     help="MB of address space per run (RLIMIT_AS)")
     ap.add_argument("--quick", action="store_true", help="sizes 64 and 256, one repeat")
     a = ap.parse_args(argv)
+    exit_on_sigterm()
     if a.quick:
         a.size, a.big, a.repeats = 64, 256, 1
     with tempfile.TemporaryDirectory() as tmp:
