@@ -13,17 +13,36 @@ import os
 for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
+import re  # noqa: E402
+import resource  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from mbsim.deck.spec import BodySpec, DeckSpec, JointSpec, PointSet  # noqa: E402
-from mbsim.model import compile_model  # noqa: E402
-from mbsim.rotations import A as rot_A  # noqa: E402
-from mbsim.rotations import from_axis_angle  # noqa: E402
+ROOT = Path(os.environ.get("MBSIM_ROOT") or Path(__file__).resolve().parents[1]).resolve()
+"""The mbsim checkout measured: $MBSIM_ROOT (set by before_after.py for each side), else the
+checkout these scripts are in.  Its models/ are the decks run, and it goes first on
+sys.path, so the mbsim imported is that tree's even where another one is installed."""
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
 
-ROOT = Path(__file__).resolve().parents[1]
+
+def rot_A(p):
+    """Rotation matrix of Euler parameters p = (e0, e), Haug eq. 6.2.25:
+    A = (2 e0^2 - 1) I + 2 (e e^T + e0 e~); written here so that the chain decks need no
+    mbsim internals (the same formula as mbsim.rotations.A)."""
+    e0, e = float(p[0]), np.asarray(p[1:], float)
+    skew = np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
+    return (2 * e0 * e0 - 1) * np.eye(3) + 2 * (np.outer(e, e) + e0 * skew)
+
+
+def from_axis_angle(axis, angle):
+    """Euler parameters of a turn `angle` (rad) about the unit vector along `axis`."""
+    u = np.asarray(axis, float) / np.linalg.norm(axis)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * u])
 
 
 def timed(fn, *args, repeats=3):
@@ -66,6 +85,8 @@ def chain_spec(n, angle=0.3, g=9.81):
     """Links of 1 kg, 0.5 m, body frame at the centre, rod axis y', J' = diag(1/48, 1e-4,
     1/48), joints at (0, +-0.25, 0); link i turned `angle` about (cos phi_i, 0, sin phi_i),
     phi_i = 2 pi i / n, hanging from a spherical joint at the origin; gravity (0, -g, 0)."""
+    from mbsim.deck.spec import BodySpec, DeckSpec, JointSpec, PointSet
+
     def body(name, mass=1.0, J=(1.0, 1.0, 1.0), r=(0, 0, 0), p=(1, 0, 0, 0), ground=False):
         return BodySpec(name, mass, np.diag(J), np.asarray(r, float), np.asarray(p, float),
                         None, None, None, ground)
@@ -90,6 +111,8 @@ def chain_spec(n, angle=0.3, g=9.81):
 
 
 def chain_model(n):
+    from mbsim.model import compile_model
+
     return compile_model(chain_spec(n))
 
 
@@ -356,3 +379,172 @@ def exudyn_chain_tree(model, n, g=9.81):
         storeInternal=True))
     mbs.Assemble()
     return SC, mbs, tip
+
+
+# ------------------------------------------------------------------ figure lines
+# Every figure a script measures is printed as one line that before_after.py reads:
+#
+#     figure: <name> = <value> <unit> (median of <N>, spread <lo>..<hi>)
+#
+# <name> is any text ("chain N = 64: CPU per step"; the last " = " ends it), <unit> holds no
+# " = "; <value>, <lo>, <hi> are numbers (4 significant digits); a figure
+# that could not be measured (the run failed, timed out, ran out of memory) is printed as
+#
+#     figure: <name> = failed (<the error line>)
+#
+# so that the table shows why.  Everything else a script prints is commentary.
+FIGURE_RE = re.compile(r"^figure: (?P<name>.+) = (?:failed \((?P<error>.*)\)|"
+                       r"(?P<value>\S+) (?P<unit>.*?) \(median of (?P<n>\d+), "
+                       r"spread (?P<lo>\S+)\.\.(?P<hi>\S+)\))\s*$")
+
+
+def figure_line(name, values, unit, spread=None):
+    """The figure line of the median of `values` (a number or a list of repeats); or, with
+    spread = (median, lo, hi), of a figure derived elsewhere from len(values) repeats."""
+    vals = [float(v) for v in (values if np.ndim(values) else [values])]
+    med, lo, hi = spread if spread is not None else (np.median(vals), min(vals), max(vals))
+    return (f"figure: {name} = {med:.4g} {unit} (median of {len(vals)}, spread "
+            f"{lo:.4g}..{hi:.4g})")
+
+
+def figure(name, values, unit, spread=None):
+    """Print the figure line of `values` (see figure_line)."""
+    print(figure_line(name, values, unit, spread), flush=True)
+
+
+def figure_failed(name, message):
+    """Print a figure that could not be measured, with the one error line that says why."""
+    text = " ".join(str(message).split())[:300] or "no message"
+    print(f"figure: {name} = failed ({text})", flush=True)
+
+
+def parse_figure(line):
+    """{name, value, unit, n, lo, hi} or {name, error} of a figure line; None otherwise."""
+    m = FIGURE_RE.match(line.strip())
+    if not m:
+        return None
+    if m["error"] is not None:
+        return {"name": m["name"], "error": m["error"]}
+    try:
+        return {"name": m["name"], "value": float(m["value"]), "unit": m["unit"],
+                "n": int(m["n"]), "lo": float(m["lo"]), "hi": float(m["hi"])}
+    except ValueError:
+        return None
+
+
+# ------------------------------------------------------------------ a process measured
+class ChildRun:
+    """One child process measured: exit code, wall s, CPU s (user + system, its own and its
+    children's, from os.wait4), peak resident memory (MB, ru_maxrss), its output text, and
+    whether it was killed at the time-out."""
+
+    def __init__(self, code, wall, cpu, maxrss_mb, out, err, timed_out):
+        self.code, self.wall, self.cpu, self.maxrss_mb = code, wall, cpu, maxrss_mb
+        self.out, self.err, self.timed_out = out, err, timed_out
+
+    def error_line(self):
+        """The child's last `error: ...` line, else its last stderr line, else the exit."""
+        if self.timed_out:
+            return f"timed out after {self.wall:.0f} s"
+        lines = [ln for ln in self.err.splitlines() if ln.strip()]
+        errs = [ln for ln in lines if ln.startswith("error:")]
+        last = (errs or lines or [f"exit {self.code}"])[-1]
+        return f"exit {self.code}: {last.strip()}"
+
+
+def run_child(cmd, cwd=None, env=None, timeout=None, memory_limit_mb=None, log=None):
+    """Run `cmd` to its end (killed after `timeout` s) and measure it with os.wait4, which
+    gives this child's own resource usage (RUSAGE_CHILDREN would mix all children).
+    memory_limit_mb: an address-space limit (RLIMIT_AS) for the child, so that a model too
+    large for the code fails with a memory error instead of swapping a shared machine.
+    log: a file that receives the child's standard output as it runs (to follow a long
+    run), else a temporary file."""
+    import tempfile
+
+    def limit():
+        if memory_limit_mb:
+            b = int(memory_limit_mb * 2**20)
+            resource.setrlimit(resource.RLIMIT_AS, (b, b))
+
+    out_file = open(log, "w+b") if log else tempfile.TemporaryFile()  # noqa: SIM115
+    with out_file as fo, tempfile.TemporaryFile() as fe:
+        w0 = time.perf_counter()
+        p = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=fo, stderr=fe, stdin=subprocess.DEVNULL,
+                             preexec_fn=limit if memory_limit_mb else None,
+                             start_new_session=True)
+        timed_out = False
+        deadline = None if timeout is None else w0 + timeout
+        try:
+            while True:
+                pid, status, ru = os.wait4(p.pid, os.WNOHANG)
+                if pid:
+                    break
+                if deadline is not None and time.perf_counter() > deadline:
+                    timed_out = True
+                    os.killpg(p.pid, 9)
+                    pid, status, ru = os.wait4(p.pid, 0)
+                    break
+                time.sleep(0.005)
+        except BaseException:  # Ctrl-C, or SIGTERM via exit_on_sigterm: no orphan left running
+            os.killpg(p.pid, 9)
+            os.wait4(p.pid, 0)
+            raise
+        wall = time.perf_counter() - w0
+        p.returncode = os.waitstatus_to_exitcode(status)
+        fo.seek(0)
+        fe.seek(0)
+        out = fo.read().decode(errors="replace")
+        err = fe.read().decode(errors="replace")
+    # ru_maxrss: kilobytes on Linux, bytes on macOS
+    rss = ru.ru_maxrss / (2**20 if sys.platform == "darwin" else 2**10)
+    return ChildRun(p.returncode, wall, ru.ru_utime + ru.ru_stime, rss, out, err, timed_out)
+
+
+def exit_on_sigterm():
+    """Make SIGTERM end this process through SystemExit, so that run_child kills the child
+    it waits for (children run in their own session and would outlive a plain SIGTERM)."""
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+
+
+def mbsim_command():
+    """The mbsim command of the measured checkout: this interpreter with ``-m mbsim`` (the
+    same imports as the ``mbsim`` script; ROOT is put on PYTHONPATH by mbsim_env)."""
+    return [sys.executable, "-m", "mbsim"]
+
+
+def mbsim_env():
+    """The environment for an mbsim child: ROOT first on PYTHONPATH, BLAS single-threaded."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in env.get(
+        "PYTHONPATH", "").split(os.pathsep) if p])
+    return env
+
+
+# ------------------------------------------------------------------ the chain as a deck
+def chain_deck(n, t_end=2.0, step=None, angle=0.3, g=9.81):
+    """chain_spec's spherical chain of `n` links as deck text (YAML), with a dynamic
+    analysis to `t_end` at output step `step` (default t_end): the deck is the interface
+    every version of mbsim reads, so the scripts that time set-up and output use it."""
+    step = t_end if step is None else step
+    lines = [f"title: spherical chain of {n} links", "units: SI", f"gravity: [0, {-g!r}, 0]",
+             "bodies:", "  ground: {ground: true}"]
+    top = np.zeros(3)
+    for i in range(n):
+        ph = 2 * np.pi * i / n
+        p = from_axis_angle((np.cos(ph), 0, np.sin(ph)), angle)
+        A = rot_A(p)
+        r = top - A @ np.array([0, 0.25, 0])
+        top = r + A @ np.array([0, -0.25, 0])
+        lines.append(f"  link{i}: {{mass: 1.0, inertia: [{1 / 48!r}, 0.0001, {1 / 48!r}], "
+                     f"r: [{', '.join(repr(float(x)) for x in r)}], "
+                     f"p: [{', '.join(repr(float(x)) for x in p)}]}}")
+    lines.append("joints:")
+    for i in range(n):
+        prev = "ground" if i == 0 else f"link{i - 1}"
+        pp = "[0, 0, 0]" if i == 0 else "[0, -0.25, 0]"
+        lines.append(f"  S{i}: {{type: spherical, bodies: [{prev}, link{i}], points: "
+                     f"{{{prev}: {{P: {pp}}}, link{i}: {{P: [0, 0.25, 0]}}}}}}")
+    lines += ["analysis:", f"  dynamic: {{t_end: {t_end!r}, step: {step!r}}}", ""]
+    return "\n".join(lines)

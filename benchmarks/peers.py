@@ -65,16 +65,14 @@ import json
 import math
 import os
 import pstats
-import shutil
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-# benchmarks/ for common.py and work_precision.py; the checkout's root first, so that the
-# mbsim measured is this tree's even where another one is installed
-sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]
+# benchmarks/ for common.py and work_precision.py; common puts the measured checkout
+# (common.ROOT: $MBSIM_ROOT, else this tree) first on sys.path
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np  # noqa: E402
 from common import (  # noqa: E402
@@ -90,7 +88,12 @@ from common import (  # noqa: E402
     exudyn_chain_tree,
     exudyn_rigid_system,
     exudyn_solve,
+    figure,
+    figure_failed,
     load,
+    mbsim_command,
+    mbsim_env,
+    run_child,
 )
 
 TARGETS = (1e-3, 1e-6)
@@ -452,7 +455,7 @@ def fourbar_case(a):
                                           "exudyn (ignoreSingularJacobian) ",
                                           ignore_singular=True)
     return {"case": f"fourbar{a.loops}", "title": title, "mbsim": mb, "exudyn": ex,
-            "notes": notes}
+            "notes": notes, "t_end": t_end}
 
 
 # ------------------------------------------------------------------ a run as a user runs it
@@ -464,7 +467,8 @@ def user_case(a):
     """Per deck: CPU s per simulated second of (1) the user's run: the deck's dynamic
     options and outputs, estimate on, HDF5 written; (2) the same without writing; (3) the
     deck's outputs without the estimate; (4) the bare integration: one output, no
-    estimate.  The initial state is computed in every variant (as in a user's run)."""
+    estimate.  The initial state is computed in every variant (as in a user's run); one
+    untimed user run first, so that first-use imports count in none of them."""
     from mbsim.api import load_model, run_model
     from mbsim.output.hdf5 import write_result
 
@@ -486,18 +490,33 @@ def user_case(a):
                     False),
             }
             got = {}
-            for name, (o, write) in variants.items():
-                cpus = []
-                for _ in range(max(1, a.repeats)):
+            user_key, nofile_key, noest_key, bare_key = variants
+            # warm-up, not timed: first-use imports (h5py, the integrator's modules) and the
+            # kernels' loading would land in the first variant's first repeat
+            write_result(run_model(model, "dynamic", dict(opts)), Path(tmp) / "run.h5")
+            # the variants in turn within each repeat, so that the ratios of one repeat
+            # compare runs made at nearly the same time (the machine's load drifts)
+            cpu_of, status = {name: [] for name in variants}, {}
+            for _ in range(max(1, a.repeats)):
+                for name, (o, write) in variants.items():
                     c0 = time.process_time()
                     res = run_model(model, "dynamic", o)
                     if write:
                         write_result(res, Path(tmp) / "run.h5")
-                    cpus.append((time.process_time() - c0) / t_end)
-                got[name] = spread(cpus)
+                    cpu_of[name].append((time.process_time() - c0) / t_end)
+                    status[name] = res.status
+            for name in variants:
+                got[name] = spread(cpu_of[name])
                 print(f"    {label:<18} {name:<42} CPU s/s {got[name][0]:8.4f} "
-                      f"[{got[name][1]:.4f}-{got[name][2]:.4f}]  ({res.status})", flush=True)
+                      f"[{got[name][1]:.4f}-{got[name][2]:.4f}]  ({status[name]})", flush=True)
             user, nofile, noest, bare = (got[k][0] for k in variants)
+            each = {k: cpu_of[k] for k in variants}
+            figure(f"user run / bare integration, {label}",
+                   [u / b for u, b in zip(each[user_key], each[bare_key])], "x")
+            figure(f"estimate alone / run without it, {label}",
+                   [(f - e) / e for f, e in zip(each[nofile_key], each[noest_key])], "x")
+            figure(f"user run, {label}", each[user_key], "CPU s per simulated s")
+            figure(f"bare integration, {label}", each[bare_key], "CPU s per simulated s")
             ratios = {"user / bare": user / bare, "estimate / run without it":
                       (nofile - noest) / noest, "outputs / bare": noest / bare}
             print(f"    {label:<18} " + ", ".join(f"{k} {v:.2f}" for k, v in ratios.items()))
@@ -506,6 +525,21 @@ def user_case(a):
 
 
 # ------------------------------------------------------------------ compiled share
+def kernel_functions(lib):
+    """The library's exported functions: every non-static ``mb_*`` function defined in the
+    measured checkout's mbsim/fast/*.c (the C kernels of whatever version is measured),
+    less the two that only describe the build."""
+    import re
+
+    found = []
+    for src in sorted((ROOT / "mbsim" / "fast").glob("*.c")):
+        for m in re.finditer(r"^(?!static)[A-Za-z_][\w \t*]*?\b(mb_\w+)\s*\(",
+                             src.read_text(), re.M):
+            if m[1] not in found and m[1] not in ("mb_source_hash", "mb_struct_size"):
+                found.append(m[1])
+    return [n for n in found if hasattr(lib, n)]
+
+
 def compiled_share(a):
     """cProfile of `mbsim run models/governor.yaml --mode dynamic -o FILE`'s work in process
     (load the deck, run, write), after one warm-up run (imports and the kernels' loading are
@@ -517,9 +551,8 @@ def compiled_share(a):
     from mbsim.output.hdf5 import write_result
 
     lib = _lib.library()
-    names = [n for n in ("mb_constraints", "mb_terms", "mb_gather_dense", "mb_jac_times",
-                         "mb_applied_forces", "mb_mass_blocks", "mb_accelerations",
-                         "mb_project")]
+    names = kernel_functions(lib)
+    print(f"    C functions timed: {', '.join(names)}", flush=True)
     originals = {n: getattr(lib, n) for n in names}
     spent = {"t": 0.0}
 
@@ -564,6 +597,10 @@ def compiled_share(a):
             for n in names:
                 setattr(lib, n, originals[n])
     out = {"cprofile": spread(shares), "timers": spread(timed_shares)}
+    figure("compiled share of a default governor run (cProfile)", [100 * x for x in shares],
+           "%")
+    figure("compiled share of a default governor run (timers, no profiler)",
+           [100 * x for x in timed_shares], "%")
     print(f"    compiled share (cProfile) {100 * out['cprofile'][0]:.1f} % "
           f"[{100 * out['cprofile'][1]:.1f}-{100 * out['cprofile'][2]:.1f}]; without the "
           f"profiler (timers, wall) {100 * out['timers'][0]:.1f} % "
@@ -574,28 +611,60 @@ def compiled_share(a):
 # ------------------------------------------------------------------ start-up
 def startup(a):
     """Wall time of `mbsim --help` and `mbsim check models/governor.yaml` in fresh
-    processes, median of 5 (3 with --quick)."""
-    exe = Path(sys.executable).parent / "mbsim"
-    cmd = [str(exe)] if exe.exists() else ([shutil.which("mbsim")] if shutil.which("mbsim")
-                                           else [sys.executable, "-m", "mbsim"])
+    processes (``python -m mbsim``, the imports of the ``mbsim`` script, with the measured
+    checkout on PYTHONPATH), median of 5 (3 with --quick); also the process's CPU (user +
+    system, os.wait4), which a loaded machine inflates less than the wall time."""
+    cmd = mbsim_command()
     print(f"\n=== start-up ({' '.join(cmd)}) ===", flush=True)
     out = {"command": cmd}
     for label, args in (("mbsim --help", ["--help"]),
                         ("mbsim check models/governor.yaml", ["check", "models/governor.yaml"])):
-        walls = []
+        walls, cpus = [], []
         for _ in range(3 if a.quick else 5):
-            w0 = time.perf_counter()
-            p = subprocess.run(cmd + args, cwd=ROOT, capture_output=True)
-            walls.append(time.perf_counter() - w0)
-            if p.returncode:
-                raise RuntimeError(f"{label}: exit {p.returncode}: {p.stderr.decode()[-300:]}")
+            p = run_child(cmd + args, cwd=ROOT, env=mbsim_env(), timeout=120)
+            if p.code:
+                raise RuntimeError(f"{label}: {p.error_line()}")
+            walls.append(p.wall)
+            cpus.append(p.cpu)
         out[label] = spread(walls)
         print(f"    {label:<36} wall {out[label][0]:.3f} s [{out[label][1]:.3f}-"
-              f"{out[label][2]:.3f}]", flush=True)
+              f"{out[label][2]:.3f}], CPU {np.median(cpus):.3f} s", flush=True)
+        figure(f"{label} wall", walls, "s")
+        figure(f"{label} CPU", cpus, "s")
     return {"case": "startup", **out}
 
 
 # ------------------------------------------------------------------ summary
+def figures_of_case(r, target, mb, ex, exudyn):
+    """The figure lines of one case at one target error: mbsim's best, Exudyn's best and
+    their ratio (CPU s per simulated s; the four-bar also in CPU s to its t_end).  A cost
+    not reached or only extrapolated is a failed figure that says so."""
+    mlab, m, mlo, mhi, mx = mb
+    elab, e, elo, ehi, exx = ex
+    n = max((len(p["cpu"]) for pts in r["mbsim"].values() for p in pts), default=1)
+    key = f"{r['case']} at {target:.0e}"
+    unit = "CPU s per simulated s"
+    if not mlab or mx or not np.isfinite(m):
+        figure_failed(f"{key}: mbsim best", "not reached" if not mlab else
+                      f"only extrapolated ({m:.3g}, {mlab[6:]})")
+    else:
+        figure(f"{key}: mbsim best", [m] * n, unit, (m, mlo, mhi))
+        if r.get("t_end"):
+            t = r["t_end"]
+            figure(f"{key}: mbsim best to {t:g} s", [m] * n, "CPU s",
+                   (m * t, mlo * t, mhi * t))
+    if not exudyn:
+        return
+    if not elab or exx or not np.isfinite(e):
+        figure_failed(f"{key}: Exudyn best", "not reached" if not elab else
+                      f"only extrapolated ({e:.3g}, {elab[7:]})")
+        return
+    figure(f"{key}: Exudyn best", [e] * n, unit, (e, elo, ehi))
+    if mlab and not mx and np.isfinite(m):
+        figure(f"{key}: Exudyn best / mbsim best", [e / m] * n, "x",
+               (e / m, elo / mhi, ehi / mlo))
+
+
 def summary(results, exudyn):
     print("\n=== summary: CPU s per simulated second at the error, median [min-max] ===")
     head = f"{'case':<34} {'error':>6}  {'mbsim best':<44} {'Exudyn best':<58} Exudyn/mbsim"
@@ -621,6 +690,8 @@ def summary(results, exudyn):
                     etxt = "estimate (extrapolated) " + etxt
                 ratio = ("" if (ex or mx or not mlab) else f"{e / m:.3g}")
             print(f"{r['case']:<34} {target:6.0e}  {mtxt:<44} {etxt:<58} {ratio}")
+            figures_of_case(r, target, (mlab, m, mlo, mhi, mx), (elab, e, elo, ehi, ex),
+                            exudyn)
             rows.append({"case": r["case"], "target": target, "mbsim": mlab,
                          "mbsim_cost": [m, mlo, mhi], "mbsim_extrapolated": mx,
                          "exudyn": elab, "exudyn_cost": [e, elo, ehi],
