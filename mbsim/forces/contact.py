@@ -44,7 +44,7 @@ Energy: the elastic part k g^(e+1)/(e+1) is the potential; the channels ``dampin
 ``friction_power`` are the power the contact dissipates (>= 0), for an energy balance.
 
 Step size: the integrator must resolve each impact; an undamped Hertzian impact of mass m at
-speed v lasts t_c = 3.2145 (m/k)^(2/5) v^(-1/5) (see tests/forces/test_contact.py), so limit the
+speed v lasts t_c = 3.2181 (m/k)^(2/5) v^(-1/5) (see tests/forces/test_contact.py), so limit the
 step to a small fraction of t_c (``analysis: dynamic: h_max``) when the error control alone
 could step over a contact.
 """
