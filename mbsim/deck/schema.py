@@ -319,6 +319,26 @@ FORCE_TYPES = {
             "v_slip": Field("number", "velocity", default=1e-3),
         },
     ),
+    "stop": ForceType(  # mbsim/forces/contact.py: the contact law on a joint's travel or angle
+        "pair-joint",
+        {
+            "joint": Field("joint", required=True,
+                           options=("translational", "revolute", "cylindrical")),
+            "motion": Field("choice", options=("translation", "rotation")),  # cylindrical
+            "lower": Field("number"),  # m (translation) or rad (rotation)
+            "upper": Field("number"),
+            "k": Field("number", required=True),  # N/m^exponent or N m/rad^exponent
+            "exponent": Field("number", default=1.5),
+            "c_max": Field("number", default=0.0),
+            "depth": Field("number"),
+            "restitution": Field("number"),
+            "v_impact": Field("number"),
+            "restitution_law": Field(
+                "choice", default="lankarani-nikravesh",
+                options=("hunt-crossley", "lankarani-nikravesh", "flores"),
+            ),
+        },
+    ),
 }
 FORCE_BODY_KEYS = {
     "pair": ("bodies", "points"),

@@ -74,6 +74,45 @@ def step(x: float, x0: float, h0: float, x1: float, h1: float) -> float:
     return h0 + (h1 - h0) * s * s * (3.0 - 2.0 * s)
 
 
+def impact_force(
+    g: float, gd: float, k: float, e: float, c_max: float, depth: float | None, alpha: float
+) -> tuple[float, float]:
+    """(F >= 0, its elastic part k g^e) of the compliant law at penetration g > 0 and
+    penetration rate gd: ADAMS IMPACT (c_max, depth) or restitution damping (alpha)."""
+    fe = k * g**e
+    if alpha:
+        f = fe * (1.0 + alpha * gd)
+    elif c_max:
+        f = fe + step(g, 0.0, 0.0, depth, c_max) * gd
+    else:
+        f = fe
+    return max(f, 0.0), fe
+
+
+def _damping(el, d: dict, where) -> None:
+    """el.c_max, el.depth, el.alpha from the deck fields (c_max and depth, or restitution)."""
+    el.c_max = _positive(d, "c_max", where, allow_zero=True)
+    el.depth = None if d.get("depth") is None else _positive(d, "depth", where)
+    if el.c_max > 0 and el.depth is None:
+        raise DeckError("c_max needs depth (the penetration where c reaches c_max)", where)
+    el.alpha = 0.0
+    if d.get("restitution") is not None:
+        if el.c_max > 0:
+            raise DeckError(
+                "give either c_max and depth or restitution, not both",
+                where.child("restitution"),
+            )
+        e = float(d["restitution"])
+        if not 0.0 < e <= 1.0:
+            raise DeckError(
+                f"restitution must lie in (0, 1], got {e:g}", where.child("restitution")
+            )
+        if d.get("v_impact") is None:
+            raise DeckError("restitution needs v_impact (the approach speed it holds at)", where)
+        v = _positive(d, "v_impact", where)
+        el.alpha = RESTITUTION_ALPHA[d["restitution_law"]](e, v)
+
+
 def hertz_stiffness(E: float, nu: float, R_eff: float) -> float:
     """k = 4/3 E* sqrt(R*) (N/m^1.5), E* = E / (2 (1 - nu^2)) for two bodies of one material."""
     return 4.0 / 3.0 * E / (2.0 * (1.0 - nu * nu)) * np.sqrt(R_eff)
@@ -144,28 +183,7 @@ class Contact(ForceElement):
             el.k = hertz_stiffness(_positive(d, "E", where), nu, R_eff)
         else:
             el.k = _positive(d, "k", where)
-        el.c_max = _positive(d, "c_max", where, allow_zero=True)
-        el.depth = None if d.get("depth") is None else _positive(d, "depth", where)
-        if el.c_max > 0 and el.depth is None:
-            raise DeckError("c_max needs depth (the penetration where c reaches c_max)", where)
-        el.alpha = 0.0
-        if d.get("restitution") is not None:
-            if el.c_max > 0:
-                raise DeckError(
-                    "give either c_max and depth or restitution, not both",
-                    where.child("restitution"),
-                )
-            e = float(d["restitution"])
-            if not 0.0 < e <= 1.0:
-                raise DeckError(
-                    f"restitution must lie in (0, 1], got {e:g}", where.child("restitution")
-                )
-            if d.get("v_impact") is None:
-                raise DeckError(
-                    "restitution needs v_impact (the approach speed it holds at)", where
-                )
-            v = _positive(d, "v_impact", where)
-            el.alpha = RESTITUTION_ALPHA[d["restitution_law"]](e, v)
+        _damping(el, d, where)
         el.mu = _positive(d, "mu", where, allow_zero=True)
         el.v_slip = _positive(d, "v_slip", where)
         return el
@@ -205,14 +223,7 @@ class Contact(ForceElement):
         out.update(gd=gd, vt=vt)
         if g <= 0.0:
             return out
-        fe = self.k * g**self.e
-        if self.alpha:
-            fn = fe * (1.0 + self.alpha * gd)
-        elif self.c_max:
-            fn = fe + step(g, 0.0, 0.0, self.depth, self.c_max) * gd
-        else:
-            fn = fe
-        fn = max(fn, 0.0)
+        fn, fe = impact_force(g, gd, self.k, self.e, self.c_max, self.depth, self.alpha)
         out.update(fn=fn, fe=fe)
         s = float(np.sqrt(vt @ vt))
         if self.mu and s > 0:
@@ -249,4 +260,139 @@ class Contact(ForceElement):
             "energy": (self.potential(st), "J"),
             "damping_power": ((s["fn"] - s["fe"]) * s["gd"], "W"),
             "friction_power": (-float(s["ft"] @ s["vt"]), "W"),
+        }
+
+
+@register
+class JointStop(ForceElement):
+    """End stops on a joint's travel with the contact's normal law.
+
+    Translational joint: travel s = f_i . (P_j - P_i) (f_i: the joint axis P->Q on body i);
+    the load Fs (positive: increases s) acts as the force Fs f_i on body j and -Fs f_i on body
+    i, both at P_j (the exact gradient of V(s): the dependence of s on body i's rotation is the
+    moment of that force about P_j).  Revolute or cylindrical joint: s = the angle theta of the
+    rsda (g_i to g_j about f_i, within pi of the middle of the range) and the torque Fs a on j,
+    -Fs a on i (a: the angle's exact gradient axis).
+
+    Penetration g = s - upper above the range (Fs = -F(g, sd)), g = lower - s below it
+    (Fs = +F(g, -sd)); F is :func:`impact_force` (k, exponent, c_max/depth or restitution).
+    Inside the range the stop carries nothing.  Potential k g^(e+1)/(e+1).
+    """
+
+    type = "stop"
+    description = (
+        "end stops on a translational joint's travel or a revolute/cylindrical joint's angle, "
+        "with the contact law (k g^e, STEP-ramped damping or restitution)"
+    )
+
+    @classmethod
+    def from_spec(cls, spec, body_index):
+        from mbsim.forces.measures import Angle
+        from mbsim.model import joint_frame
+
+        el = cls()
+        d, where = spec.data, spec.where
+        el.bi, el.bj = (body_index[n] for n in spec.bodies)
+        fi, fj = (joint_frame(spec.points.get(n)) for n in spec.bodies)
+        el.lower = -np.inf if d.get("lower") is None else float(d["lower"])
+        el.upper = np.inf if d.get("upper") is None else float(d["upper"])
+        if d.get("lower") is None and d.get("upper") is None:
+            raise DeckError("a stop needs lower, upper or both", where)
+        if not el.lower < el.upper:
+            raise DeckError(
+                f"lower must be below upper, got {el.lower:g} >= {el.upper:g}", where.child("lower")
+            )
+        jtype, motion = d.get("joint_type"), d.get("motion")
+        natural = {"translational": "translation", "revolute": "rotation"}.get(jtype)
+        if motion is None and natural is None:
+            raise DeckError(
+                f"a stop on a {jtype} joint needs motion: translation | rotation", where
+            )
+        if motion is not None and natural is not None and motion != natural:
+            raise DeckError(
+                f"a {jtype} joint allows only motion: {natural}, got {motion}",
+                where.child("motion"),
+            )
+        el.angular = (motion or natural) == "rotation"
+        if el.angular:
+            if el.upper - el.lower >= 2 * np.pi:
+                raise DeckError("an angle range must be shorter than 2 pi", where.child("upper"))
+            mid = (
+                0.5 * (el.lower + el.upper)
+                if np.isfinite(el.upper - el.lower)
+                else (el.lower + np.pi if np.isfinite(el.lower) else el.upper - np.pi)
+            )
+            el.angle = Angle(el.bi, el.bj, fi, fj, mid)
+        else:
+            el.si, el.sj, el.f = fi["P"].copy(), fj["P"].copy(), fi["f"].copy()
+        el.k = _positive(d, "k", where)
+        el.e = _positive(d, "exponent", where)
+        _damping(el, d, where)
+        return el
+
+    def __repr__(self) -> str:
+        return f"<stop {self.name}>"
+
+    def travel(self, st):
+        """(s, axis (3,) global, Pj (3,) global or None, sd or None)."""
+        if self.angular:
+            s, a = self.angle.terms(st)
+            return s, a, None, None if st.rd is None else self.angle.rate(st, a)
+        bi, bj = self.bi, self.bj
+        Ai, Aj = st.A[bi], st.A[bj]
+        Pi, Pj = st.r[bi] + Ai @ self.si, st.r[bj] + Aj @ self.sj
+        f = Ai @ self.f
+        s = float(f @ (Pj - Pi))
+        if st.rd is None:
+            return s, f, Pj, None
+        wi, wj = Ai @ st.omega_local[bi], Aj @ st.omega_local[bj]
+        vi = st.rd[bi] + np.cross(wi, Pi - st.r[bi])
+        vj = st.rd[bj] + np.cross(wj, Pj - st.r[bj])
+        sd = float(np.cross(wi, f) @ (Pj - Pi) + f @ (vj - vi))
+        return s, f, Pj, sd
+
+    def load(self, st):
+        """(s, sd, g (penetration, 0 inside), Fs, elastic part of Fs, axis, Pj)."""
+        s, a, Pj, sd = self.travel(st)
+        sd0 = 0.0 if sd is None else sd
+        Fs = fe = g = 0.0
+        if s > self.upper:
+            g = s - self.upper
+            F, f_el = impact_force(g, sd0, self.k, self.e, self.c_max, self.depth, self.alpha)
+            Fs, fe = -F, -f_el
+        elif s < self.lower:
+            g = self.lower - s
+            F, f_el = impact_force(g, -sd0, self.k, self.e, self.c_max, self.depth, self.alpha)
+            Fs, fe = F, f_el
+        return s, sd0, g, Fs, fe, a, Pj
+
+    def apply(self, st, t, F, n_local):
+        _, _, g, Fs, _, a, Pj = self.load(st)
+        if Fs == 0.0:
+            return
+        bi, bj = self.bi, self.bj
+        if self.angular:
+            n_local[bj] += st.A[bj].T @ (Fs * a)
+            n_local[bi] -= st.A[bi].T @ (Fs * a)
+            return
+        f = Fs * a
+        F[bj] += f
+        F[bi] -= f
+        n_local[bj] += st.A[bj].T @ np.cross(Pj - st.r[bj], f)
+        n_local[bi] -= st.A[bi].T @ np.cross(Pj - st.r[bi], f)
+
+    def potential(self, st):
+        s = self.travel(st)[0]
+        g = max(s - self.upper, self.lower - s, 0.0)
+        return self.k * g ** (self.e + 1.0) / (self.e + 1.0) if g > 0 else 0.0
+
+    def channels(self, st, t):
+        s, sd, g, Fs, fe, _, _ = self.load(st)
+        unit = "rad" if self.angular else "m"
+        return {
+            "travel": (s, unit),
+            "penetration": (g, unit),
+            "load": (Fs, "N m" if self.angular else "N"),
+            "energy": (self.potential(st), "J"),
+            "damping_power": (-(Fs - fe) * sd, "W"),
         }

@@ -127,7 +127,8 @@ def test_restitution_from_the_deck_and_the_rebound_height():
     v = np.sqrt(2 * g * h)
     text = DECK.read_text().replace(
         "    nu: 0.3\n",
-        f"    nu: 0.3\n    restitution: 0.9\n    v_impact: {float(v)!r}\n    restitution_law: flores\n")
+        f"    nu: 0.3\n    restitution: 0.9\n    v_impact: {float(v)!r}\n"
+        "    restitution_law: flores\n")
     model = compile_model(load_deck_text(text, overrides={"parameters.z0": repr(R + h)}))
     k = model.forces[0].k
     assert model.forces[0].alpha == pytest.approx(8 * 0.1 / (5 * 0.9 * v))
@@ -206,7 +207,8 @@ def test_sliding_ball_decelerates_at_mu_g_then_rolls():
     model0 = compile_model(load_deck_text(DECK.read_text()))
     k = model0.forces[0].k
     g0 = (MASS * g / k) ** (2 / 3)
-    text = DECK.read_text().replace("    nu: 0.3\n", f"    nu: 0.3\n    mu: {mu}\n    v_slip: 1e-4\n")
+    text = DECK.read_text().replace("    nu: 0.3\n",
+                                    f"    nu: 0.3\n    mu: {mu}\n    v_slip: 1e-4\n")
     model = compile_model(load_deck_text(text, overrides={
         "parameters.z0": repr(float(R - g0)), "bodies.ball.rdot": f"[{v0}, 0, 0]"}))
     t_roll = 2 * v0 / (7 * mu * g)
@@ -229,7 +231,8 @@ def test_elastic_force_is_minus_the_gradient_of_the_potential():
 title: plane on a body
 gravity: [0, 0, 0]
 bodies:
-  slab: {mass: 3, inertia: [1, 2, 3], p: [0.9233805168766388, 0.3077935056255463, -0.20519567041703082, 0.10259783520851541]}
+  slab: {mass: 3, inertia: [1, 2, 3],
+         p: [0.9233805168766388, 0.3077935056255463, -0.20519567041703082, 0.10259783520851541]}
   ball: {mass: 1, inertia: [0.1, 0.1, 0.1], r: [0.05, 0.02, 0.03]}
 forces:
   impact:
@@ -273,6 +276,82 @@ BAD = [
 @pytest.mark.parametrize("old, new, message, path", BAD, ids=[b[2] for b in BAD])
 def test_bad_parameters_name_the_key(old, new, message, path):
     text = DECK.read_text()
+    assert old in text
+    with pytest.raises(DeckError) as exc:
+        compile_model(load_deck_text(text.replace(old, new, 1)))
+    assert message in str(exc.value) and path in str(exc.value)
+
+
+STOPS = Path(__file__).parent / "data" / "stops.yaml"
+
+
+def leaves_the_stop(res, name: str, bound: float) -> float:
+    """The time the travel comes back to the bound (linear interpolation between outputs)."""
+    s, t = res.channel(f"forces/{name}/travel").data - bound, res.t
+    i = np.flatnonzero(s > 0)[-1]
+    return t[i] + (t[i + 1] - t[i]) * s[i] / (s[i] - s[i + 1])
+
+
+def test_end_stops_on_a_translational_and_a_revolute_joint():
+    """A slider (m = 2 kg, 0.5 m/s) into its upper stop (k = 1e7 N/m^1.5) and a disc
+    (J = 0.05 kg m^2, 2 rad/s) into its angle stop (k = 1e4 N m/rad^1.5), undamped, both
+    starting at the stop: each impact lasts the Hertz-law time t_c(m or J, k, v) and returns
+    the speed reversed (1e-4 relative, the run at rtol 1e-8)."""
+    _, model = load_model(STOPS)
+    t1 = hertz_duration(2.0, 1e7, 0.5)
+    t2 = hertz_duration(0.05, 1e4, 2.0)
+    res = run_model(model, "dynamic", dict(OPT, t_end=1.5 * t2, step=t1 / 400))
+    assert res.complete
+    assert leaves_the_stop(res, "end", 0.0) == pytest.approx(t1, rel=1e-4)
+    assert leaves_the_stop(res, "limit", 0.0) == pytest.approx(t2, rel=1e-4)
+    np.testing.assert_allclose(res.channel("bodies/slider/rd").data[-1], [-0.5, 0, 0],
+                               atol=1e-5 * 0.5)
+    np.testing.assert_allclose(res.channel("bodies/disc/omega").data[-1], [0, 0, -2],
+                               atol=1e-5 * 2)
+
+
+def test_stop_loads_are_minus_the_gradient_of_the_potential():
+    """Bodies off the joints (random poses, random joint frames), both stops penetrated: Q at
+    zero velocity against central differences of V."""
+    rng = np.random.default_rng(5)
+    text = STOPS.read_text().replace("upper: 0.0\n    k: 1.0e7", "upper: -0.3\n    k: 1.0e7")
+    text = text.replace("lower: -0.1", "lower: -0.5").replace("upper: 0.0\n    k: 1.0e4",
+                                                             "upper: -0.4\n    k: 1.0e4")
+    model = compile_model(load_deck_text(text))
+    q = model.q0.copy().reshape(-1, 7)
+    for b in (model.body_index("slider"), model.body_index("disc")):
+        q[b, :3] += 0.05 * rng.normal(size=3)
+        p = q[b, 3:] + 0.2 * rng.normal(size=4)
+        q[b, 3:] = p / np.linalg.norm(p)
+    q = q.reshape(-1)
+    st = eq.State(model, q)
+    assert all(el.potential(st) > 0 for el in model.forces)
+    Q, _, _ = eq.applied_forces(model, q, np.zeros(model.nq))
+    nb = model.nb
+    for _ in range(6):
+        dq = rng.normal(size=model.nq).reshape(nb, 7)
+        p = q.reshape(nb, 7)[:, 3:]
+        dq[:, 3:] -= p * np.sum(dq[:, 3:] * p, 1, keepdims=True)
+        dq[model.body_index("ground")] = 0
+        dq = dq.reshape(-1)
+        h = 1e-7
+        dV = (eq.potential_energy(model, q + h * dq) - eq.potential_energy(model, q - h * dq)) / (
+            2 * h)
+        assert -Q @ dq == pytest.approx(dV, rel=1e-6)
+
+
+STOP_BAD = [
+    ("lower: -0.1", "lower: 0.1", "lower must be below upper", "end.lower"),
+    ("joint: T", "joint: T\n    motion: rotation", "allows only motion: translation",
+     "end.motion"),
+    ("    k: 1.0e4\n", "    k: -1.0e4\n", "k must be positive", "limit.k"),
+    ("lower: -1.0", "lower: -7.0", "shorter than 2 pi", "limit.upper"),
+]
+
+
+@pytest.mark.parametrize("old, new, message, path", STOP_BAD, ids=[b[2] for b in STOP_BAD])
+def test_bad_stop_parameters_name_the_key(old, new, message, path):
+    text = STOPS.read_text()
     assert old in text
     with pytest.raises(DeckError) as exc:
         compile_model(load_deck_text(text.replace(old, new, 1)))
