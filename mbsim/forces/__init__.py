@@ -26,5 +26,7 @@ def compile_forces(spec, body_index) -> tuple:
     return tuple(out)
 
 
-# register the built-in types, the tire, the bushing and the contact
-from mbsim.forces import bushing, contact, elements, tire  # noqa: E402, F401
+from mbsim.forces import elements, tire  # noqa: E402, F401  (register the built-in types, the tire)
+
+# isort: split
+from mbsim.forces import bushing, contact  # noqa: E402, F401  (bushing; contact and stop)

@@ -189,6 +189,16 @@ class Bushing(ForceElement):
     def __repr__(self) -> str:
         return f"<bushing {self.name}>"
 
+    def describe(self, model) -> str:
+        """One line for ``mbsim info``: the stiffnesses."""
+
+        def fmt(v):
+            return "[" + ", ".join(f"{x:.4g}" for x in v) + "]"
+
+        k = "curves" if self.curves is not None else f"{fmt(self.k)} N/m"
+        kr = "curves" if self.torque_curves is not None else f"{fmt(self.kr)} N m/rad"
+        return f"k = {k}, kr = {kr}"
+
     # -- measures ----------------------------------------------------------------------------
     def deflections(self, st):
         """(d (3,), theta (3,), Bi, Bj, Pj, Jinv): deflections in frame i, frames, point P_j

@@ -95,7 +95,7 @@ def _damping(el, d: dict, where) -> None:
     el.depth = None if d.get("depth") is None else _positive(d, "depth", where)
     if el.c_max > 0 and el.depth is None:
         raise DeckError("c_max needs depth (the penetration where c reaches c_max)", where)
-    el.alpha = 0.0
+    el.alpha, el.v_nominal = 0.0, None
     if d.get("restitution") is not None:
         if el.c_max > 0:
             raise DeckError(
@@ -110,7 +110,42 @@ def _damping(el, d: dict, where) -> None:
         if d.get("v_impact") is None:
             raise DeckError("restitution needs v_impact (the approach speed it holds at)", where)
         v = _positive(d, "v_impact", where)
+        el.v_nominal = v
         el.alpha = RESTITUTION_ALPHA[d["restitution_law"]](e, v)
+
+
+def impact_duration(m: float, k: float, e: float, v: float) -> float:
+    """Duration of an undamped impact m g'' = -k g^e at speed v: with energy conservation
+    g_max = ((e + 1) m v^2 / (2 k))^(1/(e+1)) and t_c = 2 (g_max / v) int_0^1 du /
+    sqrt(1 - u^(e+1)) = 2 (g_max / v) B(1/(e+1), 1/2) / (e + 1) (3.2181 (m/k)^(2/5) v^(-1/5)
+    for e = 3/2)."""
+    from scipy.special import beta
+
+    g_max = ((e + 1.0) * m * v * v / (2.0 * k)) ** (1.0 / (e + 1.0))
+    return 2.0 * g_max / v * beta(1.0 / (e + 1.0), 0.5) / (e + 1.0)
+
+
+def _reduced_mass(model, bi: int, bj: int, inertia: bool = False) -> float:
+    """m_i m_j / (m_i + m_j), ground counted as infinite; ``inertia``: the largest principal
+    moments instead of the masses (a bound for a stop on an angle)."""
+    ms = []
+    for b in (bi, bj):
+        if model.is_ground[b]:
+            continue
+        ms.append(
+            float(np.linalg.eigvalsh(model.J_local[b]).max()) if inertia else float(model.mass[b])
+        )
+    return 1.0 / sum(1.0 / m for m in ms) if ms else np.inf
+
+
+def _duration_note(model, el, inertia=False) -> str:
+    m = _reduced_mass(model, el.bi, el.bj, inertia)
+    if not np.isfinite(m):
+        return ""
+    v = getattr(el, "v_nominal", None) or 1.0
+    tc = impact_duration(m, el.k, el.e, v)
+    speed = f"{v:g} {'rad/s' if inertia else 'm/s'}"
+    return f"; an undamped impact at {speed} lasts {tc:.3g} s: keep h_max below {tc / 10:.2g} s"
 
 
 def hertz_stiffness(E: float, nu: float, R_eff: float) -> float:
@@ -190,6 +225,10 @@ class Contact(ForceElement):
 
     def __repr__(self) -> str:
         return f"<contact {self.name}>"
+
+    def describe(self, model) -> str:
+        """One line for ``mbsim info``: the law, and the step limit its impacts need."""
+        return f"{self.geometry}, k = {self.k:.4g} N/m^{self.e:g}" + _duration_note(model, self)
 
     # -- geometry ----------------------------------------------------------------------------
     def geometry_of(self, st):
@@ -332,6 +371,13 @@ class JointStop(ForceElement):
 
     def __repr__(self) -> str:
         return f"<stop {self.name}>"
+
+    def describe(self, model) -> str:
+        """One line for ``mbsim info``: the range, and the step limit its impacts need."""
+        unit = "rad" if self.angular else "m"
+        return f"{self.lower:g} .. {self.upper:g} {unit}, k = {self.k:.4g}" + _duration_note(
+            model, self, inertia=self.angular
+        )
 
     def travel(self, st):
         """(s, axis (3,) global, Pj (3,) global or None, sd or None)."""

@@ -15,7 +15,7 @@ from mbsim import equations as eq
 from mbsim.api import load_model, run_model
 from mbsim.deck import load_deck_text
 from mbsim.errors import DeckError
-from mbsim.forces.contact import RESTITUTION_ALPHA, hertz_stiffness
+from mbsim.forces.contact import RESTITUTION_ALPHA, hertz_stiffness, impact_duration
 from mbsim.model import compile_model
 
 DECK = Path(__file__).parent / "data" / "ball_drop.yaml"
@@ -43,6 +43,21 @@ def test_the_duration_constant():
     integrand[0] = 2 / np.sqrt(2.5)  # limit s -> 0: 1 - u^(5/2) ~ (5/2) s^2
     assert simpson(integrand, x=s) == pytest.approx(0.4 * beta(0.4, 0.5), rel=1e-8)
     assert hertz_duration(1.0, 1.0, 1.0) == pytest.approx(3.2181, abs=1e-4)
+    # the element's general form (any exponent) for e = 3/2, and e = 1: half a period pi sqrt(m/k)
+    assert impact_duration(2.0, 3.0, 1.5, 0.7) == pytest.approx(hertz_duration(2.0, 3.0, 0.7))
+    assert impact_duration(2.0, 3.0, 1.0, 0.7) == pytest.approx(np.pi * np.sqrt(2 / 3))
+
+
+def test_info_names_the_contact_and_its_step_limit():
+    from click.testing import CliRunner
+
+    from mbsim.cli import main
+
+    out = CliRunner().invoke(main, ["info", str(DECK)])
+    assert out.exit_code == 0, out.output
+    tc = hertz_duration(MASS, hertz_stiffness(E, NU, R), 1.0)
+    assert "contact force: impact" in out.output
+    assert f"lasts {tc:.3g} s: keep h_max below {tc / 10:.2g} s" in out.output
 
 
 def crossing_out(res) -> float:
