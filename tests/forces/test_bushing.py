@@ -226,3 +226,19 @@ def test_curves_replace_the_linear_stiffness():
     np.testing.assert_allclose(Q2[7 * b: 7 * b + 2], Q1[7 * b: 7 * b + 2], rtol=1e-12)
     assert eq.potential_energy(m2, q) - eq.potential_energy(m1, q) == pytest.approx(
         1e6 * 0.03**4 / 4, rel=1e-9)
+
+
+def test_preload_holds_the_weight_at_zero_deflection():
+    """Gravity -z on the block and preload_force = m g up: the minimum of the potential is at
+    zero deflection (equilibrium to the solver's tolerance); without the preload the block
+    sags by m g / kz."""
+    g = 9.81
+    text = DECK.read_text().replace("gravity: [0, 0, 0]", f"gravity: [0, 0, {-g}]")
+    sag = compile_model(load_deck_text(text))
+    held = compile_model(load_deck_text(text.replace(
+        "cr: [0.2, 0.3, 0.5]", f"cr: [0.2, 0.3, 0.5]\n    preload_force: [0, 0, {M * g!r}]")))
+    for model, z in ((sag, -M * g / K[2]), (held, 0.0)):
+        res = run_model(model, "equilibrium", {"method": "minimum"})
+        assert res.complete, res.message
+        zc = res.channel("bodies/block/r").data[-1, 2]
+        assert zc == pytest.approx(z, abs=1e-9)
