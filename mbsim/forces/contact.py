@@ -310,8 +310,9 @@ class JointStop(ForceElement):
     the load Fs (positive: increases s) acts as the force Fs f_i on body j and -Fs f_i on body
     i, both at P_j (the exact gradient of V(s): the dependence of s on body i's rotation is the
     moment of that force about P_j).  Revolute or cylindrical joint: s = the angle theta of the
-    rsda (g_i to g_j about f_i, within pi of the middle of the range) and the torque Fs a on j,
-    -Fs a on i (a: the angle's exact gradient axis).
+    rsda (g_i to g_j about f_i, within pi of the middle of the range, or of lower + pi/2 or
+    upper - pi/2 for a one-sided stop) and the torque Fs a on j, -Fs a on i (a: the angle's
+    exact gradient axis).
 
     Penetration g = s - upper above the range (Fs = -F(g, sd)), g = lower - s below it
     (Fs = +F(g, -sd)); F is :func:`impact_force` (k, exponent, c_max/depth or restitution).
@@ -354,13 +355,16 @@ class JointStop(ForceElement):
             )
         el.angular = (motion or natural) == "rotation"
         if el.angular:
-            if el.upper - el.lower >= 2 * np.pi:
+            if np.isfinite(el.upper - el.lower) and el.upper - el.lower >= 2 * np.pi:
                 raise DeckError("an angle range must be shorter than 2 pi", where.child("upper"))
-            mid = (
-                0.5 * (el.lower + el.upper)
-                if np.isfinite(el.upper - el.lower)
-                else (el.lower + np.pi if np.isfinite(el.lower) else el.upper - np.pi)
-            )
+            # the angle is taken within pi of mid: the middle of the range, or pi/2 inside a
+            # one-sided stop, so that a penetration up to pi - (upper - lower)/2 (pi/2) is seen
+            if np.isfinite(el.upper - el.lower):
+                mid = 0.5 * (el.lower + el.upper)
+            elif np.isfinite(el.lower):
+                mid = el.lower + 0.5 * np.pi
+            else:
+                mid = el.upper - 0.5 * np.pi
             el.angle = Angle(el.bi, el.bj, fi, fj, mid)
         else:
             el.si, el.sj, el.f = fi["P"].copy(), fj["P"].copy(), fi["f"].copy()

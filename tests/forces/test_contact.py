@@ -371,3 +371,17 @@ def test_bad_stop_parameters_name_the_key(old, new, message, path):
     with pytest.raises(DeckError) as exc:
         compile_model(load_deck_text(text.replace(old, new, 1)))
     assert message in str(exc.value) and path in str(exc.value)
+
+
+def test_one_sided_angle_stop_sees_its_penetration():
+    """upper only: the angle is taken within pi of upper - pi/2, so a disc 0.3 rad past the
+    stop is penetrated by 0.3 (not wrapped to the far side)."""
+    text = STOPS.read_text().replace("    lower: -1.0\n    upper: 0.0\n", "    upper: 0.0\n")
+    text = text.replace("disc: {mass: 1, inertia: [J, J, J], r: [0, 1, 0], omega: [0, 0, w]}",
+                        "disc: {mass: 1, inertia: [J, J, J], r: [0, 1, 0],"
+                        f" p: {[float(np.cos(0.15)), 0, 0, float(np.sin(0.15))]}}}")
+    model = compile_model(load_deck_text(text))
+    stop = model.forces[1]
+    s, _, g, Fs, *_ = stop.load(eq.State(model, model.q0, np.zeros(model.nq)))
+    assert (s, g) == pytest.approx((0.3, 0.3), abs=1e-12)
+    assert Fs == pytest.approx(-1e4 * 0.3**1.5, rel=1e-12)
