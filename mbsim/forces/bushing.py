@@ -52,6 +52,14 @@ from mbsim.forces.base import ForceElement
 from mbsim.model import joint_frame
 from mbsim.rotations import from_matrix, skew
 
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(3,) a x b for 3-vectors (np.cross costs ~20 us on 3-vectors, this ~2 us)."""
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
+
+
 SMALL_ANGLE = 1e-4  # rad: below it J_r^{-1}'s theta~^2 coefficient uses its series (1/12)
 
 
@@ -215,9 +223,9 @@ class Bushing(ForceElement):
         bi, bj = self.bi, self.bj
         wi = st.A[bi] @ st.omega_local[bi]  # global angular velocities
         wj = st.A[bj] @ st.omega_local[bj]
-        vi = st.rd[bi] + np.cross(wi, Pi - st.r[bi])  # velocity of P_i, of P_j
-        vj = st.rd[bj] + np.cross(wj, Pj - st.r[bj])
-        dd = Bi.T @ (vj - vi - np.cross(wi, Pj - Pi))  # d/dt (B_i^T (P_j - P_i))
+        vi = st.rd[bi] + cross(wi, Pi - st.r[bi])  # velocity of P_i, of P_j
+        vj = st.rd[bj] + cross(wj, Pj - st.r[bj])
+        dd = Bi.T @ (vj - vi - cross(wi, Pj - Pi))  # d/dt (B_i^T (P_j - P_i))
         Jinv = jr_inverse(theta)
         return dd, Jinv @ (Bj.T @ (wj - wi)), Jinv
 
@@ -249,8 +257,8 @@ class Bushing(ForceElement):
         Pj = s["Pj"]
         F[bj] += Fj
         F[bi] -= Fj
-        n_local[bj] += st.A[bj].T @ (np.cross(Pj - st.r[bj], Fj) + Tj)
-        n_local[bi] -= st.A[bi].T @ (np.cross(Pj - st.r[bi], Fj) + Tj)
+        n_local[bj] += st.A[bj].T @ (cross(Pj - st.r[bj], Fj) + Tj)
+        n_local[bi] -= st.A[bi].T @ (cross(Pj - st.r[bi], Fj) + Tj)
 
     def potential(self, st):
         """V = 1/2 d.K d + 1/2 theta.Kr theta - f0.d - t0.theta (curves: their integrals)."""

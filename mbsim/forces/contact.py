@@ -56,6 +56,7 @@ import numpy as np
 from mbsim.errors import DeckError
 from mbsim.forces import register
 from mbsim.forces.base import ForceElement
+from mbsim.forces.bushing import cross
 
 RESTITUTION_ALPHA = {  # alpha (s/m) from the coefficient of restitution e and the speed v
     "hunt-crossley": lambda e, v: 3.0 * (1.0 - e) / (2.0 * v),
@@ -256,7 +257,7 @@ class Contact(ForceElement):
         bi, bj = self.bi, self.bj
         wi = st.A[bi] @ st.omega_local[bi]
         wj = st.A[bj] @ st.omega_local[bj]
-        v = (st.rd[bj] + np.cross(wj, C - st.r[bj])) - (st.rd[bi] + np.cross(wi, C - st.r[bi]))
+        v = (st.rd[bj] + cross(wj, C - st.r[bj])) - (st.rd[bi] + cross(wi, C - st.r[bi]))
         gd = -float(n @ v)
         vt = v + gd * n
         out.update(gd=gd, vt=vt)
@@ -278,8 +279,8 @@ class Contact(ForceElement):
         C, bi, bj = s["C"], self.bi, self.bj
         F[bj] += f
         F[bi] -= f
-        n_local[bj] += st.A[bj].T @ np.cross(C - st.r[bj], f)
-        n_local[bi] -= st.A[bi].T @ np.cross(C - st.r[bi], f)
+        n_local[bj] += st.A[bj].T @ cross(C - st.r[bj], f)
+        n_local[bi] -= st.A[bi].T @ cross(C - st.r[bi], f)
 
     def potential(self, st):
         """k g^(e+1) / (e+1) for g > 0."""
@@ -396,9 +397,9 @@ class JointStop(ForceElement):
         if st.rd is None:
             return s, f, Pj, None
         wi, wj = Ai @ st.omega_local[bi], Aj @ st.omega_local[bj]
-        vi = st.rd[bi] + np.cross(wi, Pi - st.r[bi])
-        vj = st.rd[bj] + np.cross(wj, Pj - st.r[bj])
-        sd = float(np.cross(wi, f) @ (Pj - Pi) + f @ (vj - vi))
+        vi = st.rd[bi] + cross(wi, Pi - st.r[bi])
+        vj = st.rd[bj] + cross(wj, Pj - st.r[bj])
+        sd = float(cross(wi, f) @ (Pj - Pi) + f @ (vj - vi))
         return s, f, Pj, sd
 
     def load(self, st):
@@ -428,8 +429,8 @@ class JointStop(ForceElement):
         f = Fs * a
         F[bj] += f
         F[bi] -= f
-        n_local[bj] += st.A[bj].T @ np.cross(Pj - st.r[bj], f)
-        n_local[bi] -= st.A[bi].T @ np.cross(Pj - st.r[bi], f)
+        n_local[bj] += st.A[bj].T @ cross(Pj - st.r[bj], f)
+        n_local[bi] -= st.A[bi].T @ cross(Pj - st.r[bi], f)
 
     def potential(self, st):
         s = self.travel(st)[0]
