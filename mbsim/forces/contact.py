@@ -127,14 +127,15 @@ def impact_duration(m: float, k: float, e: float, v: float) -> float:
 
 
 def _reduced_mass(model, bi: int, bj: int, inertia: bool = False) -> float:
-    """m_i m_j / (m_i + m_j), ground counted as infinite; ``inertia``: the largest principal
-    moments instead of the masses (a bound for a stop on an angle)."""
+    """m_i m_j / (m_i + m_j), ground counted as infinite; ``inertia``: the smallest principal
+    moments instead of the masses (for a stop on an angle: the shortest impact, the safe
+    step limit)."""
     ms = []
     for b in (bi, bj):
         if model.is_ground[b]:
             continue
         ms.append(
-            float(np.linalg.eigvalsh(model.J_local[b]).max()) if inertia else float(model.mass[b])
+            float(np.linalg.eigvalsh(model.J_local[b]).min()) if inertia else float(model.mass[b])
         )
     return 1.0 / sum(1.0 / m for m in ms) if ms else np.inf
 
