@@ -505,9 +505,23 @@ def info(deck, sets, scene):
             "no redundant constraints"
         click.echo(f"Rank of Phi_q at the assembled configuration: {asm.rank} of {model.m} rows "
                    f"({red}); DOF = {asm.dof}")
+        _info_forces(spec, model)
     except MbsimError as exc:
         click.echo(f"assembly failed: {exc}", err=True)
         sys.exit(EXIT_FAILED)
+
+
+def _info_forces(spec, model) -> None:
+    """The force elements: type, name, bodies and the element's own line (``describe``)."""
+    if not model.forces:
+        return
+    click.echo("Forces")
+    for el in model.forces:
+        bodies = ", ".join(b for b in spec.forces[el.name].bodies if b)
+        line = f"  {el.type + ' force: ' + el.name:<40}{bodies}"
+        if hasattr(el, "describe"):
+            line += f"; {el.describe(model)}"
+        click.echo(line)
 
 
 @main.command()

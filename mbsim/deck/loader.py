@@ -495,6 +495,7 @@ def _force(rd: Reader, name: str, node: Node, where: Where, bodies: dict,
             raise rd.error(got["bodies"][1], f"the bodies must be those of joint "
                            f"{data['joint']} ({', '.join(joint.bodies)})")  # fmt: skip
         out.bodies, out.points = tuple(joint.bodies), dict(joint.points)
+        out.data["joint_type"] = joint.type  # for forces whose law depends on it (stop)
     elif spec.bodies == "one":
         P = rd.vector(*got["point"], 3, "length") if "point" in got else np.zeros(3)
         out.points = {out.bodies[0]: PointSet(P, where=got.get("point", (None, where))[1])}

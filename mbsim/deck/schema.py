@@ -284,6 +284,62 @@ FORCE_TYPES = {
             "forward": Field("vector"),  # body-frame heading axis, default y'
         },
     ),
+    "bushing": ForceType(  # mbsim/forces/bushing.py (ADAMS BUSHING)
+        "pair",
+        {
+            "k": Field("vector", "stiffness"),
+            "c": Field("vector", "damping"),
+            "kr": Field("vector", "rot_stiffness"),
+            "cr": Field("vector", "rot_damping"),
+            "preload_force": Field("vector", "force"),
+            "preload_torque": Field("vector", "torque"),
+            "force_curves": Field("laws", "force"),  # f(d) per component, instead of k
+            "torque_curves": Field("laws", "torque"),  # t(theta) per component, instead of kr
+        },
+    ),
+    "contact": ForceType(  # mbsim/forces/contact.py (ADAMS IMPACT)
+        "pair",
+        {
+            "geometry": Field("choice", required=True, options=("sphere-plane", "sphere-sphere")),
+            "radius": Field("number", "length", required=True),  # sphere on body j
+            "radius_i": Field("number", "length"),  # sphere-sphere: the sphere on body i
+            "normal": Field("vector"),  # sphere-plane: plane normal, body i frame (default z)
+            "k": Field("number"),  # N/m^exponent
+            "exponent": Field("number", default=1.5),
+            "E": Field("number"),  # Pa, Hertz stiffness (both bodies), instead of k
+            "nu": Field("number", default=0.3),
+            "c_max": Field("number", "damping", default=0.0),
+            "depth": Field("number", "length"),  # penetration at which c reaches c_max
+            "restitution": Field("number"),  # instead of c_max: e with v_impact
+            "v_impact": Field("number", "velocity"),
+            "restitution_law": Field(
+                "choice", default="lankarani-nikravesh",
+                options=("hunt-crossley", "lankarani-nikravesh", "flores"),
+            ),
+            "mu": Field("number", default=0.0),
+            "v_slip": Field("number", "velocity", default=1e-3),
+        },
+    ),
+    "stop": ForceType(  # mbsim/forces/contact.py: the contact law on a joint's travel or angle
+        "pair-joint",
+        {
+            "joint": Field("joint", required=True,
+                           options=("translational", "revolute", "cylindrical")),
+            "motion": Field("choice", options=("translation", "rotation")),  # cylindrical
+            "lower": Field("number"),  # m (translation) or rad (rotation)
+            "upper": Field("number"),
+            "k": Field("number", required=True),  # N/m^exponent or N m/rad^exponent
+            "exponent": Field("number", default=1.5),
+            "c_max": Field("number", default=0.0),
+            "depth": Field("number"),
+            "restitution": Field("number"),
+            "v_impact": Field("number"),
+            "restitution_law": Field(
+                "choice", default="lankarani-nikravesh",
+                options=("hunt-crossley", "lankarani-nikravesh", "flores"),
+            ),
+        },
+    ),
 }
 FORCE_BODY_KEYS = {
     "pair": ("bodies", "points"),

@@ -27,3 +27,6 @@ def compile_forces(spec, body_index) -> tuple:
 
 
 from mbsim.forces import elements, tire  # noqa: E402, F401  (register the built-in types, the tire)
+
+# isort: split
+from mbsim.forces import bushing, contact  # noqa: E402, F401  (bushing; contact and stop)

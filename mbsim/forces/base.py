@@ -14,6 +14,8 @@ Contract of a force type (a class registered in ``FORCES``):
 4. ``potential(st) -> float``: stored energy of the conservative part (0 if none), for the
    energy monitor and minimum-potential-energy equilibrium.
 5. ``channels(st, t) -> dict[name, (value, unit)]``: optional outputs (length, force, ...).
+6. ``describe(model) -> str``: optional, one line for ``mbsim info`` (e.g. the step limit a
+   contact's impacts need).
 """
 
 from __future__ import annotations

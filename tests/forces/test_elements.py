@@ -21,7 +21,7 @@ from tests.forces.builders import (
     tangent,
     two_body_model,
 )
-from tests.helpers import body, spec
+from tests.helpers import body, joint, pts, spec
 from tests.reference import equations as eq
 
 rng = np.random.default_rng(2024)
@@ -58,6 +58,35 @@ def _case(type_):
         f = force("W", "tire", ("a",), {"a": rng.normal(size=3)}, kt=2e5, radius=10.0,
                   c_alpha=5e4)  # fmt: skip
         return two_body_model([f], rng)
+    if type_ == "bushing":  # random poses: a large relative rotation (also test_bushing.py)
+        P = rng.normal(size=3)
+        frames = {b: pts(P, P + [1, 0, 0], P + [0, 1, 0]) for b in ("a", "b")}
+        f = force("B", "bushing", ("a", "b"), frames, k=[800.0, 1200.0, 2000.0],
+                  kr=[30.0, 45.0, 90.0], preload_force=[5.0, -3.0, 2.0])  # fmt: skip
+        return two_body_model([f], rng)
+    if type_ == "contact":  # two spheres overlapping by 10 % of their centre distance
+        data = dict(geometry="sphere-sphere", radius=1.0, radius_i=1.0, k=1e4, exponent=1.5,
+                    nu=0.3, c_max=0.0, restitution_law="lankarani-nikravesh", mu=0.0,
+                    v_slip=1e-3)  # fmt: skip
+        f = force("C", "contact", ("a", "b"), {"a": [0, 0, 0], "b": [0, 0, 0]}, **data)
+        m = two_body_model([f], rng)
+        g, _, _ = m.forces[0].geometry_of(eq.State(m, m.q0))
+        L = 2.0 - g
+        f.data.update(radius=0.55 * L, radius_i=0.55 * L)
+        return compile_model(m.spec)
+    if type_ == "stop":  # a translational joint's travel beyond the upper stop
+        P = rng.normal(size=3)
+        Pb = rng.normal(size=(3, 3))
+        J = joint("T", "translational", "a", "b",
+                  {"a": pts(P, P + rng.normal(size=3), P + rng.normal(size=3)),
+                   "b": pts(*Pb)})  # fmt: skip
+        data = dict(joint="T", joint_type="translational", k=1e3, exponent=1.5, c_max=0.0,
+                    restitution_law="lankarani-nikravesh")  # fmt: skip
+        f = force("S", "stop", ("a", "b"), dict(J.points), upper=1e9, **data)
+        m = two_body_model([f], rng, [J])
+        s, *_ = m.forces[0].travel(eq.State(m, m.q0))
+        f.data["upper"] = s - 0.3
+        return compile_model(m.spec)
     raise KeyError(f"no test case for force type {type_!r}: add one")
 
 
