@@ -51,10 +51,10 @@ def test_check_imports_no_scipy():
 
 def test_the_modules_of_check_import_no_scipy():
     """Everything `mbsim check` imports up to the assembly's rank test is scipy-free: the
-    CLI, the deck loader, the model, the equations, the assembly, the compiled kernels'
+    CLI, the deck loader, the model, the core, the assembly, the compiled kernels'
     loader, the results layer."""
     probe = ("import sys; import mbsim.cli, mbsim.api, mbsim.deck.loader, mbsim.model, "
-             "mbsim.equations, mbsim.analyses.assembly, mbsim.fast._lib, mbsim.output; "
+             "mbsim.core, mbsim.analyses.assembly, mbsim.fast._lib, mbsim.output; "
              "print(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy'))")
     out = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True,
                          text=True, timeout=120)

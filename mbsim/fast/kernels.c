@@ -22,9 +22,10 @@
  * (mbsim/fast/constraints.py and dynamics.py build them; their module docs say more.)
  *
  * Equations: Haug, Computer-Aided Kinematics and Dynamics of Mechanical Systems (1989),
- * Ch. 6 (Euler parameters), Ch. 9 (basic constraints), Ch. 11 (equations of motion).  The
- * plain numpy reference of the same equations is mbsim/constraints/basic.py and
- * mbsim/equations.py; tests/test_kernels.py checks that both agree to round-off.
+ * Ch. 6 (Euler parameters), Ch. 9 (basic constraints), Ch. 11 (equations of motion).  Every
+ * analysis calls them through mbsim/core.py.  The plain numpy reference of the same
+ * equations lives under tests/reference/ (basic.py, equations.py) and serves only the tests
+ * (tests/test_kernels.py, tests/test_core.py), which check that both agree to round-off.
  */
 #include <math.h>
 #include <stdint.h>

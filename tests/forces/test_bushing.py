@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.api import load_model, run_model
 from mbsim.deck import load_deck_text
 from mbsim.errors import DeckError
@@ -40,15 +40,19 @@ def test_six_modes_at_the_centroid_match_the_closed_form():
     _, model = load_model(DECK)
     res = run_model(model, "linear", {})
     expected = np.sort_complex(
-        np.array([closed_form(M, k, c) for k, c in zip(K, C)]
-                 + [closed_form(j, k, c) for j, k, c in zip(J, KR, CR)])
+        np.array(
+            [closed_form(M, k, c) for k, c in zip(K, C)]
+            + [closed_form(j, k, c) for j, k, c in zip(J, KR, CR)]
+        )
     )
     lam = eigenvalues(res)
     assert lam.size == 6
     np.testing.assert_allclose(lam, expected, rtol=1e-6)
     zeta = sorted(res.summary["damping_ratios"])
-    ref = sorted([c / (2 * np.sqrt(k * M)) for k, c in zip(K, C)]
-                 + [c / (2 * np.sqrt(k * j)) for j, k, c in zip(J, KR, CR)])
+    ref = sorted(
+        [c / (2 * np.sqrt(k * M)) for k, c in zip(K, C)]
+        + [c / (2 * np.sqrt(k * j)) for j, k, c in zip(J, KR, CR)]
+    )
     np.testing.assert_allclose(zeta, ref, rtol=1e-6)
 
 
@@ -58,10 +62,13 @@ def test_offset_bushing_couples_translation_and_tilt():
     (likewise y with -a theta_x): det(K - w^2 M) = 0 gives
     m Jy w^4 - (m (kx a^2 + kry) + Jy kx) w^2 + kx kry = 0; z and theta_z stay decoupled."""
     a = 0.15
-    text = DECK.read_text().replace("P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]",
-                                    f"P: [0, 0, {a}], Q: [1, 0, {a}], R: [0, 1, {a}]")
-    text = text.replace("c: [4, 6, 10]", "c: [0, 0, 0]").replace("cr: [0.2, 0.3, 0.5]",
-                                                                 "cr: [0, 0, 0]")
+    text = DECK.read_text().replace(
+        "P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]",
+        f"P: [0, 0, {a}], Q: [1, 0, {a}], R: [0, 1, {a}]",
+    )
+    text = text.replace("c: [4, 6, 10]", "c: [0, 0, 0]").replace(
+        "cr: [0.2, 0.3, 0.5]", "cr: [0, 0, 0]"
+    )
     res = run_model(compile_model(load_deck_text(text)), "linear", {})
 
     def pair(k, kr, j):
@@ -69,8 +76,11 @@ def test_offset_bushing_couples_translation_and_tilt():
         disc = np.sqrt(b * b - 4 * M * j * k * kr)
         return [np.sqrt((b - disc) / (2 * M * j)), np.sqrt((b + disc) / (2 * M * j))]
 
-    omega = sorted(pair(K[0], KR[1], J[1]) + pair(K[1], KR[0], J[0])
-                   + [np.sqrt(K[2] / M), np.sqrt(KR[2] / J[2])])
+    omega = sorted(
+        pair(K[0], KR[1], J[1])
+        + pair(K[1], KR[0], J[0])
+        + [np.sqrt(K[2] / M), np.sqrt(KR[2] / J[2])]
+    )
     lam = eigenvalues(res)
     np.testing.assert_allclose(np.sort(lam.imag), omega, rtol=1e-6)
     np.testing.assert_allclose(lam.real, 0, atol=1e-6 * max(omega))
@@ -82,8 +92,11 @@ def test_free_decay_of_the_vertical_mode():
     local tolerances per step accumulated over the run; bound 1e-6 of the amplitude."""
     v0 = 0.01
     _, model = load_model(DECK, overrides={"bodies.block.rdot": f"[0, 0, {v0}]"})
-    res = run_model(model, "dynamic", {"t_end": 0.3, "step": 0.002, "rtol": 1e-9,
-                                       "atol": 1e-12, "error_estimate": False})
+    res = run_model(
+        model,
+        "dynamic",
+        {"t_end": 0.3, "step": 0.002, "rtol": 1e-9, "atol": 1e-12, "error_estimate": False},
+    )
     assert res.complete
     w, zeta = np.sqrt(K[2] / M), C[2] / (2 * np.sqrt(K[2] * M))
     wd = w * np.sqrt(1 - zeta**2)
@@ -102,6 +115,7 @@ def test_free_decay_of_the_vertical_mode():
 def general_bushing():
     """Two free bodies at random poses, a bushing with random frames, stiffness, preloads."""
     rng = np.random.default_rng(7)
+
     def frame():
         P = rng.normal(size=3)
         Q = P + rng.normal(size=3)
@@ -109,6 +123,7 @@ def general_bushing():
         w = rng.normal(size=3)
         w -= u * (u @ w) / (u @ u)
         return f"{{P: {P.tolist()}, Q: {Q.tolist()}, R: {(P + w).tolist()}}}"
+
     text = f"""
 title: two bodies on a bushing
 gravity: [0, 0, 0]
@@ -137,15 +152,17 @@ def test_elastic_loads_are_minus_the_gradient_of_the_potential(general_bushing):
     """Q (zero velocity) against central differences of V along random tangent directions
     (dp perpendicular to p), steps 1e-6: truncation ~ h^2 V''' ~ 1e-10 relative."""
     model, q, rng = general_bushing
-    Q, _, _ = eq.applied_forces(model, q, np.zeros(model.nq))
+    Q, _, _ = core.applied_forces(model, None, q, np.zeros(model.nq))
     for _ in range(6):
         dq = rng.normal(size=model.nq).reshape(2, 7)
         p = q.reshape(2, 7)[:, 3:]
         dq[:, 3:] -= p * np.sum(dq[:, 3:] * p, 1, keepdims=True)
         dq = dq.reshape(-1)
         h = 1e-6
-        dV = (eq.potential_energy(model, q + h * dq) - eq.potential_energy(model, q - h * dq)) / (
-            2 * h)
+        dV = (
+            core.potential_energy(model, None, q + h * dq)
+            - core.potential_energy(model, None, q - h * dq)
+        ) / (2 * h)
         assert -Q @ dq == pytest.approx(dV, rel=1e-7, abs=1e-9 * np.abs(Q).max())
 
 
@@ -154,15 +171,16 @@ def test_damping_only_dissipates(general_bushing):
     velocity minus that at zero velocity (the elastic part) is that non-positive number."""
     model, q, rng = general_bushing
     el = model.forces[0]
-    from mbsim.equations import State
+    from mbsim.core import State
+
     for _ in range(5):
         qd = rng.normal(size=model.nq)
         p = q.reshape(2, 7)[:, 3:]
         qd = qd.reshape(2, 7)
         qd[:, 3:] -= p * np.sum(qd[:, 3:] * p, 1, keepdims=True)
         qd = qd.reshape(-1)
-        Qv, _, _ = eq.applied_forces(model, q, qd)
-        Q0, _, _ = eq.applied_forces(model, q, np.zeros(model.nq))
+        Qv, _, _ = core.applied_forces(model, None, q, qd)
+        Q0, _, _ = core.applied_forces(model, None, q, np.zeros(model.nq))
         s = el.state(State(model, q, qd))
         # gyroscopic terms do no work (qd . Q_gyro = 0), so the difference is the damping power
         expected = -(s["dd"] @ (el.c * s["dd"]) + s["thd"] @ (el.cr * s["thd"]))
@@ -178,11 +196,16 @@ def test_rotation_vector_and_its_jacobian():
         R = rot_A(from_axis_angle(theta, np.linalg.norm(theta)))
         np.testing.assert_allclose(rotation_vector(R), theta, rtol=1e-12, atol=1e-15)
         h = 1e-6
-        Jn = np.column_stack([
-            (rotation_vector(R @ rot_A(from_axis_angle(e, h)))
-             - rotation_vector(R @ rot_A(from_axis_angle(e, -h)))) / (2 * h)
-            for e in np.eye(3)
-        ])
+        Jn = np.column_stack(
+            [
+                (
+                    rotation_vector(R @ rot_A(from_axis_angle(e, h)))
+                    - rotation_vector(R @ rot_A(from_axis_angle(e, -h)))
+                )
+                / (2 * h)
+                for e in np.eye(3)
+            ]
+        )
         np.testing.assert_allclose(Jn, jr_inverse(theta), atol=1e-8)
 
 
@@ -190,11 +213,19 @@ BAD = [
     ("k: [8000, 12000, 20000]", "k: [8000, -1, 20000]", "k must not be negative", "mount.k"),
     ("cr: [0.2, 0.3, 0.5]", "cr: [0.2, 0.3, -0.5]", "cr must not be negative", "mount.cr"),
     ("bodies: [ground, block]", "bodies: [ground, blok]", "blok", "mount.bodies"),
-    ("block: {P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]}",
-     "block: {P: [0, 0, 0], Q: [1, 0, 0], R: [0.1, 1, 0]}", "orthogonal", "points.block.R"),
-    ("kr: [300, 450, 900]", "kr: [300, 450, 900]\n    torque_curves: [{polynomial: [0, 1]},"
-     " {polynomial: [0, 1]}, {polynomial: [0, 1]}]", "either kr or torque_curves",
-     "mount.torque_curves"),
+    (
+        "block: {P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]}",
+        "block: {P: [0, 0, 0], Q: [1, 0, 0], R: [0.1, 1, 0]}",
+        "orthogonal",
+        "points.block.R",
+    ),
+    (
+        "kr: [300, 450, 900]",
+        "kr: [300, 450, 900]\n    torque_curves: [{polynomial: [0, 1]},"
+        " {polynomial: [0, 1]}, {polynomial: [0, 1]}]",
+        "either kr or torque_curves",
+        "mount.torque_curves",
+    ),
 ]
 
 
@@ -219,13 +250,14 @@ def test_curves_replace_the_linear_stiffness():
     m1, m2 = (compile_model(load_deck_text(t)) for t in (base, curved))
     q = m1.q0.copy()
     b = m1.body_index("block")
-    q[7 * b: 7 * b + 3] = [0.01, -0.02, 0.03]
-    Q1, _, _ = eq.applied_forces(m1, q, np.zeros(m1.nq))
-    Q2, _, _ = eq.applied_forces(m2, q, np.zeros(m2.nq))
+    q[7 * b : 7 * b + 3] = [0.01, -0.02, 0.03]
+    Q1, _, _ = core.applied_forces(m1, None, q, np.zeros(m1.nq))
+    Q2, _, _ = core.applied_forces(m2, None, q, np.zeros(m2.nq))
     assert Q2[7 * b + 2] - Q1[7 * b + 2] == pytest.approx(-1e6 * 0.03**3, rel=1e-12)
-    np.testing.assert_allclose(Q2[7 * b: 7 * b + 2], Q1[7 * b: 7 * b + 2], rtol=1e-12)
-    assert eq.potential_energy(m2, q) - eq.potential_energy(m1, q) == pytest.approx(
-        1e6 * 0.03**4 / 4, rel=1e-9)
+    np.testing.assert_allclose(Q2[7 * b : 7 * b + 2], Q1[7 * b : 7 * b + 2], rtol=1e-12)
+    assert core.potential_energy(m2, None, q) - core.potential_energy(m1, None, q) == pytest.approx(
+        1e6 * 0.03**4 / 4, rel=1e-9
+    )
 
 
 def test_preload_holds_the_weight_at_zero_deflection():
@@ -235,8 +267,13 @@ def test_preload_holds_the_weight_at_zero_deflection():
     g = 9.81
     text = DECK.read_text().replace("gravity: [0, 0, 0]", f"gravity: [0, 0, {-g}]")
     sag = compile_model(load_deck_text(text))
-    held = compile_model(load_deck_text(text.replace(
-        "cr: [0.2, 0.3, 0.5]", f"cr: [0.2, 0.3, 0.5]\n    preload_force: [0, 0, {M * g!r}]")))
+    held = compile_model(
+        load_deck_text(
+            text.replace(
+                "cr: [0.2, 0.3, 0.5]", f"cr: [0.2, 0.3, 0.5]\n    preload_force: [0, 0, {M * g!r}]"
+            )
+        )
+    )
     for model, z in ((sag, -M * g / K[2]), (held, 0.0)):
         res = run_model(model, "equilibrium", {"method": "minimum"})
         assert res.complete, res.message

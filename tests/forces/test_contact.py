@@ -11,7 +11,7 @@ import pytest
 from scipy.integrate import simpson, solve_ivp
 from scipy.special import beta
 
-from mbsim import equations as eq
+from mbsim import core
 from mbsim.api import load_model, run_model
 from mbsim.deck import load_deck_text
 from mbsim.errors import DeckError
@@ -70,8 +70,14 @@ def crossing_out(res) -> float:
 def test_undamped_hertz_impact_lasts_the_closed_form_time():
     """A ball at 1 m/s on the plane, no gravity, undamped Hertz contact: duration t_c to 1e-4
     (the issue asks 1 %; the run's own error is of order rtol), rebound speed 1 m/s."""
-    _, model = load_model(DECK, overrides={"gravity": "[0, 0, 0]", "parameters.z0": str(R),
-                                           "bodies.ball.rdot": "[0, 0, -1]"})
+    _, model = load_model(
+        DECK,
+        overrides={
+            "gravity": "[0, 0, 0]",
+            "parameters.z0": str(R),
+            "bodies.ball.rdot": "[0, 0, -1]",
+        },
+    )
     k = model.forces[0].k
     assert k == pytest.approx(4 / 3 * E / (2 * (1 - NU**2)) * np.sqrt(R), rel=1e-15)
     tc = hertz_duration(MASS, k, 1.0)
@@ -81,8 +87,9 @@ def test_undamped_hertz_impact_lasts_the_closed_form_time():
     np.testing.assert_allclose(res.channel("bodies/ball/rd").data[-1], [0, 0, 1], atol=1e-5)
 
 
-def law_rebound(law: str, e: float, v: float, k: float, m: float, h: float = 0.0,
-                g: float = 0.0) -> tuple[float, float]:
+def law_rebound(
+    law: str, e: float, v: float, k: float, m: float, h: float = 0.0, g: float = 0.0
+) -> tuple[float, float]:
     """(coefficient of restitution, apex height of the centre above its contact height) of the
     one-dimensional law m z'' = -m g + max(k p^1.5 (1 + alpha p'), 0), p = -z > 0: arriving at
     speed v (h = 0), or dropped from rest at height h under g (then v is the law's v_impact
@@ -102,13 +109,22 @@ def law_rebound(law: str, e: float, v: float, k: float, m: float, h: float = 0.0
 
     leave.terminal, apex.terminal, apex.direction = True, True, -1
     y0 = [h, 0.0] if h else [0.0, -v]
-    s1 = solve_ivp(rhs, [0, 10], y0, rtol=1e-12, atol=1e-16, events=leave, method="DOP853",
-                   max_step=1e-6 if h == 0 else np.inf)
+    s1 = solve_ivp(
+        rhs,
+        [0, 10],
+        y0,
+        rtol=1e-12,
+        atol=1e-16,
+        events=leave,
+        method="DOP853",
+        max_step=1e-6 if h == 0 else np.inf,
+    )
     v_out = s1.y[1, -1]
     if not h:
         return v_out / v, 0.0
-    s2 = solve_ivp(rhs, [s1.t[-1], 10], s1.y[:, -1], rtol=1e-12, atol=1e-16, events=apex,
-                   method="DOP853")
+    s2 = solve_ivp(
+        rhs, [s1.t[-1], 10], s1.y[:, -1], rtol=1e-12, atol=1e-16, events=apex, method="DOP853"
+    )
     return v_out / v, float(s2.y[0, -1])
 
 
@@ -121,9 +137,14 @@ def test_restitution_laws(law):
     covers the three laws for e >= 0.5 (the 1-D integration here finds 0.3-1.3)."""
     k = hertz_stiffness(E, NU, R)
     for e in (0.5, 0.8, 0.95):
-        _, model = load_model(DECK, overrides={
-            "gravity": "[0, 0, 0]", "parameters.z0": str(R), "bodies.ball.rdot": "[0, 0, -1]",
-        })
+        _, model = load_model(
+            DECK,
+            overrides={
+                "gravity": "[0, 0, 0]",
+                "parameters.z0": str(R),
+                "bodies.ball.rdot": "[0, 0, -1]",
+            },
+        )
         el = model.forces[0]
         el.alpha = RESTITUTION_ALPHA[law](e, 1.0)  # as the deck's restitution sets it
         tc = hertz_duration(MASS, k, 1.0)
@@ -143,7 +164,8 @@ def test_restitution_from_the_deck_and_the_rebound_height():
     text = DECK.read_text().replace(
         "    nu: 0.3\n",
         f"    nu: 0.3\n    restitution: 0.9\n    v_impact: {float(v)!r}\n"
-        "    restitution_law: flores\n")
+        "    restitution_law: flores\n",
+    )
     model = compile_model(load_deck_text(text, overrides={"parameters.z0": repr(R + h)}))
     k = model.forces[0].k
     assert model.forces[0].alpha == pytest.approx(8 * 0.1 / (5 * 0.9 * v))
@@ -158,17 +180,28 @@ def test_restitution_from_the_deck_and_the_rebound_height():
     assert e_law == pytest.approx(0.9, abs=1.5 * 0.1**2)
 
 
-@pytest.mark.parametrize("damping", [
-    "c_max: 2000\n    depth: 1.0e-6",  # ADAMS IMPACT: STEP ramp to c_max at 1 um
-    "restitution: 0.7\n    v_impact: 1.0",  # Lankarani-Nikravesh (the default law)
-])
+@pytest.mark.parametrize(
+    "damping",
+    [
+        "c_max: 2000\n    depth: 1.0e-6",  # ADAMS IMPACT: STEP ramp to c_max at 1 um
+        "restitution: 0.7\n    v_impact: 1.0",  # Lankarani-Nikravesh (the default law)
+    ],
+)
 def test_energy_lost_equals_the_damping_work(damping):
     """T + V_contact + int damping_power dt stays at its start value: the lost kinetic energy
     m (v0^2 - v1^2)/2 equals the damping work (Simpson on 400 outputs per impact; both
     integrands smooth, the quadrature error ~ (1/400)^4; the run's energy error ~ rtol)."""
     text = DECK.read_text().replace("    nu: 0.3\n", f"    nu: 0.3\n    {damping}\n")
-    model = compile_model(load_deck_text(text, overrides={
-        "gravity": "[0, 0, 0]", "parameters.z0": str(R), "bodies.ball.rdot": "[0, 0, -1]"}))
+    model = compile_model(
+        load_deck_text(
+            text,
+            overrides={
+                "gravity": "[0, 0, 0]",
+                "parameters.z0": str(R),
+                "bodies.ball.rdot": "[0, 0, -1]",
+            },
+        )
+    )
     tc = hertz_duration(MASS, model.forces[0].k, 1.0)
     res = run_model(model, "dynamic", dict(OPT, t_end=1.2 * tc, step=tc / 400))
     v1 = res.channel("bodies/ball/rd").data[-1, 2]
@@ -222,13 +255,19 @@ def test_sliding_ball_decelerates_at_mu_g_then_rolls():
     model0 = compile_model(load_deck_text(DECK.read_text()))
     k = model0.forces[0].k
     g0 = (MASS * g / k) ** (2 / 3)
-    text = DECK.read_text().replace("    nu: 0.3\n",
-                                    f"    nu: 0.3\n    mu: {mu}\n    v_slip: 1e-4\n")
-    model = compile_model(load_deck_text(text, overrides={
-        "parameters.z0": repr(float(R - g0)), "bodies.ball.rdot": f"[{v0}, 0, 0]"}))
+    text = DECK.read_text().replace(
+        "    nu: 0.3\n", f"    nu: 0.3\n    mu: {mu}\n    v_slip: 1e-4\n"
+    )
+    model = compile_model(
+        load_deck_text(
+            text,
+            overrides={"parameters.z0": repr(float(R - g0)), "bodies.ball.rdot": f"[{v0}, 0, 0]"},
+        )
+    )
     t_roll = 2 * v0 / (7 * mu * g)
-    res = run_model(model, "dynamic", dict(OPT, t_end=1.5 * t_roll, step=t_roll / 50,
-                                            rtol=1e-7, atol=1e-10))
+    res = run_model(
+        model, "dynamic", dict(OPT, t_end=1.5 * t_roll, step=t_roll / 50, rtol=1e-7, atol=1e-10)
+    )
     assert res.complete
     vx = res.channel("bodies/ball/rd").data[:, 0]
     sliding = res.t < 0.9 * t_roll
@@ -261,16 +300,18 @@ forces:
 """
     model = compile_model(load_deck_text(text))
     q = model.q0
-    assert model.forces[0].potential(eq.State(model, q)) > 0  # overlapping
-    Q, _, _ = eq.applied_forces(model, q, np.zeros(model.nq))
+    assert model.forces[0].potential(core.State(model, q)) > 0  # overlapping
+    Q, _, _ = core.applied_forces(model, None, q, np.zeros(model.nq))
     for _ in range(6):
         dq = rng.normal(size=model.nq).reshape(2, 7)
         p = q.reshape(2, 7)[:, 3:]
         dq[:, 3:] -= p * np.sum(dq[:, 3:] * p, 1, keepdims=True)
         dq = dq.reshape(-1)
         h = 1e-7
-        dV = (eq.potential_energy(model, q + h * dq) - eq.potential_energy(model, q - h * dq)) / (
-            2 * h)
+        dV = (
+            core.potential_energy(model, None, q + h * dq)
+            - core.potential_energy(model, None, q - h * dq)
+        ) / (2 * h)
         assert -Q @ dq == pytest.approx(dV, rel=1e-6)
 
 
@@ -278,8 +319,12 @@ BAD = [
     ("    E: 2.0e11\n", "    E: 2.0e11\n    k: 1e9\n", "exactly one of k", "forces.impact"),
     ("    radius: R\n", "    radius: -R\n", "radius must be positive", "impact.radius"),
     ("    nu: 0.3\n", "    nu: 0.3\n    c_max: 10\n", "c_max needs depth", "forces.impact"),
-    ("    nu: 0.3\n", "    nu: 0.3\n    restitution: 1.5\n    v_impact: 1\n",
-     "restitution must lie in", "impact.restitution"),
+    (
+        "    nu: 0.3\n",
+        "    nu: 0.3\n    restitution: 1.5\n    v_impact: 1\n",
+        "restitution must lie in",
+        "impact.restitution",
+    ),
     ("    nu: 0.3\n", "    nu: 0.3\n    restitution: 0.5\n", "needs v_impact", "forces.impact"),
     ("    nu: 0.3\n", "    nu: 0.3\n    exponent: 2\n", "exponent 1.5", "impact.exponent"),
     ("    nu: 0.3\n", "    nu: 0.3\n    mu: -0.1\n", "mu must be >= 0", "impact.mu"),
@@ -319,10 +364,10 @@ def test_end_stops_on_a_translational_and_a_revolute_joint():
     assert res.complete
     assert leaves_the_stop(res, "end", 0.0) == pytest.approx(t1, rel=1e-4)
     assert leaves_the_stop(res, "limit", 0.0) == pytest.approx(t2, rel=1e-4)
-    np.testing.assert_allclose(res.channel("bodies/slider/rd").data[-1], [-0.5, 0, 0],
-                               atol=1e-5 * 0.5)
-    np.testing.assert_allclose(res.channel("bodies/disc/omega").data[-1], [0, 0, -2],
-                               atol=1e-5 * 2)
+    np.testing.assert_allclose(
+        res.channel("bodies/slider/rd").data[-1], [-0.5, 0, 0], atol=1e-5 * 0.5
+    )
+    np.testing.assert_allclose(res.channel("bodies/disc/omega").data[-1], [0, 0, -2], atol=1e-5 * 2)
 
 
 def test_stop_loads_are_minus_the_gradient_of_the_potential():
@@ -330,8 +375,9 @@ def test_stop_loads_are_minus_the_gradient_of_the_potential():
     zero velocity against central differences of V."""
     rng = np.random.default_rng(5)
     text = STOPS.read_text().replace("upper: 0.0\n    k: 1.0e7", "upper: -0.3\n    k: 1.0e7")
-    text = text.replace("lower: -0.1", "lower: -0.5").replace("upper: 0.0\n    k: 1.0e4",
-                                                             "upper: -0.4\n    k: 1.0e4")
+    text = text.replace("lower: -0.1", "lower: -0.5").replace(
+        "upper: 0.0\n    k: 1.0e4", "upper: -0.4\n    k: 1.0e4"
+    )
     model = compile_model(load_deck_text(text))
     q = model.q0.copy().reshape(-1, 7)
     for b in (model.body_index("slider"), model.body_index("disc")):
@@ -339,9 +385,9 @@ def test_stop_loads_are_minus_the_gradient_of_the_potential():
         p = q[b, 3:] + 0.2 * rng.normal(size=4)
         q[b, 3:] = p / np.linalg.norm(p)
     q = q.reshape(-1)
-    st = eq.State(model, q)
+    st = core.State(model, q)
     assert all(el.potential(st) > 0 for el in model.forces)
-    Q, _, _ = eq.applied_forces(model, q, np.zeros(model.nq))
+    Q, _, _ = core.applied_forces(model, None, q, np.zeros(model.nq))
     nb = model.nb
     for _ in range(6):
         dq = rng.normal(size=model.nq).reshape(nb, 7)
@@ -350,15 +396,16 @@ def test_stop_loads_are_minus_the_gradient_of_the_potential():
         dq[model.body_index("ground")] = 0
         dq = dq.reshape(-1)
         h = 1e-7
-        dV = (eq.potential_energy(model, q + h * dq) - eq.potential_energy(model, q - h * dq)) / (
-            2 * h)
+        dV = (
+            core.potential_energy(model, None, q + h * dq)
+            - core.potential_energy(model, None, q - h * dq)
+        ) / (2 * h)
         assert -Q @ dq == pytest.approx(dV, rel=1e-6)
 
 
 STOP_BAD = [
     ("lower: -0.1", "lower: 0.1", "lower must be below upper", "end.lower"),
-    ("joint: T", "joint: T\n    motion: rotation", "allows only motion: translation",
-     "end.motion"),
+    ("joint: T", "joint: T\n    motion: rotation", "allows only motion: translation", "end.motion"),
     ("    k: 1.0e4\n", "    k: -1.0e4\n", "k must be positive", "limit.k"),
     ("lower: -1.0", "lower: -7.0", "shorter than 2 pi", "limit.upper"),
 ]
@@ -377,11 +424,13 @@ def test_one_sided_angle_stop_sees_its_penetration():
     """upper only: the angle is taken within pi of upper - pi/2, so a disc 0.3 rad past the
     stop is penetrated by 0.3 (not wrapped to the far side)."""
     text = STOPS.read_text().replace("    lower: -1.0\n    upper: 0.0\n", "    upper: 0.0\n")
-    text = text.replace("disc: {mass: 1, inertia: [J, J, J], r: [0, 1, 0], omega: [0, 0, w]}",
-                        "disc: {mass: 1, inertia: [J, J, J], r: [0, 1, 0],"
-                        f" p: {[float(np.cos(0.15)), 0, 0, float(np.sin(0.15))]}}}")
+    text = text.replace(
+        "disc: {mass: 1, inertia: [J, J, J], r: [0, 1, 0], omega: [0, 0, w]}",
+        "disc: {mass: 1, inertia: [J, J, J], r: [0, 1, 0],"
+        f" p: {[float(np.cos(0.15)), 0, 0, float(np.sin(0.15))]}}}",
+    )
     model = compile_model(load_deck_text(text))
     stop = model.forces[1]
-    s, _, g, Fs, *_ = stop.load(eq.State(model, model.q0, np.zeros(model.nq)))
+    s, _, g, Fs, *_ = stop.load(core.State(model, model.q0, np.zeros(model.nq)))
     assert (s, g) == pytest.approx((0.3, 0.3), abs=1e-12)
     assert Fs == pytest.approx(-1e4 * 0.3**1.5, rel=1e-12)
