@@ -15,9 +15,15 @@ from pathlib import Path
 import click
 
 from mbsim import __version__
-from mbsim.cli_options import (MODES, SETTING_OPTIONS, analysis_settings, deck_options,
-                               mode_option, quiet_option, settings_of)
-from mbsim.errors import DeckError, MbsimError, UsageError, Where
+from mbsim.cli_options import (
+    SETTING_OPTIONS,
+    analysis_settings,
+    deck_options,
+    mode_option,
+    quiet_option,
+    settings_of,
+)
+from mbsim.errors import DeckError, MbsimError, UsageError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
