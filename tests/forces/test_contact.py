@@ -157,8 +157,16 @@ def test_restitution_laws(law):
 
 def test_restitution_from_the_deck_and_the_rebound_height():
     """Dropped from 5 cm under gravity with restitution 0.9 (Flores law, v_impact the free-fall
-    speed): the apex after the first bounce equals the 1-D law's apex to 1e-5 relative (the
-    run's error: rtol-scaled), and is close to e^2 h (the law's e within its accuracy)."""
+    speed): the apex after the first bounce equals the 1-D law's apex to 1e-4 relative, and
+    is close to e^2 h (the law's e within its accuracy).
+
+    Why 1e-4 and not the rtol-scaled bound of a smooth motion: the contact force k g^(3/2)
+    has an unbounded second derivative at the first touch, and the integrator steps across
+    that instant without knowing it (locating it is an event, issue 25's item 4).  The
+    embedded error estimate then misjudges the step over the touch: measured apex errors
+    -2.6e-5 (C step), +9.1e-6 (Python step) with free steps, -5.2e-5 with h_max = tc/10 and
+    -2.5e-7 with h_max = tc/100 (the error falls with the step across the touch, not with
+    rtol); 1e-4 holds them with a margin of 2."""
     h, g = 0.05, 9.81
     v = np.sqrt(2 * g * h)
     text = DECK.read_text().replace(
@@ -175,7 +183,7 @@ def test_restitution_from_the_deck_and_the_rebound_height():
     z = res.channel("bodies/ball/r").data[:, 2] - R
     after = res.t > fall + 1e-3
     e_law, apex = law_rebound("flores", 0.9, v, k, MASS, h=h, g=g)
-    assert z[after].max() == pytest.approx(apex, rel=1e-5)
+    assert z[after].max() == pytest.approx(apex, rel=1e-4)
     assert np.sqrt(apex / h) == pytest.approx(0.9, abs=1.5 * 0.1**2)  # as test_restitution_laws
     assert e_law == pytest.approx(0.9, abs=1.5 * 0.1**2)
 
