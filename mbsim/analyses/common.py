@@ -184,9 +184,16 @@ class Recorder:
             self._s = np.concatenate([self._s, np.empty_like(self._s)], axis=1)
         self._t[n] = t
         self._s[0, n], self._s[1, n], self._s[2, n] = q, qd, qdd
-        self._n = n + 1
         for k, v in extra.items():
-            self.extra.setdefault(k, []).append(v)
+            lst = self.extra.setdefault(k, [])
+            del lst[n:]  # (what an interrupted add left behind)
+            lst.append(v)
+        self._n = n + 1  # last: an add interrupted before here records nothing
+
+    def trim(self):
+        """Drop what an interrupted :meth:`add` left in ``extra`` beyond the outputs."""
+        for v in self.extra.values():
+            del v[self._n:]
 
     def __len__(self):
         return self._n

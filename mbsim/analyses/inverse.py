@@ -111,7 +111,12 @@ def inverse(model, options=None) -> Result:
         except SingularJacobianError as exc:  # pragma: no cover - kinematics stops first
             status, message, nt = STATUS_INCOMPLETE, str(exc), k
             break
-    if nt < len(res.t):  # pragma: no cover - keep every channel to the same length
+        except KeyboardInterrupt:  # Ctrl-C: the outputs with their multipliers are kept
+            status, nt = STATUS_INCOMPLETE, k
+            message = (f"t = {res.t[k]:.6g} s: interrupted (Ctrl-C) while computing the "
+                       f"reactions, before t_end = {float(opt['t_end']):g} s")
+            break
+    if nt < len(res.t):  # keep every channel to the same length
         res.t = res.t[:nt]
         for ch in res.channels.values():
             ch.data = ch.data[:nt]

@@ -121,6 +121,12 @@ def kinematic(model, options=None):
                                  tol=opt["tol"], qd=qd, nu=T.nu, qdd=qdd, gamma=T.gamma,
                                  start=k == 0)
                 residual = np.abs(T.phi).max()
+            # recording inside the try: at 0.1 ms per output a Ctrl-C (or SIGTERM) lands
+            # here as often as in the solve, and must end the run the same way
+            rec.add(t, q, qd, qdd, residual=residual)
+            qd_prev, qdd_prev = qd, qdd
+            if progress is not None:
+                progress(t, times[-1])
         except (ConvergenceError, SingularJacobianError, AnalysisError) as exc:
             status, message = STATUS_INCOMPLETE, str(exc)
             break
@@ -128,10 +134,7 @@ def kinematic(model, options=None):
             status = STATUS_INCOMPLETE
             message = f"t = {t:.6g} s: interrupted (Ctrl-C) before t_end = {times[-1]:g} s"
             break
-        rec.add(t, q, qd, qdd, residual=residual)
-        qd_prev, qdd_prev = qd, qdd
-        if progress is not None:
-            progress(t, times[-1])
+    rec.trim()
     res = rec.result("kinematic")
     if len(rec):
         res.add("constraints/residual", rec.extra["residual"], "", "max |Phi| after Newton")

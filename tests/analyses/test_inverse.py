@@ -216,3 +216,23 @@ def test_inverse_needs_dof_zero():
                               list(model.spec.joints.values()), gravity=(0, 0, -9.81)))
     with pytest.raises(DeckError, match="DOF = 1"):
         inverse(free, {"t_end": 0.1})
+
+
+def test_ctrl_c_while_the_reactions_are_computed_keeps_the_outputs_before(monkeypatch):
+    """A KeyboardInterrupt at the 6th output's multipliers ends the run as incomplete with
+    the 5 outputs before it, every channel of the same length, and the message saying so."""
+    import mbsim.analyses.inverse as inv
+
+    calls = {"n": 0}
+
+    def interrupted(*args):
+        calls["n"] += 1
+        if calls["n"] == 6:
+            raise KeyboardInterrupt
+        return multipliers(*args)
+
+    monkeypatch.setattr(inv, "multipliers", interrupted)
+    res = inverse(compile_model(pendulum_spec()), {"t_end": 0.1, "step": 0.01})
+    assert res.status == "incomplete" and "interrupted (Ctrl-C)" in res.message
+    assert len(res.t) == 5
+    assert all(c.data.shape[0] == 5 for c in res.channels.values())
