@@ -14,13 +14,19 @@ Contract of a force type (a class registered in ``FORCES``):
 4. ``potential(st) -> float``: stored energy of the conservative part (0 if none), for the
    energy monitor and minimum-potential-energy equilibrium.
 5. ``channels(st, t) -> dict[name, (value, unit)]``: optional outputs (length, force, ...).
-6. ``describe(model) -> str``: optional, one line for ``mbsim info`` (e.g. the step limit a
+6. ``channels_many(states, t) -> dict[name, (values (nt, ...), unit)]``: the channels at
+   every output at once (``states``: :class:`mbsim.core.States`, ``t`` (nt,)); the default
+   evaluates ``channels`` output by output; a type overrides it with array code where it can.
+   ``potential_many(states) -> (nt,)`` likewise for ``potential``.
+7. ``describe(model) -> str``: optional, one line for ``mbsim info`` (e.g. the step limit a
    contact's impacts need).
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+
+import numpy as np
 
 
 class ForceElement(ABC):
@@ -37,3 +43,15 @@ class ForceElement(ABC):
 
     def channels(self, st, t) -> dict:
         return {}
+
+    def channels_many(self, states, t) -> dict:
+        """Contract item 6: ``channels`` at each output, stacked (time first)."""
+        rows = [self.channels(states[k], t[k]) for k in range(len(t))]
+        if not rows:
+            return {}
+        return {key: (np.array([np.asarray(r[key][0], dtype=float) for r in rows]), unit)
+                for key, (_, unit) in rows[0].items()}
+
+    def potential_many(self, states) -> np.ndarray:
+        """Contract item 6: ``potential`` at each output, (nt,)."""
+        return np.array([self.potential(states[k]) for k in range(len(states))], dtype=float)
