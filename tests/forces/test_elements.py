@@ -238,10 +238,10 @@ def test_errors_name_the_field():
 
 
 @pytest.mark.parametrize("type_", sorted(FORCES))
-def test_channels_many_equals_channels_at_each_output(type_):
-    """channels_many / potential_many over a series of states (core.States) equal the scalar
-    channels / potential at each state, to a few ulps of each value (the array code of a type
-    sums in another order; 1e-13 relative to the channel's largest value)."""
+def test_many_equals_the_scalar_code_at_each_output(type_):
+    """channels_many, potential_many, loads_many over a series of states (core.States) equal
+    channels, potential, apply at each state to a few ulps (the array code of a type sums in
+    another order; 1e-13 relative to the largest value)."""
     from mbsim import core
 
     model = _case(type_)
@@ -267,3 +267,11 @@ def test_channels_many_equals_channels_at_each_output(type_):
     V = el.potential_many(core.States(model, q))
     V_ref = np.array([el.potential(core.State(model, qk)) for qk in q])
     assert np.allclose(V, V_ref, rtol=0, atol=1e-13 * max(1.0, np.abs(V_ref).max()))
+    F, n = np.zeros((len(t), model.nb, 3)), np.zeros((len(t), model.nb, 3))
+    el.loads_many(series, t, F, n)
+    for k in range(len(t)):
+        Fk, nk = np.zeros((model.nb, 3)), np.zeros((model.nb, 3))
+        el.apply(core.State(model, q[k], qd[k]), t[k], Fk, nk)
+        scale = max(1.0, np.abs(Fk).max(), np.abs(nk).max())
+        assert np.allclose(F[k], Fk, rtol=0, atol=1e-13 * scale)
+        assert np.allclose(n[k], nk, rtol=0, atol=1e-13 * scale)
