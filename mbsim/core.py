@@ -75,6 +75,44 @@ class State:
         return 2 * np.einsum("bij,bj->bi", rot_E(self.p), self.pd)
 
 
+class States:
+    """The body quantities of a series of outputs, computed once for all of them: r, p, rd,
+    pd (nt, nb, 3/4), A (nt, nb, 3, 3), omega_local (nt, nb, 3) (time first), and
+    ``states[k]``: the :class:`State` of output k sharing these arrays (a force element's
+    scalar code reads it without recomputing A, G or omega per output).
+
+    q, qd: (nt, nq); qd None: positions only (rd, pd, omega_local None)."""
+
+    def __init__(self, model, q, qd=None):
+        nt = np.shape(q)[0]
+        qq = np.asarray(q, dtype=float).reshape(nt, model.nb, 7)
+        self.r, self.p = qq[..., :3], qq[..., 3:]
+        self.A = rot_A(self.p)
+        self.G = rot_G(self.p)
+        if qd is not None:
+            vv = np.asarray(qd, dtype=float).reshape(nt, model.nb, 7)
+            self.rd, self.pd = vv[..., :3], vv[..., 3:]
+            self.omega_local = 2 * np.einsum("tbij,tbj->tbi", self.G, self.pd)
+        else:
+            self.rd = self.pd = self.omega_local = None
+        self._each = [None] * nt
+
+    def __len__(self):
+        return len(self._each)
+
+    def __getitem__(self, k: int) -> State:
+        st = self._each[k]
+        if st is None:
+            st = State.__new__(State)
+            st.r, st.p, st.A, st._G = self.r[k], self.p[k], self.A[k], self.G[k]
+            if self.rd is None:
+                st.rd = st.pd = st._om = None
+            else:
+                st.rd, st.pd, st._om = self.rd[k], self.pd[k], self.omega_local[k]
+            self._each[k] = st
+        return st
+
+
 class Terms:
     """What a constraint evaluation returns: phi (m_a,), jac (m_a, nq) dense or CSR, nu,
     gamma (m_a,); None for the parts not asked for."""

@@ -176,6 +176,7 @@ class Recorder:
         self._s = np.empty((3, capacity, model.nq))  # q, qd, qdd rows
         self.extra: dict[str, list] = {}
         self._kin = (None, -1)  # kinematics() and the number of outputs it was computed for
+        self._states = (None, -1)  # states() and the number of outputs it was built for
 
     def add(self, t, q, qd, qdd, **extra):
         n = self._n
@@ -276,37 +277,30 @@ class Recorder:
                 del res.channels[path]
         return res
 
+    def states(self) -> core.States:
+        """The force elements' view of the recorded outputs (A, G, omega once for all)."""
+        if self._states[1] != self._n:
+            self._states = (core.States(self.model, self.q, self.qd), self._n)
+        return self._states[0]
+
     def _force_channels(self, res, needed) -> None:
-        """forces/<name>/<quantity> from each element's ``channels(st, t)`` (length, force...):
-        the elements' laws are scalar code, so this one loops over the output times, and only
-        for the elements with a channel that is needed."""
+        """forces/<name>/<quantity> from each element's ``channels_many(states, t)`` (length,
+        force...; array code where the element has it, else its scalar ``channels`` output by
+        output), only for the elements with a channel that is needed."""
         model = self.model
         if not model.forces:
             return
-        q, qd, ts = self.q, self.qd, self.t
-        st0 = core.State(model, q[0], qd[0])
-        wanted = []
+        states, ts = self.states(), self.t
         for el in model.forces:
-            keys = [k for k in el.channels(st0, ts[0]) if needed(f"forces/{el.name}/{k}")]
-            if keys:
-                wanted.append((el, keys))
-        if not wanted:
-            return
-        data: dict[str, list] = {}
-        units: dict[str, str] = {}
-        for k in range(self._n):
-            st = core.State(model, q[k], qd[k])
-            for el, keys in wanted:
-                chans = el.channels(st, ts[k])
-                for key in keys:
-                    val, unit = chans[key]
-                    name = f"forces/{el.name}/{key}"
-                    data.setdefault(name, []).append(np.asarray(val, dtype=float))
-                    units[name] = unit
-        for name, vals in data.items():
-            arr = np.array(vals)
-            res.add(name, arr, units[name], f"force element {name.split('/')[1]}: "
-                    f"{name.split('/')[2]}", XYZ if arr.ndim == 2 and arr.shape[1] == 3 else ())
+            keys = [k for k in el.channels(states[0], ts[0]) if needed(f"forces/{el.name}/{k}")]
+            if not keys:
+                continue
+            chans = el.channels_many(states, ts)
+            for key in keys:
+                val, unit = chans[key]
+                arr = np.asarray(val, dtype=float)
+                res.add(f"forces/{el.name}/{key}", arr, unit, f"force element {el.name}: {key}",
+                        XYZ if arr.ndim == 2 and arr.shape[1] == 3 else ())
 
     def _measure_channels(self, res, kin, measures) -> None:
         """measures/<name>, vectorised over time (mbsim.measures); expressions see t, the
@@ -322,7 +316,8 @@ class Recorder:
                 if "kinetic_energy" in names and "kinetic_energy" not in env:
                     env["kinetic_energy"] = kinetic_energies(model, kin)
                 if "potential_energy" in names and "potential_energy" not in env:
-                    env["potential_energy"] = potential_energies(model, self.q, kin)
+                    env["potential_energy"] = potential_energies(model, self.q, kin,
+                                                                  self.states())
                 for local, sel in om.data["channels"].items():
                     cols = select_columns(res, sel)
                     if len(cols) != 1:
@@ -345,14 +340,12 @@ def kinetic_energies(model, kin) -> np.ndarray:
     return 0.5 * np.einsum("b,tbi,tbi->t", model.mass, kin["rd"], kin["rd"]) + 0.5 * rot
 
 
-def potential_energies(model, q, kin) -> np.ndarray:
-    """(nt,) V: gravity (vectorised) plus the force elements' potentials (per output)."""
+def potential_energies(model, q, kin, states=None) -> np.ndarray:
+    """(nt,) V: gravity plus the force elements' potentials (``potential_many``), vectorised
+    over the outputs; ``states``: :class:`mbsim.core.States` of q if already built."""
     V = -np.einsum("b,tbi,i->t", model.mass, kin["r"], model.gravity)
     if any(True for _ in model.forces):
-        V = V + np.array([_potential(model, core.State(model, qk)) for qk in q])
+        states = core.States(model, q) if states is None else states
+        for el in model.forces:
+            V = V + el.potential_many(states)
     return V
-
-
-def _potential(model, st) -> float:
-    """The force elements' potential at one state (one State shared by all elements)."""
-    return sum(el.potential(st) for el in model.forces)

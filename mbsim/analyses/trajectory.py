@@ -168,10 +168,28 @@ def initial_conditions(model, t0, opt):
     return q, qd, summary
 
 
-def output_row(model, system, t, q, qd):
-    """(qdd, lam over all rows, Phi (m,), Phi_q qd - nu (m,)) at one output."""
+def output_loads(model, forces, t, q, qd):
+    """(nt, 2, nb, 3): the loads (F, n_local) of the force elements ``forces`` (the ones the
+    C kernels do not evaluate: System.py_forces) at every output, each element's
+    ``loads_many`` once for all outputs; None without such elements.  t (nt,), q, qd
+    (nt, nq)."""
+    if not forces or len(t) == 0:
+        return None
+    from mbsim import core
+
+    states = core.States(model, q, qd)
+    out = np.zeros((len(t), 2, model.nb, 3))
+    F, n_local = out[:, 0], out[:, 1]
+    for el in forces:
+        el.loads_many(states, t, F, n_local)
+    return out
+
+
+def output_row(model, system, t, q, qd, loads=None):
+    """(qdd, lam over all rows, Phi (m,), Phi_q qd - nu (m,)) at one output; loads: (2, nb,
+    3) the Python force elements' loads there (:func:`output_loads`), None: computed here."""
     try:
-        qdd, lam, _ = system.accelerations(q, qd, t)
+        qdd, lam, _ = system.accelerations(q, qd, t, loads=loads)
     except NUMERICAL_ERRORS:  # exactly at a singular position: least squares
         qdd, lam = accelerations_lstsq(model, system, q, qd, t)
     ph, v = system.residuals(q, qd, t)
@@ -193,10 +211,13 @@ def build_result(model, prep, opt, tr, span):
     dropped: dict = {}
     stopped = None  # the message of a stop found while the outputs are recorded
     drift_limit = DRIFT_FACTOR * (float(opt["rtol"]) * max(1.0, span) + float(opt["atol"]))
+    loads = output_loads(model, tr.systems[0].py_forces if n else (), np.asarray(tr.t[:n]),
+                         np.array(tr.q[:n]), np.array(tr.qd[:n]))
     try:
         for k in range(n):
             try:
-                qdd, la, ph, v = output_row(model, tr.systems[k], tr.t[k], tr.q[k], tr.qd[k])
+                qdd, la, ph, v = output_row(model, tr.systems[k], tr.t[k], tr.q[k], tr.qd[k],
+                                            None if loads is None else loads[k])
             except NUMERICAL_ERRORS as exc:
                 if k == 0:
                     raise DeckError(f"the equations of motion cannot be solved at t_start = "
@@ -235,7 +256,7 @@ def build_result(model, prep, opt, tr, span):
         from mbsim.analyses.common import kinetic_energies, potential_energies
 
         kin = rec.kinematics()
-        V = potential_energies(model, rec.q, kin)
+        V = potential_energies(model, rec.q, kin, rec.states())
         energy = kinetic_energies(model, kin) + V
         res.add("monitors/position_violation", pos, "", "max |Phi| over all rows")
         res.add("monitors/velocity_violation", vel, "", "max |Phi_q qd - nu|")

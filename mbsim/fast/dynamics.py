@@ -144,11 +144,16 @@ class System:
         return self.terms(q, t, phi=False, jac=False, nu=True).nu
 
     # -- forces and masses -----------------------------------------------------------------
-    def _load(self, q, qd, t):
-        """q, qd, the time targets and the Python elements' loads into the C inputs."""
+    def _load(self, q, qd, t, loads=None):
+        """q, qd, the time targets and the Python elements' loads into the C inputs;
+        ``loads`` (2, nb, 3): those loads (F, n_local) when already computed (for many
+        outputs at once: ForceElement.loads_many)."""
         fc = self.fc
         fc.load(q, t, qd)
         if self.py_forces:
+            if loads is not None:
+                self._loads[:] = loads
+                return
             loads = self._loads
             loads[:] = 0.0
             st = core.State(self.model, fc._q, fc._qd)
@@ -192,19 +197,20 @@ class System:
         return M
 
     # -- accelerations ---------------------------------------------------------------------
-    def accelerations(self, q, qd, t, baumgarte=None, jac=None):
+    def accelerations(self, q, qd, t, baumgarte=None, jac=None, loads=None):
         """Solve the equations of motion at (q, qd, t); returns (qdd, lam, power).
 
         lam: (m_a,) multipliers of the active rows; power = Q.qd - lam.nu, the rate of
         work of applied and driving forces (the kinetic energy's rate).  baumgarte: (alpha,
         beta) replaces gamma by gamma - 2 alpha Phi_dot - beta^2 Phi (Baumgarte 1972).
         jac: Phi_q on the active rows at q when the caller has it (coordinate
-        partitioning)."""
+        partitioning).  loads: (2, nb, 3) the Python force elements' loads at (q, qd, t)
+        when the caller has them (:meth:`_load`)."""
         c = self.counters
         c["function_evaluations"] += 1
         c["constraint_evaluations"] += 1
         c["factorizations"] += 1
-        self._load(q, qd, t)
+        self._load(q, qd, t, loads)
         par = self._par
         if baumgarte is None:
             par[2] = 0.0

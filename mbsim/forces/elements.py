@@ -283,6 +283,36 @@ class TSDA(_Element):
         l, ldot, f, _ = self.state(st, t)
         return {"length": (l, "m"), "velocity": (ldot, "m/s"), "force": (f, "N")}
 
+    def _lengths(self, states):
+        """(d (nt, 3) P_i -> P_j, l (nt,)) at every output of ``states`` (core.States)."""
+        bi, bj = self.bi, self.bj
+        d = (states.r[:, bj] + states.A[:, bj] @ self.sj) - (
+            states.r[:, bi] + states.A[:, bi] @ self.si)
+        return d, np.sqrt(np.einsum("ti,ti->t", d, d))
+
+    def channels_many(self, states, t):
+        """:meth:`state` over all outputs in array code; with a law or an actuator (scalar
+        code) output by output."""
+        if self.law is not None or self.actuator is not None:
+            return super().channels_many(states, t)
+        bi, bj = self.bi, self.bj
+        d, l = self._lengths(states)
+        pos = l > 0  # coincident points: no direction, no force
+        u = np.zeros_like(d)
+        u[pos] = d[pos] / l[pos, None]
+        Ai, Aj = states.A[:, bi], states.A[:, bj]
+        wi, wj = states.omega_local[:, bi], states.omega_local[:, bj]
+        v = (states.rd[:, bj] - np.einsum("tij,tj->ti", Aj, wj @ self.Sj.T)) - (
+            states.rd[:, bi] - np.einsum("tij,tj->ti", Ai, wi @ self.Si.T))
+        ldot = np.einsum("ti,ti->t", u, v)
+        f = self.k * (l - self.L0) + self.c * ldot
+        return {"length": (l, "m"), "velocity": (ldot, "m/s"), "force": (f, "N")}
+
+    def potential_many(self, states):
+        if self.law is not None or not self.k:
+            return np.zeros(len(states))
+        return 0.5 * self.k * (self._lengths(states)[1] - self.L0) ** 2
+
 
 @register
 class RSDA(_Element):

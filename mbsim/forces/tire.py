@@ -136,6 +136,65 @@ class Tire(_Element):
         d = self.radius - float(st.r[self.b][2] + st.A[self.b][2] @ self.s)
         return 0.5 * self.kt * d * d if d > 0 else 0.0
 
+    def state_many(self, states, t) -> dict:
+        """:meth:`state` at every output of ``states`` (:class:`mbsim.core.States`) in array
+        code: the same quantities with a leading time axis (F, sc, v, u (nt, 3); the rest
+        (nt,))."""
+        b = self.b
+        A, r = states.A[:, b], states.r[:, b]
+        P = r + A @ self.s
+        h = P[:, 2]
+        sc = np.einsum("tji,tj->ti", A, P - h[:, None] * Z - r)  # contact point, body frame
+        v = states.rd[:, b] - np.einsum("tij,tj->ti", A, np.cross(sc, states.omega_local[:, b]))
+        u = A @ self.fwd
+        un = np.hypot(u[:, 0], u[:, 1])
+        ok = un > 1e-12
+        u = np.where(ok[:, None], np.stack([u[:, 0] / np.where(ok, un, 1.0),
+                                            u[:, 1] / np.where(ok, un, 1.0),
+                                            np.zeros_like(un)], axis=1), [0.0, 1.0, 0.0])
+        lat = np.stack([u[:, 1], -u[:, 0], np.zeros_like(un)], axis=1)  # u x z
+        v_fwd, v_lat = np.einsum("ti,ti->t", u, v), np.einsum("ti,ti->t", lat, v)
+        alpha = np.arctan2(v_lat, np.abs(v_fwd))
+        defl = self.radius - h
+        ground = defl > 0
+        f_ver = np.where(ground, np.maximum(0.0, self.kt * defl - self.c * v[:, 2]), 0.0)
+        limit = self.mu * f_ver
+        f_lin = self.c_alpha * alpha
+        saturated = ground & (f_lin != 0.0) & (np.abs(f_lin) >= limit)
+        speed = np.hypot(v_fwd, v_lat)
+        x = np.clip(speed / self.v_min, 0.0, 1.0)
+        w = x * x * (3.0 - 2.0 * x)  # smoothstep
+        f_lat = w * np.minimum(np.maximum(f_lin, -limit), limit)
+        f_roll = self.rolling * f_ver * np.clip(v_fwd / self.v_min, -1.0, 1.0)
+        F = f_ver[:, None] * Z - f_lat[:, None] * lat - f_roll[:, None] * u
+        return dict(F=F, sc=sc, F_ver=f_ver, F_lat=f_lat, F_roll=f_roll, alpha=alpha,
+                    saturated=saturated.astype(float), deflection=defl, v=v, u=u,
+                    speed=speed)  # fmt: skip
+
+    def loads_many(self, states, t, F, n_local):
+        """:meth:`apply` at every output: adds to F, n_local (nt, nb, 3)."""
+        s = self.state_many(states, t)
+        b = self.b
+        F[:, b] += s["F"]
+        n_local[:, b] += np.cross(s["sc"], np.einsum("tji,tj->ti", states.A[:, b], s["F"]))
+
+    def potential_many(self, states):
+        d = self.radius - (states.r[:, self.b, 2] + states.A[:, self.b, 2] @ self.s)
+        return np.where(d > 0, 0.5 * self.kt * d * d, 0.0)
+
+    def channels_many(self, states, t):
+        s = self.state_many(states, t)
+        return {
+            "F_ver": (s["F_ver"], "N"),
+            "F_lat": (s["F_lat"], "N"),
+            "alpha": (s["alpha"], "rad"),
+            "saturated": (s["saturated"], ""),
+            "deflection": (s["deflection"], "m"),
+            "heading": (np.arctan2(-s["u"][:, 0], s["u"][:, 1]), "rad"),
+            "speed": (s["speed"], "m/s"),
+            "force": (s["F"], "N"),
+        }
+
     def channels(self, st, t):
         s = self.state(st, t)
         return {

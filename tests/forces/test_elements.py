@@ -235,3 +235,43 @@ def test_errors_name_the_field():
         _one_body([force("F", "force", ("nobody",), vector=[1, 0, 0])])
     with pytest.raises(DeckError, match="either a law"):
         two_body_model([force("S", "tsda", ("a", "b"), k=1.0, L0=1.0, law="2*l")], rng)
+
+
+@pytest.mark.parametrize("type_", sorted(FORCES))
+def test_many_equals_the_scalar_code_at_each_output(type_):
+    """channels_many, potential_many, loads_many over a series of states (core.States) equal
+    channels, potential, apply at each state to a few ulps (the array code of a type sums in
+    another order; 1e-13 relative to the largest value)."""
+    from mbsim import core
+
+    model = _case(type_)
+    states = [model.q0]
+    for _ in range(4):  # nearby states (the contact still touching), random velocities
+        q = model.q0 + 1e-3 * tangent(model, model.q0, rng)
+        Qb = q.reshape(model.nb, 7)
+        Qb[:, 3:] /= np.linalg.norm(Qb[:, 3:], axis=1, keepdims=True)
+        states.append(q)
+    q = np.array(states)
+    qd = np.array([_velocity(model, qk) for qk in q])
+    t = np.linspace(0.0, 0.4, len(q))
+    series = core.States(model, q, qd)
+    el = model.forces[0]
+    many = el.channels_many(series, t)
+    each = [el.channels(core.State(model, q[k], qd[k]), t[k]) for k in range(len(t))]
+    assert set(many) == set(each[0])
+    for key, (vals, unit) in many.items():
+        ref = np.array([np.asarray(e[key][0], float) for e in each])
+        assert unit == each[0][key][1]
+        assert vals.shape == ref.shape, key
+        assert np.allclose(vals, ref, rtol=0, atol=1e-13 * max(1.0, np.abs(ref).max())), key
+    V = el.potential_many(core.States(model, q))
+    V_ref = np.array([el.potential(core.State(model, qk)) for qk in q])
+    assert np.allclose(V, V_ref, rtol=0, atol=1e-13 * max(1.0, np.abs(V_ref).max()))
+    F, n = np.zeros((len(t), model.nb, 3)), np.zeros((len(t), model.nb, 3))
+    el.loads_many(series, t, F, n)
+    for k in range(len(t)):
+        Fk, nk = np.zeros((model.nb, 3)), np.zeros((model.nb, 3))
+        el.apply(core.State(model, q[k], qd[k]), t[k], Fk, nk)
+        scale = max(1.0, np.abs(Fk).max(), np.abs(nk).max())
+        assert np.allclose(F[k], Fk, rtol=0, atol=1e-13 * scale)
+        assert np.allclose(n[k], nk, rtol=0, atol=1e-13 * scale)
