@@ -5,12 +5,19 @@ Phi_q^T (nq, m) as Phi_q^T P = Q R and reports the constraint rows P[rank:] as r
 scipy.linalg.qr(pivoting=True) (LAPACK dgeqp3) costs about 0.4 s to import, more than the
 whole `mbsim check` of a small deck, so this module does the same factorization with numpy:
 Householder reflections, the column of largest remaining norm brought forward at each
-step, and the remaining column norms downdated as LAPACK's dlaqp2 does (recomputed when
-cancellation has eaten half their digits), so that the pivot order, and with it the rows
-reported redundant, is LAPACK's wherever one column's norm is the largest.  Where several
-are equal in exact arithmetic (the rows of a symmetric mechanism), round-off in the last
-bits of the norms decides, here as in LAPACK, and the two may keep different but equally
-valid rows: tests/analyses/test_pivoted_qr.py checks that they differ only there.
+step (the first of equals, as idamax), and the remaining column norms downdated as LAPACK's
+dlaqp2 does (recomputed when cancellation has eaten half their digits).  The pivot order,
+and with it the rows reported redundant, is then LAPACK's wherever one column's norm is
+the largest.  Where several are equal in exact arithmetic (the rows of a symmetric
+mechanism), the last bits of the computed norms decide, and the runs past singular
+positions are sensitive to which of the equivalent rows are dropped (the parallel
+four-bar's accuracy at rtol 1e-10, tests/integrators/test_singular_loops.py), so the
+arithmetic follows LAPACK's and OpenBLAS's where numpy allows: norms summed in extended
+precision (OpenBLAS's x86-64 dnrm2 kernel uses the x87 unit), dlapy2's hypotenuse, the
+reflector scaled by a reciprocal (dscal), its application as dgemv then dger.  Fused
+multiply-adds in OpenBLAS's kernels are not reproduced: the last bits still differ, and
+ties may still go another way (tests/analyses/test_pivoted_qr.py checks that the pivots
+differ from LAPACK's only at ties, and that the rows kept are independent).
 
 Cost O(n m min(n, m)) flops with one Python-level step per column; meant for the dense
 set-up below DENSE_NQ coordinates (0.02 s at nq = 400, m = 400).
@@ -40,10 +47,12 @@ def qr_pivoted_r(a):
     the rows of R (Golub and Van Loan, Matrix Computations, 4th ed., Alg. 5.4.1).
     """
     A = np.array(a, dtype=float, order="F", copy=True)
+    if not np.isfinite(A).all():  # as scipy's check_finite: the caller reports the overflow
+        raise ValueError("array must not contain infs or NaNs")
     n, m = A.shape
     k = min(n, m)
     piv = np.arange(m)
-    vn1 = np.linalg.norm(A, axis=0)  # (m,) downdated norms of the remaining columns
+    vn1 = _nrm2(A)  # (m,) downdated norms of the remaining columns
     vn2 = vn1.copy()  # (m,) the norms when last computed exactly
     for i in range(k):
         p = i + int(np.argmax(vn1[i:]))  # the first of equals, as LAPACK's idamax
@@ -54,22 +63,35 @@ def qr_pivoted_r(a):
         # Householder reflector H = I - tau v v^T with H x = beta e1 (LAPACK dlarfg)
         x = A[i:, i]
         alpha = x[0]
-        xnorm = np.linalg.norm(x[1:])
+        xnorm = _nrm2(x[1:, None])[0] if x.size > 1 else 0.0
         if xnorm == 0.0:
             tau = 0.0  # already upper triangular in this column: H = I
         else:
-            beta = -np.copysign(np.hypot(alpha, xnorm), alpha)
+            beta = -np.copysign(_lapy2(alpha, xnorm), alpha)
             tau = (beta - alpha) / beta
-            v = x / (alpha - beta)
+            v = x * (1.0 / (alpha - beta))  # dscal by the reciprocal, as dlarfg
             v[0] = 1.0
             A[i, i] = beta
             A[i + 1:, i] = 0.0
             if i + 1 < m:
                 B = A[i:, i + 1:]
-                B -= tau * np.outer(v, v @ B)
+                B += np.outer(v, -tau * (v @ B))  # dlarf: w = B^T v, then dger
         if i + 1 < m:
             _downdate_norms(A, vn1, vn2, i)
     return np.triu(A[:k, :]), piv
+
+
+def _lapy2(x, y):
+    """sqrt(x^2 + y^2) without overflow, rounded as LAPACK's dlapy2."""
+    w, z = max(abs(x), abs(y)), min(abs(x), abs(y))
+    return w if z == 0.0 else w * np.sqrt(1.0 + (z / w) ** 2)
+
+
+def _nrm2(a):
+    """Column norms of a summed in extended precision (x87 long double, as OpenBLAS's
+    x86-64 dnrm2 kernel), rounded once to double."""
+    x = a.astype(np.longdouble)
+    return np.sqrt((x * x).sum(axis=0)).astype(float)
 
 
 def _downdate_norms(A, vn1, vn2, i):
@@ -85,7 +107,7 @@ def _downdate_norms(A, vn1, vn2, i):
     temp2 = temp * (vn1[j] / vn2[j]) ** 2
     again = temp2 <= TOL3Z
     if i + 1 < A.shape[0]:
-        exact = np.linalg.norm(A[i + 1:, j[again]], axis=0)
+        exact = _nrm2(A[i + 1:, j[again]])
     else:
         exact = np.zeros(int(again.sum()))
     vn1[j[again]] = exact
