@@ -20,7 +20,8 @@ ties may still go another way (tests/analyses/test_pivoted_qr.py checks that the
 differ from LAPACK's only at ties, and that the rows kept are independent).
 
 Cost O(n m min(n, m)) flops with one Python-level step per column; meant for the dense
-set-up below DENSE_NQ coordinates (0.02 s at nq = 400, m = 400).
+set-up below DENSE_NQ coordinates: 0.005 s for a 100 x 100 matrix, 0.08 s for 400 x 400
+(LAPACK: 0.0004 and 0.006 s; measured with the test suite running on the 2 CPUs).
 """
 
 from __future__ import annotations
