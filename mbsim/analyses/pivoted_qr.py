@@ -1,6 +1,7 @@
 """QR with column pivoting in numpy alone (Businger and Golub 1965), for the rank test.
 
-The assembly's rank test (:func:`mbsim.analyses.common.rank_and_redundant`) factors
+The rank test (:func:`mbsim.analyses.common.rank_and_redundant` with ``lapack=False``, what
+`mbsim check`'s assembly calls; runs keep LAPACK's, see there) factors
 Phi_q^T (nq, m) as Phi_q^T P = Q R and reports the constraint rows P[rank:] as redundant.
 scipy.linalg.qr(pivoting=True) (LAPACK dgeqp3) costs about 0.4 s to import, more than the
 whole `mbsim check` of a small deck, so this module does the same factorization with numpy:

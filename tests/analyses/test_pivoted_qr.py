@@ -62,7 +62,7 @@ def test_the_rows_reported_redundant_are_lapacks_on_every_deck(deck):
     assert model.nq < DENSE_NQ  # the decks are small: the dense path is the one tested
     for q in (model.q0, assemble(model).q):
         J = core.phi_q(model, None, q, 0.0, sparse=False)
-        rank, red = rank_and_redundant(model, J)
+        rank, red = rank_and_redundant(model, J, lapack=False)
         R_ref, piv_ref = la.qr(J.T, mode="r", pivoting=True)
         d_ref = np.abs(np.diag(R_ref))
         assert rank == int(np.sum(d_ref > TOL * d_ref[0]))
