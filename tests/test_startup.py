@@ -40,9 +40,6 @@ def test_help_imports_neither_scipy_nor_numpy():
     assert "scipy" not in packages and "numpy" not in packages and "h5py" not in packages
 
 
-@pytest.mark.xfail(strict=True, reason="the assembly's rank test (analyses.common."
-                   "rank_and_redundant) uses scipy.linalg.qr with pivoting until it runs on "
-                   "the compiled core (issue 24 item 1, the core helper's part)")
 def test_check_imports_no_scipy():
     code, packages = modules_after("check", "models/governor.yaml")
     assert code == 0

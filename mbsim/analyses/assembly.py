@@ -222,12 +222,14 @@ def hold_indices(model, hold) -> list[int]:
     return out
 
 
-def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembly:
+def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None,
+             lapack=True) -> Assembly:
     """Put q (default: the deck's estimates) on the constraint manifold and check its rank.
 
     ``hold`` (default: the deck's ``analysis.assembly.hold``) names coordinates kept at their
     estimates, 'BODY.x|y|z|e0|e1|e2|e3': with DOF > 0 the manifold has many points near the
     estimates, and holding the independent coordinates picks the one the user means.
+    ``lapack``: the rank test's QR (:func:`mbsim.analyses.common.rank_and_redundant`).
     """
     q0 = model.q0 if q is None else q
     if hold is None and model.spec is not None:
@@ -240,7 +242,7 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembl
         # each other: name them (drivers first) rather than only the residuals.
         qs = normalize_q(model, q0)
         T = core.constraints(model, None, qs, t)
-        rank, red = rank_and_redundant(model, T.jac)  # dense: C and the names need it
+        rank, red = rank_and_redundant(model, T.jac, lapack=lapack)  # dense: C, names need it
         if red.size:
             act = np.setdiff1d(np.arange(model.m), red)
             C = redundancy.dependency(T.jac, red, act)
@@ -254,7 +256,8 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None) -> Assembl
     log.info("assembly at t = %g s: %d Newton iteration(s) from the estimates, max |Phi| = "
              "%.3g", t, its, res)
     rank, red = rank_and_redundant(model, core.phi_q(model, None, q, t,
-                                                            sparse=model.nq >= DENSE_NQ))
+                                                            sparse=model.nq >= DENSE_NQ),
+                                   lapack=lapack)
     warnings = []
     active = np.setdiff1d(np.arange(model.m), red)
     red_items = culprits(model, red) if red.size else []

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim import core
+from mbsim.analyses.pivoted_qr import qr_pivoted_r
 from mbsim.errors import DeckError, Where
 from mbsim.result import Result
 from mbsim.rotations import A as rot_A
@@ -54,9 +55,7 @@ def sparse_gram_factor(J):
 def min_norm_step(J, rhs):
     """dq (nq,) of least norm with J dq = rhs (least squares when inconsistent): dense lstsq,
     or J^T (J J^T)^-1 rhs on the sparse factor when J is sparse with full row rank."""
-    import scipy.sparse as sp
-
-    if sp.issparse(J):
+    if not isinstance(J, np.ndarray):  # sparse (scipy imported only then)
         lu = sparse_gram_factor(J)
         if lu is not None:
             return J.T @ lu.solve(rhs)
@@ -64,20 +63,30 @@ def min_norm_step(J, rhs):
     return np.linalg.lstsq(J, rhs, rcond=None)[0]
 
 
-def rank_and_redundant(model, J, tol=1e-9):
+def rank_and_redundant(model, J, tol=1e-9, lapack=True):
     """Rank of Phi_q by QR with column pivoting of Phi_q^T; the rows beyond the rank are the
     (locally) redundant ones, named by their items.  tol is relative to the largest pivot.
     J dense or sparse; a sparse J (large models, DENSE_NQ) with full row rank is certified
-    by the sparse factor of J J^T without the dense QR."""
+    by the sparse factor of J J^T without the dense QR.
+
+    lapack: the QR of scipy.linalg (LAPACK dgeqp3), or False for the same algorithm in numpy
+    alone (:func:`mbsim.analyses.pivoted_qr.qr_pivoted_r`; `mbsim check`, which then
+    imports no scipy: 0.4 s).  The two agree on the rank and on the redundant rows except
+    where rows of equal norm tie and round-off decides (the parallel four-bar deck): runs
+    keep LAPACK's choice, to which the runs past singular positions and their tests are
+    sensitive (tests/integrators/test_index1_tangent.py, tests/analyses/test_estimate.py)."""
     if J.shape[0] == 0:
         return 0, np.zeros(0, int)
-    import scipy.linalg as la  # here: scipy.linalg costs ~0.4 s to import
-
     if not isinstance(J, np.ndarray):
         if sparse_gram_factor(J) is not None:
             return J.shape[0], np.zeros(0, int)
         J = J.toarray()
-    R, piv = la.qr(J.T, mode="r", pivoting=True)
+    if lapack:
+        import scipy.linalg as la
+
+        R, piv = la.qr(J.T, mode="r", pivoting=True)
+    else:
+        R, piv = qr_pivoted_r(J.T)  # numpy alone: scipy.linalg costs ~0.4 s to import
     d = np.abs(np.diag(R))
     if d.size == 0 or d[0] == 0:
         return 0, np.arange(J.shape[0])

@@ -47,11 +47,10 @@ Tables (besides the constraint tables of :mod:`mbsim.fast.constraints`), built o
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from mbsim import core
 from mbsim.fast.constraints import FastConstraints
+from mbsim.fast.ordering import reverse_cuthill_mckee, row_graph
 
 NB = 24
 EL_TSDA, EL_FORCE, EL_FORCE_LOCAL, EL_TORQUE, EL_TORQUE_LOCAL = range(5)
@@ -229,10 +228,12 @@ class System:
         if jac.shape != (self.m, self.nq):
             raise ValueError(f"jac: expected shape ({self.m}, {self.nq}), got {jac.shape}")
         Jc = self._Jg
-        if not sp.issparse(jac):
+        if isinstance(jac, np.ndarray):  # dense; scipy.sparse imported only for sparse jac
             J = np.ascontiguousarray(jac, dtype=np.float64)
             self._gather_dense(self.c.ptr, J.ctypes.data, Jc.ctypes.data)
             return
+        import scipy.sparse as sp
+
         coo = sp.coo_matrix(jac)
         coo.sum_duplicates()
         rb = self.fc.rb
@@ -416,18 +417,12 @@ def schur_structure(rb, rows, nb):
     ma = rows.size
     inc = [(u, 7 * s, rb[r, s]) for u, r in enumerate(rows) for s in range(2) if rb[r, s] >= 0]
     inc = np.array(sorted(inc, key=lambda x: (x[2], x[0], x[1])), dtype=np.int64).reshape(-1, 3)
-    rows_bodies = sp.csr_matrix((np.ones(len(inc)), (inc[:, 0], inc[:, 2])), shape=(ma, nb))
-    graph = (rows_bodies @ rows_bodies.T).tocsr()
-    order = (
-        reverse_cuthill_mckee(graph, symmetric_mode=True).astype(np.int64)
-        if ma
-        else np.zeros(0, dtype=np.int64)
-    )
+    indptr, indices = row_graph(inc, ma)  # numpy alone: `mbsim check` imports no scipy
+    order = reverse_cuthill_mckee(indptr, indices)
     pos = np.empty(ma, dtype=np.int64)
     pos[order] = np.arange(ma)
     fc = np.arange(ma, dtype=np.int64)  # first column of each envelope row (position space)
-    g = graph.tocoo()
-    np.minimum.at(fc, pos[g.row], pos[g.col])
+    np.minimum.at(fc, pos[np.repeat(np.arange(ma), np.diff(indptr))], pos[indices])
     width = np.arange(ma) - fc + 1
     off = np.concatenate([[0], np.cumsum(width)[:-1]]).astype(np.int64) if ma else fc.copy()
     pairs = []

@@ -41,7 +41,6 @@ theta'.Cr theta' <= 0.
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import quad
 
 from mbsim import functions
 from mbsim.deck.spec import FunctionSpec
@@ -115,6 +114,8 @@ class Curve:
         return float(self._f(x))
 
     def energy(self, x: float) -> float:
+        from scipy.integrate import quad  # here: scipy.integrate costs ~0.3 s to import
+
         return float(quad(self, 0.0, x, limit=200)[0])
 
 
