@@ -39,11 +39,13 @@ class BuildKernels(build_ext):
                       "at first use (needs a C compiler: e.g. apt install gcc)")
 
 
-# = mbsim.fast._lib.source_hash: the sources' bytes one after the other
-digest = hashlib.sha256(b"".join(p.read_bytes() for p in SOURCES)).hexdigest()[:16]
+HEADERS = [Path("mbsim") / "fast" / "mb_model.h"]  # included by both sources
+# = mbsim.fast._lib.source_hash: the sources' and the header's bytes one after the other
+digest = hashlib.sha256(b"".join(p.read_bytes() for p in SOURCES + HEADERS)).hexdigest()[:16]
 kernels = Extension(
     "mbsim.fast._kernels",
     sources=[str(p) for p in SOURCES],
+    depends=[str(p) for p in HEADERS],
     define_macros=[("MB_SOURCE_HASH", f'"{digest}"')],
     # MBSIM_CFLAGS (e.g. "-O0" or "-O3 -march=native") after -O2 wins: the same variable as
     # a first-use compile reads (mbsim/fast/_lib.py)

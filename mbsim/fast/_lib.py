@@ -43,6 +43,8 @@ SOURCE = HERE / "kernels.c"
 SOURCES = (SOURCE, HERE / "step.c")
 """The files of the one library: the physics (kernels.c) and the integrators' step
 (step.c, :mod:`mbsim.fast.stepper`)."""
+HEADERS = (HERE / "mb_model.h",)
+"""What both sources include (the one definition of mb_model): part of the source hash."""
 CFLAGS = ["-O2", "-std=c99", "-fPIC", "-shared"]  # -O3: no faster (benchmarks/kernels.py)
 FLAGS_ENV = "MBSIM_CFLAGS"
 """Extra compiler flags, appended after CFLAGS (so ``-O0`` or ``-O3 -march=native`` wins
@@ -62,9 +64,9 @@ class KernelBuildError(MbsimError):
 
 
 def source_hash(text: bytes | None = None) -> str:
-    """First 16 hex digits of the SHA-256 of the sources (kernels.c then step.c, their bytes
-    one after the other; setup.py computes the same)."""
-    text = b"".join(p.read_bytes() for p in SOURCES) if text is None else text
+    """First 16 hex digits of the SHA-256 of the sources (kernels.c, step.c, then the header
+    mb_model.h: their bytes one after the other; setup.py computes the same)."""
+    text = b"".join(p.read_bytes() for p in (*SOURCES, *HEADERS)) if text is None else text
     return hashlib.sha256(text).hexdigest()[:16]
 
 
@@ -170,19 +172,20 @@ def library():
     """The loaded C library (argtypes and restypes set), built on first use if needed."""
     global _LIB
     if _LIB is None:
-        digest = source_hash() if all(p.exists() for p in SOURCES) else None
+        digest = (source_hash() if all(p.exists() for p in (*SOURCES, *HEADERS))
+                  else None)
         lib = _installed(digest)
         if lib is None:
             if digest is None:
-                raise KernelBuildError("mbsim/fast/kernels.c or step.c is missing and no "
-                                       "built kernels are installed; reinstall mbsim")
+                raise KernelBuildError("mbsim/fast/kernels.c, step.c or mb_model.h is missing "
+                                       "and no built kernels are installed; reinstall mbsim")
             lib = ctypes.CDLL(str(build()))
         _declare(lib)
-        sizes = (lib.mb_struct_size(), lib.mb_step_model_size(), ctypes.sizeof(Struct))
+        sizes = (lib.mb_struct_size(), ctypes.sizeof(Struct))
         if len(set(sizes)) != 1:  # an edit on one side only
             raise KernelBuildError(
-                f"mb_model in kernels.c ({sizes[0]} bytes), its copy in step.c ({sizes[1]} "
-                f"bytes) and mbsim.fast._lib.Struct ({sizes[2]} bytes) differ"
+                f"mb_model in mb_model.h ({sizes[0]} bytes) and mbsim.fast._lib.Struct "
+                f"({sizes[1]} bytes) differ"
             )
         _LIB = lib
     return _LIB
@@ -200,7 +203,6 @@ def _declare(lib):
         "mb_accelerations": ([P, I, I], I),
         "mb_project": ([P, I], I),
         "mb_struct_size": ([], ctypes.c_int64),
-        "mb_step_model_size": ([], ctypes.c_int64),
         "mb_rk_size": ([], ctypes.c_int64),
         "mb_rk_trial": ([P, P, ctypes.c_double, ctypes.c_double], I),
         "mb_rk_dense": ([P, P, ctypes.c_double, ctypes.c_double, ctypes.c_int64, P, P, P, P,

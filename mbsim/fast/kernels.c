@@ -1,10 +1,11 @@
 /* The compiled physics of mbsim: constraint kernels and equations of motion (plain C99).
  *
- * One file, no dependencies, no Python.h: mbsim.fast._lib compiles it into a shared library
- * (at install time through setup.py, else at first use into ~/.cache/mbsim) and calls it
- * through ctypes.  Every table and buffer belongs to the caller (numpy arrays kept alive by
- * mbsim.fast); the pointers arrive once, in an mb_model struct built at construction, so a
- * call passes only that struct and a few flags.  Nothing here allocates.
+ * No dependencies, no Python.h: mbsim.fast._lib compiles it with step.c (the integrators' step)
+ * into one shared library (at install time through setup.py, else at first use into
+ * ~/.cache/mbsim) and calls it through ctypes.  Every table and buffer belongs to the caller
+ * (numpy arrays kept alive by mbsim.fast); the pointers arrive once, in an mb_model struct
+ * (mb_model.h, shared with step.c) built at construction, so a call passes only that struct
+ * and a few flags.  Nothing here allocates.
  *
  * Tables (one line per basic constraint k = 0 .. nc-1, all row-major):
  *   ci (nc, NI) int64: kernel code, body i, body j (-1: one body), first global row, flag
@@ -31,7 +32,7 @@
 #include <stdint.h>
 #include <string.h>
 
-typedef int64_t idx;
+#include "mb_model.h"
 
 enum { DOT1, DOT2, SPHERICAL, DISTANCE, ANGLE, ABSOLUTE, GROUND, NORMALIZATION };
 enum { I_KERNEL, I_BI, I_BJ, I_ROW, I_FLAG, I_FUNC, I_SLOT, NI = 9 };
@@ -49,33 +50,6 @@ const char *mb_source_hash(void) { return MB_SOURCE_HASH; }
 
 static const int NE[8] = {1, 1, 3, 1, 1, 1, 6, 1}; /* equations per constraint, by code */
 
-/* The caller's view of one model: sizes, static tables, per-call inputs, outputs, work.
- * The field order is mirrored by mbsim.fast._lib.Struct (SIZES, then POINTERS). */
-typedef struct {
-    idx nb, nq, m, ma, nc, ninc, npairs, nenv, ne;
-    const idx *ci;
-    const double *cf;
-    const idx *rb;    /* (m, 2) bodies of each row */
-    const idx *rows;  /* (ma,) the rows returned by mb_terms */
-    const idx *dpos;  /* (ma, 14) CSR position of each compact entry (-1: none) */
-    const idx *sidx, *inc, *pairs;
-    const double *bt;
-    const idx *nrm;   /* (nb,) active position of each body's normalisation row, -1 */
-    const idx *ei;
-    const double *ef;
-    /* inputs, written by the caller before a call */
-    double *q, *qd, *tv, *loads, *par, *Jg, *rhs;
-    /* outputs on all rows */
-    double *phi, *Jc, *gamma, *nu;
-    /* outputs on the rows `rows` */
-    double *phi_a, *gamma_a, *nu_a, *J, *data;
-    /* dynamics outputs: Q (nq), qdd (nq), lam (ma), dq (nq), out[0] = power, out[1] = the
-     * smallest pivot ratio of the last Schur factorisation (schur_factor) */
-    double *Q, *qdd, *lam, *dq, *out;
-    /* work: Qt (nq), g (ma), Mi (nb*16), XG, JG (ninc*8), env (nenv), srhs, z (ma),
-     * K ((nq+ma)^2), kr (nq+ma), Mb (nb*49), A (nb*9), F, n, w (nb*3) */
-    double *Qt, *g, *Mi, *XG, *JG, *env, *srhs, *z, *K, *kr, *Mb, *A, *F, *n, *w;
-} mb_model;
 
 /* sizeof(mb_model): mbsim.fast._lib checks it against its ctypes mirror at load time. */
 int64_t mb_struct_size(void) { return (int64_t)sizeof(mb_model); }

@@ -20,31 +20,13 @@
 #include <stdint.h>
 #include <string.h>
 
-typedef int64_t idx;
+#include "mb_model.h" /* the one definition of mb_model, shared with kernels.c */
 
-/* mb_model of kernels.c, field for field (mbsim.fast._lib.Struct mirrors it too; the
- * library checks all three sizes at load time: mb_struct_size, mb_step_model_size). */
-typedef struct {
-    idx nb, nq, m, ma, nc, ninc, npairs, nenv, ne;
-    const idx *ci;
-    const double *cf;
-    const idx *rb, *rows, *dpos, *sidx, *inc, *pairs;
-    const double *bt;
-    const idx *nrm, *ei;
-    const double *ef;
-    double *q, *qd, *tv, *loads, *par, *Jg, *rhs;
-    double *phi, *Jc, *gamma, *nu;
-    double *phi_a, *gamma_a, *nu_a, *J, *data;
-    double *Q, *qdd, *lam, *dq, *out;
-    double *Qt, *g, *Mi, *XG, *JG, *env, *srhs, *z, *K, *kr, *Mb, *A, *F, *n, *w;
-} mb_model;
-
+/* kernels.c */
 int mb_accelerations(const mb_model *M, int kkt, int have_jac);
 void mb_constraints(const mb_model *M, int jac, int gam);
 int mb_project(const mb_model *M, int unit);
 void mb_jac_times(const mb_model *M, const double *x, double *out);
-
-int64_t mb_step_model_size(void) { return (int64_t)sizeof(mb_model); }
 
 /* What a call returns. */
 enum {
