@@ -48,6 +48,7 @@ from mbsim.errors import DeckError
 from mbsim.expr import Expression
 from mbsim.forces import register
 from mbsim.forces.base import ForceElement
+from mbsim.forces.elements import _body_indices
 from mbsim.model import joint_frame
 from mbsim.rotations import from_matrix, skew
 
@@ -178,14 +179,7 @@ class Bushing(ForceElement):
     def from_spec(cls, spec, body_index):
         el = cls()
         d, where = spec.data, spec.where
-        if len(spec.bodies) != 2:
-            raise DeckError(
-                f"a bushing joins two bodies, got {list(spec.bodies)}", where.child("bodies")
-            )
-        for name in spec.bodies:
-            if name not in body_index:
-                raise DeckError(f"unknown body {name!r}", where.child("bodies"))
-        el.bi, el.bj = (body_index[n] for n in spec.bodies)
+        el.bi, el.bj = _body_indices(spec, body_index, 2)
         (el.si, el.Ci), (el.sj, el.Cj) = (_frame(spec, n) for n in spec.bodies)
         el.k, el.c = _diag(d, "k", where), _diag(d, "c", where)
         el.kr, el.cr = _diag(d, "kr", where), _diag(d, "cr", where)

@@ -57,6 +57,7 @@ from mbsim.errors import DeckError
 from mbsim.forces import register
 from mbsim.forces.base import ForceElement
 from mbsim.forces.bushing import cross
+from mbsim.forces.elements import _body_indices
 
 RESTITUTION_ALPHA = {  # alpha (s/m) from the coefficient of restitution e and the speed v
     "hunt-crossley": lambda e, v: 3.0 * (1.0 - e) / (2.0 * v),
@@ -176,14 +177,7 @@ class Contact(ForceElement):
     def from_spec(cls, spec, body_index):
         el = cls()
         d, where = spec.data, spec.where
-        if len(spec.bodies) != 2:
-            raise DeckError(
-                f"a contact joins two bodies, got {list(spec.bodies)}", where.child("bodies")
-            )
-        for name in spec.bodies:
-            if name not in body_index:
-                raise DeckError(f"unknown body {name!r}", where.child("bodies"))
-        el.bi, el.bj = (body_index[n] for n in spec.bodies)
+        el.bi, el.bj = _body_indices(spec, body_index, 2)
         el.si, el.sj = (
             np.asarray(spec.points[n].P, float).copy() if n in spec.points else np.zeros(3)
             for n in spec.bodies
@@ -334,7 +328,7 @@ class JointStop(ForceElement):
 
         el = cls()
         d, where = spec.data, spec.where
-        el.bi, el.bj = (body_index[n] for n in spec.bodies)
+        el.bi, el.bj = _body_indices(spec, body_index, 2)
         fi, fj = (joint_frame(spec.points.get(n)) for n in spec.bodies)
         el.lower = -np.inf if d.get("lower") is None else float(d["lower"])
         el.upper = np.inf if d.get("upper") is None else float(d["upper"])

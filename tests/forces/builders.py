@@ -55,6 +55,24 @@ def tangent(model, q, rng):
     return dq.reshape(-1)
 
 
+def elastic_work_pairs(model, q, rng, h, n=6, fixed=()):
+    """(-Q . dq, (V(q + h dq) - V(q - h dq)) / 2h) for n random tangent directions dq
+    (:func:`tangent`; the bodies in ``fixed`` held), Q the applied forces at zero velocity
+    from the core: equal to O(h^2) where the loads are -grad V."""
+    from mbsim import core
+
+    Q, _, _ = core.applied_forces(model, None, q, np.zeros(model.nq))
+    out = []
+    for _ in range(n):
+        dq = tangent(model, q, rng).reshape(model.nb, 7)
+        dq[list(fixed)] = 0
+        dq = dq.reshape(-1)
+        dV = (core.potential_energy(model, None, q + h * dq)
+              - core.potential_energy(model, None, q - h * dq)) / (2 * h)
+        out.append((-Q @ dq, dV))
+    return out
+
+
 def rotations(model, q, dq):
     """(nb, 3) global small rotations dphi = 2 E(p) dp of a tangent dq."""
     p = q.reshape(model.nb, 7)[:, 3:]

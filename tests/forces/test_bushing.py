@@ -15,6 +15,7 @@ from mbsim.forces.bushing import jr_inverse, rotation_vector
 from mbsim.model import compile_model
 from mbsim.rotations import A as rot_A
 from mbsim.rotations import from_axis_angle
+from tests.forces.builders import elastic_work_pairs
 
 DECK = Path(__file__).parent / "data" / "bushing_block.yaml"
 M = 2.0
@@ -153,17 +154,8 @@ def test_elastic_loads_are_minus_the_gradient_of_the_potential(general_bushing):
     (dp perpendicular to p), steps 1e-6: truncation ~ h^2 V''' ~ 1e-10 relative."""
     model, q, rng = general_bushing
     Q, _, _ = core.applied_forces(model, None, q, np.zeros(model.nq))
-    for _ in range(6):
-        dq = rng.normal(size=model.nq).reshape(2, 7)
-        p = q.reshape(2, 7)[:, 3:]
-        dq[:, 3:] -= p * np.sum(dq[:, 3:] * p, 1, keepdims=True)
-        dq = dq.reshape(-1)
-        h = 1e-6
-        dV = (
-            core.potential_energy(model, None, q + h * dq)
-            - core.potential_energy(model, None, q - h * dq)
-        ) / (2 * h)
-        assert -Q @ dq == pytest.approx(dV, rel=1e-7, abs=1e-9 * np.abs(Q).max())
+    for work, dV in elastic_work_pairs(model, q, rng, h=1e-6):
+        assert work == pytest.approx(dV, rel=1e-7, abs=1e-9 * np.abs(Q).max())
 
 
 def test_damping_only_dissipates(general_bushing):

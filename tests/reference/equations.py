@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mbsim.core import State, Terms
+from mbsim.core import State, Terms, require_finite  # (an input guard, not physics)
 from tests.reference.basic import KERNELS
 
 
@@ -150,34 +150,6 @@ def kinetic_energy(model, q, qd) -> float:
     w = st.omega_local
     rot = np.einsum("bi,bij,bj->", w, model.J_local, w)
     return float(0.5 * np.sum(model.mass * np.sum(st.rd ** 2, 1)) + 0.5 * rot)
-
-
-def require_finite(model, t, **arrays) -> None:
-    """Input guard: an AnalysisError naming the bodies or constraints whose entries are NaN or
-    inf (a deck value such as 1e308 that overflowed), instead of LAPACK's ValueError.
-
-    Keys name the array: ``M`` and ``Q`` (nq rows of 7 per body), ``J``/``gamma``/``nu``/
-    ``phi`` (constraint rows), ``qd``/``q`` (coordinates)."""
-    from mbsim.errors import AnalysisError
-
-    for key, a in arrays.items():
-        a = np.asarray(a)
-        if np.isfinite(a).all():
-            continue
-        bad = np.flatnonzero(~np.isfinite(a.reshape(a.shape[0], -1)).all(axis=1))
-        if key in ("M", "Q", "q", "qd"):
-            names = sorted({model.body_names[r // 7] for r in bad})
-            what = {"M": "mass matrix", "Q": "applied forces", "q": "coordinates",
-                    "qd": "velocities"}[key]  # fmt: skip
-            items = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
-            raise AnalysisError(f"the {what} of body {items} overflowed to inf/NaN (a deck "
-                                "value too large, e.g. 1e308, or a force law that diverges)",
-                                time=t, items=tuple(names))  # fmt: skip
-        names = list(model.items_of_rows(bad))
-        items = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
-        raise AnalysisError(f"the constraint equations ({key}) of {items} overflowed to inf/NaN "
-                            "(a deck value too large, e.g. a point at 1e308)", time=t,
-                            items=tuple(names))  # fmt: skip
 
 
 def accelerations(model, q, qd, t=0.0, Q=None, rows=None):
