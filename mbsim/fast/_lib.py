@@ -221,9 +221,9 @@ SIZES = ("nb", "nq", "m", "ma", "nc", "ninc", "npairs", "nenv", "ne")
 POINTERS = (
     "ci cf rb rows dpos sidx inc pairs bt nrm ei ef "
     "q qd tv loads par Jg rhs phi Jc gamma nu phi_a gamma_a nu_a J data "
-    "Q qdd lam dq out Qt g Mi XG JG env srhs z K kr Mb A F n w"
+    "Q qdd lam dq out Qt g Mi XG JG env srhs z K kr Mb A F n w kp"
 ).split()
-INT_ARRAYS = {"ci", "rb", "rows", "dpos", "sidx", "inc", "pairs", "nrm", "ei"}
+INT_ARRAYS = {"ci", "rb", "rows", "dpos", "sidx", "inc", "pairs", "nrm", "ei", "kp"}
 
 
 class Struct(ctypes.Structure):

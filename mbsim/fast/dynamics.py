@@ -117,7 +117,8 @@ class System:
             Q=np.zeros(nq), qdd=np.zeros(nq), lam=np.zeros(ma), dq=np.zeros(nq), out=np.ones(2))
         c.set(Qt=np.zeros(nq), g=np.zeros(ma), Mi=np.zeros((nb, 4, 4)), XG=np.zeros((ninc, 8)),
               JG=np.zeros((ninc, 8)), env=np.zeros(nenv), srhs=np.zeros(ma), z=np.zeros(ma),
-              K=np.zeros(nk * nk), kr=np.zeros(nk), A=np.zeros((nb, 3, 3)))
+              K=np.zeros(nk * nk), kr=np.zeros(nk), kp=np.zeros(nk, np.int64),
+              A=np.zeros((nb, 3, 3)))
         # after mb_applied_forces: F (nb, 3) global forces, n (nb, 3) body torques with the
         # gyroscopic term, w (nb, 3) body-frame angular velocities
         self._F, self._n, self._w = c.set(F=np.zeros((nb, 3)), n=np.zeros((nb, 3)),

@@ -798,119 +798,6 @@ static int solve_schur(const mb_model *M, const double *Jc)
     return STATUS_OK;
 }
 
-/* [M, Phi_q^T; Phi_q, 0] [qdd; lam] = [Q; g] by dense LU with partial pivoting (Haug eq.
- * 11.1.x): for models where some J' is singular (no exact Mt^-1).  Returns STATUS_SINGULAR
- * on an exactly zero pivot (as LAPACK's dgesv). */
-static int solve_kkt(const mb_model *M, const double *Jc)
-{
-    idx nq = M->nq, ma = M->ma, n = nq + ma;
-    double *K = M->K, *x = M->kr;
-    mb_mass_blocks(M);
-    memset(K, 0, (size_t)(n * n) * sizeof(double));
-    for (idx b = 0; b < M->nb; b++)
-        for (int i = 0; i < 7; i++)
-            for (int j = 0; j < 7; j++)
-                K[(7 * b + i) * n + 7 * b + j] = M->Mb[49 * b + 7 * i + j];
-    for (idx u = 0; u < ma; u++) {
-        idx r = M->sidx[u];
-        for (int s = 0; s < 2; s++) {
-            idx b = M->rb[2 * r + s];
-            if (b < 0)
-                continue;
-            for (int c = 0; c < 7; c++) {
-                K[(nq + u) * n + 7 * b + c] += Jc[14 * r + 7 * s + c];
-                K[(7 * b + c) * n + nq + u] += Jc[14 * r + 7 * s + c];
-            }
-        }
-    }
-    memcpy(x, M->Q, (size_t)nq * sizeof(double));
-    memcpy(x + nq, M->g, (size_t)ma * sizeof(double));
-    for (idx k = 0; k < n; k++) {
-        idx piv = k;
-        double big = fabs(K[k * n + k]);
-        for (idx i = k + 1; i < n; i++)
-            if (fabs(K[i * n + k]) > big) {
-                big = fabs(K[i * n + k]);
-                piv = i;
-            }
-        if (big == 0.0)
-            return STATUS_SINGULAR;
-        if (piv != k) {
-            for (idx j = 0; j < n; j++) {
-                double t = K[k * n + j];
-                K[k * n + j] = K[piv * n + j];
-                K[piv * n + j] = t;
-            }
-            double t = x[k];
-            x[k] = x[piv];
-            x[piv] = t;
-        }
-        double inv = 1.0 / K[k * n + k];
-        for (idx i = k + 1; i < n; i++) {
-            double l = K[i * n + k] * inv;
-            if (l == 0.0)
-                continue;
-            for (idx j = k + 1; j < n; j++)
-                K[i * n + j] -= l * K[k * n + j];
-            x[i] -= l * x[k];
-        }
-    }
-    for (idx k = n - 1; k >= 0; k--) {
-        double s = x[k];
-        for (idx j = k + 1; j < n; j++)
-            s -= K[k * n + j] * x[j];
-        x[k] = s / K[k * n + k];
-    }
-    memcpy(M->qdd, x, (size_t)nq * sizeof(double));
-    memcpy(M->lam, x + nq, (size_t)ma * sizeof(double));
-    return STATUS_OK;
-}
-
-/* (qdd, lam) of the equations of motion at (q, qd): the constraint terms, the applied forces,
- * then the Schur complement of Mt, or the dense KKT matrix when kkt.  have_jac: the compact
- * Phi_q is the caller's Jg (m, 14) instead of the one evaluated here.  out[0] = power
- * Q.qd - lam.nu.  Returns a STATUS_*. */
-int mb_accelerations(const mb_model *M, int kkt, int have_jac)
-{
-    mb_constraints(M, !have_jac, 1);
-    const double *Jc = have_jac ? M->Jg : M->Jc;
-    rhs_terms(M, Jc);
-    M->out[1] = 1.0;
-    int status = kkt ? solve_kkt(M, Jc) : solve_schur(M, Jc);
-    if (status != STATUS_OK)
-        return status;
-    double power = 0.0;
-    for (idx i = 0; i < M->nq; i++)
-        power += M->Q[i] * M->qd[i];
-    for (idx u = 0; u < M->ma; u++)
-        power -= M->lam[u] * M->nu[M->sidx[u]];
-    M->out[0] = power;
-    return STATUS_OK;
-}
-
-/* dq (nq,) = Mt^-1 Phi_q^T S^-1 rhs: the weighted least-norm correction with Phi_q dq = rhs
- * on the active rows (Phi_q: Jc of the last mb_constraints; unit: identity metric).
- * Returns a STATUS_*. */
-int mb_project(const mb_model *M, int unit)
-{
-    minv_blocks(M, unit);
-    if (!schur_factor(M, M->Jc, unit))
-        return STATUS_NOT_PD;
-    schur_solve(M, M->rhs, M->lam);
-    memset(M->dq, 0, (size_t)M->nq * sizeof(double));
-    for (idx k = 0; k < M->ninc; k++) {
-        const double *x = M->XG + 8 * k;
-        double *y = M->dq + 7 * M->inc[3 * k + 2], h = M->lam[M->inc[3 * k]];
-        for (int c = 0; c < 7; c++)
-            y[c] += x[c] * h;
-    }
-    return STATUS_OK;
-}
-
-/* -- kinematic analysis: Phi = 0, Phi_q qd = nu, Phi_q qdd = gamma on one LU --------------- */
-
-enum { KIN_NOT_CONVERGED = 3 };
-
 /* LU with partial pivoting of the row-major (n, n) A in place (Golub & Van Loan Alg. 3.4.1),
  * piv (n,) the row swapped with each row.  Returns the smallest |pivot| / largest |pivot|
  * (0: an exactly zero pivot, factorisation stopped). */
@@ -980,6 +867,86 @@ static void dense_lu_solve(const double *LU, const idx *piv, idx n, double *x, i
         }
     }
 }
+
+/* [M, Phi_q^T; Phi_q, 0] [qdd; lam] = [Q; g] by dense LU with partial pivoting (Haug eq.
+ * 11.1.x): for models where some J' is singular (no exact Mt^-1).  Returns STATUS_SINGULAR
+ * on an exactly zero pivot (as LAPACK's dgesv). */
+static int solve_kkt(const mb_model *M, const double *Jc)
+{
+    idx nq = M->nq, ma = M->ma, n = nq + ma;
+    double *K = M->K, *x = M->kr;
+    mb_mass_blocks(M);
+    memset(K, 0, (size_t)(n * n) * sizeof(double));
+    for (idx b = 0; b < M->nb; b++)
+        for (int i = 0; i < 7; i++)
+            for (int j = 0; j < 7; j++)
+                K[(7 * b + i) * n + 7 * b + j] = M->Mb[49 * b + 7 * i + j];
+    for (idx u = 0; u < ma; u++) {
+        idx r = M->sidx[u];
+        for (int s = 0; s < 2; s++) {
+            idx b = M->rb[2 * r + s];
+            if (b < 0)
+                continue;
+            for (int c = 0; c < 7; c++) {
+                K[(nq + u) * n + 7 * b + c] += Jc[14 * r + 7 * s + c];
+                K[(7 * b + c) * n + nq + u] += Jc[14 * r + 7 * s + c];
+            }
+        }
+    }
+    memcpy(x, M->Q, (size_t)nq * sizeof(double));
+    memcpy(x + nq, M->g, (size_t)ma * sizeof(double));
+    if (dense_lu(K, M->kp, n) == 0.0)
+        return STATUS_SINGULAR;
+    dense_lu_solve(K, M->kp, n, x, 0);
+    memcpy(M->qdd, x, (size_t)nq * sizeof(double));
+    memcpy(M->lam, x + nq, (size_t)ma * sizeof(double));
+    return STATUS_OK;
+}
+
+/* (qdd, lam) of the equations of motion at (q, qd): the constraint terms, the applied forces,
+ * then the Schur complement of Mt, or the dense KKT matrix when kkt.  have_jac: the compact
+ * Phi_q is the caller's Jg (m, 14) instead of the one evaluated here.  out[0] = power
+ * Q.qd - lam.nu.  Returns a STATUS_*. */
+int mb_accelerations(const mb_model *M, int kkt, int have_jac)
+{
+    mb_constraints(M, !have_jac, 1);
+    const double *Jc = have_jac ? M->Jg : M->Jc;
+    rhs_terms(M, Jc);
+    M->out[1] = 1.0;
+    int status = kkt ? solve_kkt(M, Jc) : solve_schur(M, Jc);
+    if (status != STATUS_OK)
+        return status;
+    double power = 0.0;
+    for (idx i = 0; i < M->nq; i++)
+        power += M->Q[i] * M->qd[i];
+    for (idx u = 0; u < M->ma; u++)
+        power -= M->lam[u] * M->nu[M->sidx[u]];
+    M->out[0] = power;
+    return STATUS_OK;
+}
+
+/* dq (nq,) = Mt^-1 Phi_q^T S^-1 rhs: the weighted least-norm correction with Phi_q dq = rhs
+ * on the active rows (Phi_q: Jc of the last mb_constraints; unit: identity metric).
+ * Returns a STATUS_*. */
+int mb_project(const mb_model *M, int unit)
+{
+    minv_blocks(M, unit);
+    if (!schur_factor(M, M->Jc, unit))
+        return STATUS_NOT_PD;
+    schur_solve(M, M->rhs, M->lam);
+    memset(M->dq, 0, (size_t)M->nq * sizeof(double));
+    for (idx k = 0; k < M->ninc; k++) {
+        const double *x = M->XG + 8 * k;
+        double *y = M->dq + 7 * M->inc[3 * k + 2], h = M->lam[M->inc[3 * k]];
+        for (int c = 0; c < 7; c++)
+            y[c] += x[c] * h;
+    }
+    return STATUS_OK;
+}
+
+/* -- kinematic analysis: Phi = 0, Phi_q qd = nu, Phi_q qdd = gamma on one LU --------------- */
+
+enum { KIN_NOT_CONVERGED = 3 };
 
 /* Phi_q on the rows `rows` as a dense row-major (ma, nq) matrix (gather's mode 1). */
 static void dense_rows(const mb_model *M, double *J)

@@ -36,6 +36,7 @@ typedef struct {
     /* work: Qt (nq), g (ma), Mi (nb*16), XG, JG (ninc*8), env (nenv), srhs, z (ma),
      * K ((nq+ma)^2), kr (nq+ma), Mb (nb*49), A (nb*9), F, n, w (nb*3) */
     double *Qt, *g, *Mi, *XG, *JG, *env, *srhs, *z, *K, *kr, *Mb, *A, *F, *n, *w;
+    idx *kp; /* work: the pivots of the dense KKT factorisation (nq+ma) */
 } mb_model;
 
 #endif
