@@ -62,6 +62,7 @@ class Model:
     row_label: tuple[str, ...]  # (m,) e.g. 'REV2[4] dot1(h_i,f_j)'
     forces: tuple = ()
     outputs: tuple = ()  # ((name, body index, (3,) local point), ...)
+    events: tuple = ()  # the deck's events (mbsim.events.UserEvent)
     spec: DeckSpec | None = None
 
     def item(self, name: str) -> Item:
@@ -282,6 +283,9 @@ def compile_model(spec: DeckSpec) -> Model:
     forces = compile_forces(spec, idx)
     outputs = tuple((on, body(o.body, o.where.child("body")), np.asarray(o.point, float))
                     for on, o in spec.outputs.items())
+    from mbsim.events import compile_events
+
+    events = compile_events(getattr(spec, "events", {}) or {}, idx)
     for a in (mass, J, ground, q0, rdot0, om0, oml0):
         a.setflags(write=False)
     row_item = np.array(rows.owner, dtype=int)
@@ -291,7 +295,7 @@ def compile_model(spec: DeckSpec) -> Model:
         mass=mass, J_local=J, is_ground=ground, q0=q0, rdot0=rdot0, omega0=om0,
         omega0_local=oml0, gravity=np.asarray(spec.gravity, float), blocks=tuple(blocks),
         items=tuple(items), row_item=row_item, row_label=tuple(rows.labels), forces=forces,
-        outputs=outputs, spec=spec,
+        outputs=outputs, events=events, spec=spec,
     )
 
 

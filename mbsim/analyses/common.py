@@ -301,10 +301,20 @@ class Recorder:
             return
         states, ts = self.states(), self.t
         for el in model.forces:
-            keys = [k for k in el.channels(states[0], ts[0]) if needed(f"forces/{el.name}/{k}")]
-            if not keys:
-                continue
-            chans = el.channels_many(states, ts)
+            if getattr(el, "hybrid", False):  # in each output's mode (mbsim.events)
+                modes, lam = self.extra.get("modes"), self.extra.get("lam_all")
+                rows = [el.channels_in(None if modes is None else modes[k].get(el.name),
+                                       states[k], ts[k], None if lam is None else lam[k])
+                        for k in range(len(ts))]
+                chans = {key: (np.array([np.asarray(r[key][0], float) for r in rows]), unit)
+                         for key, (_, unit) in rows[0].items()}
+                keys = [k for k in chans if needed(f"forces/{el.name}/{k}")]
+            else:
+                keys = [k for k in el.channels(states[0], ts[0])
+                        if needed(f"forces/{el.name}/{k}")]
+                if not keys:
+                    continue
+                chans = el.channels_many(states, ts)
             for key in keys:
                 val, unit = chans[key]
                 arr = np.asarray(val, dtype=float)

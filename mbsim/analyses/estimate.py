@@ -101,7 +101,8 @@ t = 0.09 s), so that the companion at rtol / rho would follow a wasted coarse ru
 
 
 COARSE_MIN_STEPS = 4  # fewer accepted steps: the companion at rtol / rho instead
-CHANGE_POINT_COUNTERS = ("tangent_stages", "straddle_steps", "output_steps", "row_changes")
+CHANGE_POINT_COUNTERS = ("tangent_stages", "straddle_steps", "output_steps", "row_changes",
+                         "events")
 """Counters of a run that met a change point (a singular position): tangent-coordinate
 stages, steps placed across it, outputs integrated to because the interpolant was not to be
 trusted, rows chosen again.  Such a run gets the companion at rtol / rho: on a doubled step

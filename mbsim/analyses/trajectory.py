@@ -36,17 +36,19 @@ from mbsim.analyses.common import Recorder, rank_and_redundant
 from mbsim.analyses.diagnosis import accelerations_lstsq, dropped_rows_conflict, explain, jacobian
 from mbsim.analyses.kinematic import output_times
 from mbsim.errors import DeckError, Where
+from mbsim.events import MAX_EVENTS, MAX_EVENTS_AT_ONE_TIME, Context, Watch, extend_model
 from mbsim.integrators import ALIASES, INTEGRATORS, System
 from mbsim.integrators.base import NUMERICAL_ERRORS, IntegratorFailure
+from mbsim.integrators.system import SolveError
 from mbsim.result import STATUS_INCOMPLETE
 
 log = logging.getLogger(__name__)
 
 
-def make_system(model, rows, sparse=None):
+def make_system(model, rows, sparse=None, modes=None):
     """The equations of motion the integrators call: :class:`mbsim.integrators.System`
-    (the C kernels of :mod:`mbsim.fast`)."""
-    return System(model, rows, sparse)
+    (the C kernels of :mod:`mbsim.fast`); ``modes``: of the hybrid force elements."""
+    return System(model, rows, sparse, modes)
 
 
 def integrator_class(name: str):
@@ -173,8 +175,8 @@ def output_loads(model, forces, t, q, qd):
     C kernels do not evaluate: System.py_forces) at every output, each element's
     ``loads_many`` once for all outputs; None without such elements.  t (nt,), q, qd
     (nt, nq)."""
-    if not forces or len(t) == 0:
-        return None
+    if not forces or len(t) == 0 or any(getattr(el, "hybrid", False) for el in forces):
+        return None  # hybrid elements: in each output's modes, inside output_row
     from mbsim import core
 
     states = core.States(model, q, qd)
@@ -187,13 +189,18 @@ def output_loads(model, forces, t, q, qd):
 
 def output_row(model, system, t, q, qd, loads=None):
     """(qdd, lam over all rows, Phi (m,), Phi_q qd - nu (m,)) at one output; loads: (2, nb,
-    3) the Python force elements' loads there (:func:`output_loads`), None: computed here."""
+    3) the Python force elements' loads there (:func:`output_loads`), None: computed here.
+    Rows that hybrid elements hold (after the model's m rows) are left out; their
+    multipliers reach the elements' channels (:func:`held_multipliers`)."""
     try:
         qdd, lam, _ = system.accelerations(q, qd, t, loads=loads)
     except NUMERICAL_ERRORS:  # exactly at a singular position: least squares
         qdd, lam = accelerations_lstsq(model, system, q, qd, t)
     ph, v = system.residuals(q, qd, t)
-    return qdd, system.full_lam(lam), ph, v
+    full = system.full_lam(lam)
+    if system.model.m > model.m:
+        system.lam_all = full
+    return qdd, full[:model.m], ph[:model.m], v[:model.m]
 
 
 def build_result(model, prep, opt, tr, span):
@@ -211,6 +218,7 @@ def build_result(model, prep, opt, tr, span):
     dropped: dict = {}
     stopped = None  # the message of a stop found while the outputs are recorded
     drift_limit = DRIFT_FACTOR * (float(opt["rtol"]) * max(1.0, span) + float(opt["atol"]))
+    hybrid = bool(run.hybrid)
     loads = output_loads(model, tr.systems[0].py_forces if n else (), np.asarray(tr.t[:n]),
                          np.array(tr.q[:n]), np.array(tr.qd[:n]))
     try:
@@ -242,7 +250,13 @@ def build_result(model, prep, opt, tr, span):
             lam.append(la)
             pos.append(float(np.abs(ph).max(initial=0.0)))
             vel.append(float(np.abs(v).max(initial=0.0)))
-            rec.add(tr.t[k], tr.q[k], tr.qd[k], qdd)
+            if hybrid:  # each output's modes and multipliers (held rows too): their channels
+                sysk = tr.systems[k]
+                rec.add(tr.t[k], tr.q[k], tr.qd[k], qdd, modes=sysk.modes,
+                        lam_all=getattr(sysk, "lam_all", None) if sysk.model.m > model.m
+                        else la)
+            else:
+                rec.add(tr.t[k], tr.q[k], tr.qd[k], qdd)
     except KeyboardInterrupt:  # Ctrl-C while the outputs are evaluated: keep those done
         status = STATUS_INCOMPLETE
         message = message or f"t = {tr.t[len(rec)]:.6g} s: interrupted (Ctrl-C)"
@@ -267,6 +281,8 @@ def build_result(model, prep, opt, tr, span):
                 "integrator step across each output (t_start: the first step)")
         res.add("constraints/lam", lam, "", "Lagrange multipliers per constraint row",
                 model.row_label)
+    if run.events:
+        add_events(res, model, run.events, n and tr.t[n - 1])
     res.status, res.message = status, message
     res.settings = {k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
                         else v) for k, v in opt.items()
@@ -284,10 +300,49 @@ def build_result(model, prep, opt, tr, span):
                     "row_changes": run.changes,
                     "sparse": run.system.sparse, "equations": "C kernels (mbsim.fast)",
                     "t_reached": float(run.solver.t)})
+    if run.events:
+        summary["events"] = event_summary(run.events, n and tr.t[n - 1])
     cpu_run = prep.cpu + tr.cpu + _time.process_time() - cpu0
     summary["cpu"] = cpu_run
     res.summary = summary
     return res
+
+
+def _kept_events(events, t_last):
+    return [e for e in events if e["t"] <= t_last * (1 + 1e-12) + 1e-300]
+
+
+def add_events(res, model, events, t_last):
+    """The located events up to the last output as arrays of ``res``: events/time (ne,),
+    events/q, events/qd (ne, nq) and the names 'owner: name' (names['events'])."""
+    kept = _kept_events(events, t_last)
+    if not kept:
+        return
+    res.arrays["events/time"] = (np.array([e["t"] for e in kept]), {"unit": "s"})
+    res.arrays["events/q"] = (np.array([e["q"] for e in kept]), {
+        "description": "generalized coordinates at each event (r, p per body)"})
+    res.arrays["events/qd"] = (np.array([e["qd"] for e in kept]), {
+        "description": "their rates at each event"})
+    res.names["events"] = [f"{e['owner']}: {e['name']}" if e["owner"] != e["name"]
+                           else e["name"] for e in kept]
+
+
+MAX_SUMMARY_EVENTS = 200
+
+
+def event_summary(events, t_last):
+    """The summary's events: time, name, action (and the mode change), the first
+    MAX_SUMMARY_EVENTS of them (all are in the file's arrays)."""
+    kept = _kept_events(events, t_last)
+    out = []
+    for e in kept[:MAX_SUMMARY_EVENTS]:
+        item = {"t": float(e["t"]), "event": e["name"], "action": e["action"]}
+        if e["owner"] != e["name"]:
+            item["element"] = e["owner"]
+        if "from" in e:
+            item["mode"] = f"{e['from']} -> {e['to']}"
+        out.append(item)
+    return out
 
 
 MAX_ROW_CHANGES = 20  # re-selections of the independent rows in one run
@@ -323,7 +378,21 @@ class Stepper:
     def __init__(self, model, cls, opt, t0, q, qd, t1, rows):
         self.model, self.cls, self.opt, self.t1 = model, cls, opt, t1
         self.rows = rows
-        self.system = make_system(model, rows, opt.get("sparse"))
+        # hybrid elements' modes and the constraint rows those modes hold (mbsim.events);
+        # the events located so far (dicts: t, name, owner, action, from, to, q, qd)
+        self.modes: dict = {}
+        self.holds: list = []
+        self.events: list[dict] = []
+        self.hybrid = tuple(el for el in model.forces if getattr(el, "hybrid", False))
+        self.watch = Watch(model.events) if (model.events or self.hybrid) else None
+        self.system = self._system(rows)
+        if self.hybrid:
+            ctx = Context(self.system, t0, q, qd)
+            self.modes = {el.name: el.initial_mode(ctx) for el in self.hybrid}
+            self.holds = [h for el in self.hybrid for h in el.holds(self.modes[el.name], ctx)]
+            self.system = self._system(rows)
+            if self.holds:
+                q, qd = self._consistent(self.system, t0, q, qd)
         self.solver = cls(self.system, t0, q, qd, t1, opt)
         self.changes: list[dict] = []
         self._retired: list[dict] = []  # counters of the integrators before a restart
@@ -332,6 +401,96 @@ class Stepper:
         # estimate, mbsim.analyses.estimate.coarse_estimate)
         self.step_ends: list[float] = []
         self.solver.step_ends = self.step_ends
+        self._same_time = 0  # events in a row without time moving on
+        if self.watch is not None:
+            self.watch.reset(self, t0, q, qd)
+
+    def _system(self, rows, modes=None, holds=None):
+        """The equations of motion on the independent rows ``rows`` of the model plus the
+        rows the modes hold, with the hybrid elements in ``modes`` (default: the run's)."""
+        modes = self.modes if modes is None else modes
+        holds = self.holds if holds is None else holds
+        model = extend_model(self.model, holds)
+        if holds:
+            rows = np.concatenate([rows, np.arange(self.model.m, model.m)])
+        system = (make_system(model, rows, self.opt.get("sparse"), modes) if modes
+                  else make_system(model, rows, self.opt.get("sparse")))
+        system.family = self
+        return system
+
+    def system_for(self, modes, ctx):
+        """A system with the hybrid elements in ``modes`` at the state ``ctx`` (a mode
+        candidate tested at an event: :meth:`mbsim.events.Context.trial`)."""
+        return self._system(self.rows, modes, self._holds_for(modes, ctx))
+
+    def _holds_for(self, modes, ctx):
+        holds = []
+        for el in self.hybrid:
+            if modes.get(el.name) == self.modes.get(el.name):
+                holds += [h for h in self.holds if h.owner == el.name]
+            else:
+                holds += el.holds(modes.get(el.name), ctx)
+        return holds
+
+    @staticmethod
+    def _consistent(system, t, q, qd):
+        """(q, qd) projected onto the constraints of ``system`` (mass-weighted): at a mode
+        change the held rows start from the state's own values, so the projection only
+        removes the relative velocity the stick stops (within the event's location)."""
+        q, ok, _, res = system.project_positions(q, t)
+        if not ok:
+            raise SolveError(f"the held rows cannot be met at t = {t:.6g} s (max |Phi| "
+                             f"{res:.3g})")
+        return q, system.project_velocities(q, qd, t)
+
+    def on_event(self, ev):
+        """Act on the located event ``ev`` (:class:`mbsim.events.Event`): note it, change
+        the modes of the hybrid elements whose switches fired and restart the integration
+        at the event with them.  Returns the switch of a ``stop`` action, else None."""
+        s = self.solver
+        ctx = Context(self.system, ev.t, ev.q, ev.qd)
+        modes, stop = dict(self.modes), None
+        owners = {el.name: el for el in self.hybrid}
+        for sw in ev.fired:
+            rec = {"t": ev.t, "name": sw.name, "owner": sw.owner, "action": sw.action,
+                   "q": ev.q, "qd": ev.qd}
+            if sw.action == "switch":
+                el = owners[sw.owner]
+                new = el.next_mode(modes.get(el.name), sw, ctx)
+                rec["from"], rec["to"] = str(modes.get(el.name)), str(new)
+                modes[el.name] = new
+            elif sw.action == "stop" and stop is None:
+                stop = sw
+            self.events.append(rec)
+        if len(self.events) > MAX_EVENTS:
+            raise SolveError(f"more than {MAX_EVENTS} events (last: {ev.fired[0].name} at "
+                             f"t = {ev.t:.6g} s): a law that chatters")
+        if stop is not None:
+            return stop
+        self._same_time = self._same_time + 1 if ev.t <= (self.watch_t or -np.inf) else 0
+        self.watch_t = ev.t
+        if self._same_time > MAX_EVENTS_AT_ONE_TIME:
+            raise SolveError(f"{MAX_EVENTS_AT_ONE_TIME} mode changes at t = {ev.t:.6g} s "
+                             f"without the time moving on ({ev.fired[0].name}): no mode is "
+                             f"consistent there")
+        holds = self._holds_for(modes, ctx)
+        changed = [h.label for h in holds] != [h.label for h in self.holds] or any(
+            a.target != b.target for a, b in zip(holds, self.holds))
+        self.modes, self.holds = modes, holds
+        system = self._system(self.rows)
+        q, qd = ev.q, ev.qd
+        if changed:
+            q, qd = self._consistent(system, ev.t, q, qd)
+        opt = dict(self.opt, h0=s.h_last or None)
+        solver = self.cls(system, ev.t, q, qd, self.t1, opt)
+        solver.w = ev.w
+        solver.step_ends = self.step_ends
+        self._retired.append(s.all_counters())
+        self.system, self.solver = system, solver
+        self.watch.reset(self, ev.t, q, qd)
+        return None
+
+    watch_t = None
 
     def step(self):
         ok, msg = self.solver.step()
@@ -359,7 +518,7 @@ class Stepper:
             return False
         opt = dict(self.opt, h0=s.h_last or None)
         try:
-            system = make_system(model, rows, opt.get("sparse"))
+            system = self._system(rows)
             solver = self.cls(system, s.t, s.q, s.qd, self.t1, opt)
         except NUMERICAL_ERRORS:  # the new rows do not solve here either: the failure stands
             return False
@@ -372,6 +531,8 @@ class Stepper:
         log.info("t = %.6g s: independent rows chosen again (rank %d; redundant: %s) after: %s",
                  s.t, rank, ", ".join(names) or "none", message)
         self.rows, self.system, self.solver = rows, system, solver
+        if self.watch is not None:
+            self.watch.reset(self, s.t, s.q, s.qd)
         return True
 
     def all_counters(self) -> dict:
@@ -380,6 +541,8 @@ class Stepper:
             for k, v in old.items():
                 out[k] = out.get(k, 0) + v
         out["row_changes"] = len(self.changes)
+        if self.watch is not None:
+            out["events"] = len(self.events)
         return out
 
 
@@ -410,21 +573,38 @@ def integrate(run, times, record, max_steps):
     """Step ``run`` (a :class:`Stepper`) to times[-1], calling ``record(t, q, qd, w, h)`` at
     times[1:].
 
+    With events (``run.watch``) the steps are taken one at a time and each is searched for
+    events (:meth:`mbsim.events.Watch.check`); at an event the outputs before it come from
+    the step, the run restarts there in its new modes (:meth:`Stepper.on_event`), and a
+    ``stop`` event ends the run with one last output at the event's time.
+
     Returns (status, message); every numerical failure (a step, the dense output, a stall)
     ends as ('incomplete', message with the time), never as an exception."""
     k, steps = 1, 0
+    watch = run.watch
     while k < len(times):
         before = run.solver.counters["steps"]
-        ok, msg = run.advance(times[k], int(max(1, min(ADVANCE_STEPS, max_steps - steps))))
+        chunk = 1 if watch is not None else int(max(1, min(ADVANCE_STEPS, max_steps - steps)))
+        ok, msg = run.advance(times[k], chunk)
         steps += max(1, run.solver.counters["steps"] - before)
         if not ok:
             if run.restart(msg):
                 continue
             return STATUS_INCOMPLETE, msg
         solver = run.solver
-        eps = 1e-12 * max(1.0, abs(solver.t))
-        if times[k] <= solver.t + eps:
-            j = int(np.searchsorted(times, solver.t + eps, side="right"))
+        t_end = solver.t
+        ev = None
+        if watch is not None and solver.t_old is not None:
+            try:
+                ev = watch.check(run)
+            except (*NUMERICAL_ERRORS, IntegratorFailure) as exc:
+                return STATUS_INCOMPLETE, (f"t = {solver.t:.6g} s: evaluating the events "
+                                           f"failed: {exc}")
+            if ev is not None:
+                t_end = ev.t
+        eps = 1e-12 * max(1.0, abs(t_end))
+        if times[k] <= t_end + eps:
+            j = int(np.searchsorted(times, t_end + eps, side="right"))
             Q, QD, W, failure = step_outputs(solver, times[k:j])
             try:
                 for i in range(len(W)):
@@ -435,10 +615,17 @@ def integrate(run, times, record, max_steps):
                                            f"failed: {exc}")
             if failure is not None:
                 return STATUS_INCOMPLETE, failure
+        if ev is not None:
+            try:
+                stop = run.on_event(ev)
+            except NUMERICAL_ERRORS as exc:
+                return STATUS_INCOMPLETE, f"t = {ev.t:.6g} s: after the event: {exc}"
+            if stop is not None:
+                if ev.t > times[k - 1] + eps:  # the state at the stop as the last output
+                    record(ev.t, ev.q, ev.qd, ev.w, solver.h_last)
+                return "complete", f"stopped by event {stop.name} at t = {ev.t:.9g} s"
         if steps >= max_steps and k < len(times):
             return STATUS_INCOMPLETE, (f"t = {solver.t:.6g} s: max_steps = {max_steps} reached "
                                        f"before t_end = {times[-1]:g} s (step size "
                                        f"{solver.h_last:.3g} s)")
     return "complete", ""
-
-

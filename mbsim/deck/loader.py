@@ -235,6 +235,11 @@ def _build(root: Node, rd: Reader, text: str, scene: str | None,
     joints = _section(rd, top, "joints", _joint, bodies)
     drivers = _section(rd, top, "drivers", _driver, bodies, joints)
     forces = _section(rd, top, "forces", _force, bodies, joints)
+    events = {}
+    if "events" in top:
+        from mbsim.events import read_events
+
+        events = read_events(rd, *top["events"], bodies, joints)
     outputs = _outputs(rd, *top["outputs"], bodies) if "outputs" in top else {}
     out_measures, out_only = (_output_extras(rd, *top["outputs"], bodies, joints)
                               if "outputs" in top else ({}, None))
@@ -250,7 +255,7 @@ def _build(root: Node, rd: Reader, text: str, scene: str | None,
         title=title, file=rd.file, text=text, gravity=gravity, parameters=dict(rd.params),
         bodies=bodies, joints=joints, drivers=drivers, forces=forces, outputs=outputs,
         analysis=analysis, raw=to_plain(root), warnings=rd.warnings, scene=scene,
-        studies=cases, output_measures=out_measures, output_only=out_only,
+        studies=cases, output_measures=out_measures, output_only=out_only, events=events,
     )  # fmt: skip
 
 

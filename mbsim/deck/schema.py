@@ -12,7 +12,7 @@ from typing import Any, NamedTuple
 
 TOP_KEYS = (
     "title", "units", "gravity", "parameters", "bodies", "joints", "drivers", "forces",
-    "outputs", "analysis", "scenes", "studies",
+    "events", "outputs", "analysis", "scenes", "studies",
 )  # fmt: skip
 BODY_KEYS = (
     "ground", "mass", "inertia", "r", "p", "euler_deg", "axis_angle", "omega", "omega_local",

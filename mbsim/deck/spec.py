@@ -158,3 +158,5 @@ class DeckSpec:
     # restricting what a run computes and writes; None: everything), docs/deck.md#outputs
     output_measures: dict[str, Any] = field(default_factory=dict)
     output_only: tuple[str, ...] | None = None
+    # events: name -> mbsim.events.EventSpec (conditions located during a dynamic run)
+    events: dict[str, Any] = field(default_factory=dict)

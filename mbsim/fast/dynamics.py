@@ -57,6 +57,9 @@ EL_TSDA, EL_FORCE, EL_FORCE_LOCAL, EL_TORQUE, EL_TORQUE_LOCAL = range(5)
 STATUS_OK, STATUS_NOT_PD, STATUS_SINGULAR = range(3)
 
 
+REACTION_ITERATIONS = 60  # fixed-point iterations of the loop loads <-> multipliers
+
+
 class SolveError(Exception):
     """A factorisation that failed inside a step (the integrator turns it into a message)."""
 
@@ -72,7 +75,7 @@ class System:
     Arrays returned by the methods are fresh.
     """
 
-    def __init__(self, model, rows=None, sparse=None):
+    def __init__(self, model, rows=None, sparse=None, modes=None):
         self.model = model
         nb, nq = model.nb, model.nq
         self.nb, self.nq = nb, nq
@@ -101,6 +104,13 @@ class System:
         # the KKT path): ~ (sigma_min / sigma)^2 of the active rows, small near a change point
         self.pivot_ratio = 1.0
         self.ei, self.ef, self.py_forces = element_tables(model.forces)
+        # hybrid elements (mbsim.events): their modes in this system, and whether their
+        # loads depend on the multipliers (the loop solved in accelerations())
+        self.hybrid = tuple(el for el in self.py_forces if getattr(el, "hybrid", False))
+        self.modes = dict(modes or {})
+        self.reaction_loop = any(getattr(el, "reactions", False) for el in self.hybrid)
+        self._lam_known = None  # (m,) multipliers on all rows, the loop's last iterate
+        self.family = None  # the run (Stepper) that builds systems for other modes
         self.sidx, self.inc, self.pairs = schur_structure(self.fc.rb, self.rows, nb)
         # the model's struct (shared with self.fc) gets the dynamics tables and buffers
         c = self.c = self.fc.c
@@ -154,10 +164,17 @@ class System:
             if loads is not None:
                 self._loads[:] = loads
                 return
-            loads = self._loads
-            loads[:] = 0.0
-            st = core.State(self.model, fc._q, fc._qd)
-            for el in self.py_forces:
+            self.apply_python(core.State(self.model, fc._q, fc._qd), t, self._loads)
+
+    def apply_python(self, st, t, loads):
+        """The Python force elements' loads at ``st`` into ``loads`` (2, nb, 3), zeroed
+        first; hybrid elements in this system's modes, with the multipliers of the last
+        accelerations (the reaction loop's iterate)."""
+        loads[:] = 0.0
+        for el in self.py_forces:
+            if el in self.hybrid:
+                el.apply_in(self.modes.get(el.name), st, t, self._lam_known, loads[0], loads[1])
+            else:
                 el.apply(st, t, loads[0], loads[1])
 
     def applied_forces(self, st, t) -> np.ndarray:
@@ -218,11 +235,36 @@ class System:
             par[0], par[1], par[2] = baumgarte[0], baumgarte[1], 1.0
         if jac is not None:
             self._compact(jac)
-        status = self._acc(self.c.ptr, self.kkt, jac is not None)
-        if status != STATUS_OK:
-            raise SolveError("singular KKT matrix" if status == STATUS_SINGULAR else _NOT_PD)
+        self._solve(jac is not None)
+        if self.reaction_loop and loads is None:
+            self._reaction_loop(q, qd, t, jac is not None)
         self.pivot_ratio = float(self._out[1])
         return self._qdd.copy(), self._lam.copy(), float(self._out[0])
+
+    def _solve(self, have_jac):
+        status = self._acc(self.c.ptr, self.kkt, have_jac)
+        if status != STATUS_OK:
+            raise SolveError("singular KKT matrix" if status == STATUS_SINGULAR else _NOT_PD)
+
+    def _reaction_loop(self, q, qd, t, have_jac):
+        """Loads that depend on the multipliers (friction with the joint's reaction as its
+        normal force): fixed-point iteration loads(lam) -> solve -> lam until the loads
+        repeat to round-off.  It contracts when mu x (the lever of the reaction on the
+        friction) < 1, which holds for every physical friction coefficient and bearing
+        size; a loop that does not settle in REACTION_ITERATIONS is a SolveError."""
+        loads, fc = self._loads, self.fc
+        prev = loads.copy()
+        st = core.State(self.model, fc._q, fc._qd)
+        for _ in range(REACTION_ITERATIONS):
+            self._lam_known = self.full_lam(self._lam.copy())
+            self.apply_python(st, t, loads)
+            scale = float(np.abs(loads).max(initial=0.0))
+            if np.abs(loads - prev).max(initial=0.0) <= 1e-14 * scale:
+                return
+            prev[:] = loads
+            self._solve(have_jac)
+        raise SolveError(f"the friction loads and the joint reactions did not settle in "
+                         f"{REACTION_ITERATIONS} iterations at t = {t:.6g} s")
 
     def _compact(self, jac):
         """Compact rows (into Jg) from a Jacobian on the active rows (dense or sparse)."""

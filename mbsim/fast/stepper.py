@@ -226,10 +226,7 @@ def _load_callback(system, pending):
             if fc.funcs:
                 fc.targets(t)
             if forces and py:
-                loads[:] = 0.0
-                st = core.State(model, fc._q, fc._qd)
-                for el in py:
-                    el.apply(st, t, loads[0], loads[1])
+                system.apply_python(core.State(model, fc._q, fc._qd), t, loads)
         except Exception:  # noqa: BLE001 - re-raised by the Python path (docstring)
             return 1
         except BaseException as exc:  # noqa: BLE001 - raised after the C call (docstring)

@@ -118,8 +118,11 @@ class Index1(RungeKuttaIntegrator):
         """The trial step and dense output in C (:mod:`mbsim.fast.stepper`) for a tableau
         step.c knows, unless option ``compiled_step`` is false (the Python path, the same
         arithmetic; tests/integrators/test_compiled_step.py compares the two).  The
-        projection methods project in C; Baumgarte's drift test stays :meth:`_accept`."""
-        if not (self.options.get("compiled_step", True) and stepper.supports(self.tableau)):
+        projection methods project in C; Baumgarte's drift test stays :meth:`_accept`.
+        Loads that depend on the multipliers (System.reaction_loop) need the loop between
+        solves that only the Python path has."""
+        if not (self.options.get("compiled_step", True) and stepper.supports(self.tableau)
+                and not self.system.reaction_loop):
             return None
         return stepper.CompiledStep(
             self.system, self.tableau, rtol=self.rtol, atol=self.atol,
