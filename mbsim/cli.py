@@ -418,12 +418,31 @@ def _summary(result, out) -> None:
         if k in ("error_estimate", "accuracy") and isinstance(v, dict):
             click.echo(f"  {k}: {_describe_estimate(k, v)}")
             continue
+        if k == "events" and isinstance(v, list):
+            click.echo(f"  events: {_events_text(v, result)}")
+            continue
         if isinstance(v, dict):
             v = f"({len(v)} entries, stored in the file's summary)"
         click.echo(f"  {k}: {_value_text(v)}")
     counters = {k: v for k, v in result.counters.items() if verbose or v}
     if counters:
         click.echo("  " + ", ".join(f"{k} {_value_text(v)}" for k, v in counters.items()))
+
+
+SUMMARY_EVENTS = 6  # events listed on the terminal (all are in the file)
+
+
+def _events_text(events, result) -> str:
+    """'n: name at t s (element: mode a -> b), ...' for the first SUMMARY_EVENTS events."""
+    total = len(result.arrays.get("events/time", ((),))[0]) or len(events)
+    parts = []
+    for e in events[:SUMMARY_EVENTS]:
+        text = f"{e['event']} at {e['t']:.9g} s"
+        if "mode" in e:
+            text += f" ({e.get('element', '')}: {e['mode']})"
+        parts.append(text)
+    more = f", ... ({total} in all; the file's events/time)" if total > len(parts) else ""
+    return f"{total}: " + ", ".join(parts) + more
 
 
 def _linear_table(result) -> None:

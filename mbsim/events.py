@@ -68,6 +68,7 @@ class Switch:
     owner: str = ""  # the element or event name
     action: str = "switch"  # 'switch' (a hybrid element's) | 'stop' | 'record'
     hysteresis: float = 0.0
+    probe: int = 0  # interior points of each step also looked at (a brief crossing)
 
 
 class Context:
@@ -140,6 +141,24 @@ def crossed(direction, g0, g1) -> bool:
     if direction <= 0 and g0 > 0.0 >= g1:
         return True
     return False
+
+
+class Hybrid:
+    """Defaults of the hybrid contract (module doc) for an element that needs fewer parts:
+    no held rows, channels as without modes, modes shown by str()."""
+
+    hybrid = True
+    reactions = False
+
+    def holds(self, mode, ctx):
+        return []
+
+    def channels_in(self, mode, st, t, lam):
+        return self.channels(st, t)
+
+    @staticmethod
+    def mode_text(mode) -> str:
+        return str(mode)
 
 
 # -- hold rows: constraints a mode adds ---------------------------------------------------
@@ -381,7 +400,7 @@ class Watch:
             g1 = sw.value(ctx1)
             values[k] = g1
             g0 = self.values.get(k)
-            if g0 is None or not self.armed.get(k, True) or not crossed(sw.direction, g0, g1):
+            if g0 is None or not self.armed.get(k, True):
                 continue
             tol = EVENT_TIME_TOL * max(1.0, abs(t1))
 
@@ -389,7 +408,20 @@ class Watch:
                 Q, QD, _ = solver.dense_output_many([t])
                 return sw.value(Context(system, t, Q[0], QD[0]))
 
-            found.append((locate(g, t0, t1, g0, g1, tol), sw, g0))
+            ta, ga, tb, gb = t0, g0, t1, g1
+            if not crossed(sw.direction, g0, g1):
+                if not sw.probe:
+                    continue
+                # a crossing and its return inside the step: the first probe past it
+                for tp in np.linspace(t0, t1, sw.probe + 2)[1:-1]:
+                    gp = g(tp)
+                    if crossed(sw.direction, ga, gp):
+                        tb, gb = tp, gp
+                        break
+                    ta, ga = tp, gp
+                else:
+                    continue
+            found.append((locate(g, ta, tb, ga, gb, tol), sw, ga))
         if not found:
             self.values = values
             self._rearm()

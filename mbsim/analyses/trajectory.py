@@ -457,7 +457,8 @@ class Stepper:
             if sw.action == "switch":
                 el = owners[sw.owner]
                 new = el.next_mode(modes.get(el.name), sw, ctx)
-                rec["from"], rec["to"] = str(modes.get(el.name)), str(new)
+                text = getattr(el, "mode_text", str)
+                rec["from"], rec["to"] = text(modes.get(el.name)), text(new)
                 modes[el.name] = new
             elif sw.action == "stop" and stop is None:
                 stop = sw
@@ -481,7 +482,9 @@ class Stepper:
         q, qd = ev.q, ev.qd
         if changed:
             q, qd = self._consistent(system, ev.t, q, qd)
-        opt = dict(self.opt, h0=s.h_last or None)
+        # the first step after an event is chosen afresh (the law has just changed: the
+        # step before it says nothing about the one after)
+        opt = dict(self.opt, h0=None)
         solver = self.cls(system, ev.t, q, qd, self.t1, opt)
         solver.w = ev.w
         solver.step_ends = self.step_ends

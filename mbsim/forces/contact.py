@@ -26,10 +26,10 @@ Normal force (on body j along +n, the opposite on body i, both at C), for g > 0 
                                                               Theory 46:1251
 
 F = max(F, 0): no adhesion.  STEP is ADAMS' cubic step: 0 at g = 0, c_max from g = depth on.
-alpha is a constant of the element, computed from the deck's nominal approach speed v_impact:
-the coefficient of restitution is e at that speed (to the law's accuracy) and varies with the
-speed at others (the physics of the Hunt-Crossley law); a per-impact v_impact needs the event
-machinery.  Hunt-Crossley and Lankarani-Nikravesh are derived for e near 1; Flores' law holds
+In a dynamic run the first touch of each impact is an event (:class:`Impacts`) and alpha is
+computed from that impact's own approach speed, so the coefficient of restitution is e (to the
+law's accuracy) at every impact; the deck's v_impact serves where there is no event (the
+other analyses, a contact already closed at t_start).  Hunt-Crossley and Lankarani-Nikravesh are derived for e near 1; Flores' law holds
 over the whole range.
 
 Stiffness: ``k`` (N/m^e), or Hertz from ``E`` and ``nu`` (both bodies of one material):
@@ -38,7 +38,7 @@ exponent 3/2 (Johnson, Contact Mechanics, eq. 4.22).
 
 Friction (``mu`` > 0): F_t = -mu F STEP(|v_t|, 0, 0, v_slip, 1) v_t/|v_t| on body j, opposite on
 body i, at C.  It is REGULARISED: below v_slip it is a steep viscous law, so a body resting on
-the contact under a tangential load creeps; exact stick is a later job of the event machinery.
+the contact under a tangential load creeps (joints stick exactly with the ``friction`` type).
 
 Energy: the elastic part k g^(e+1)/(e+1) is the potential; the channels ``damping_power`` and
 ``friction_power`` are the power the contact dissipates (>= 0), for an energy balance.
@@ -54,6 +54,7 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim.errors import DeckError
+from mbsim.events import Hybrid, Switch
 from mbsim.forces import register
 from mbsim.forces.base import ForceElement
 from mbsim.forces.bushing import cross
@@ -97,7 +98,8 @@ def _damping(el, d: dict, where) -> None:
     el.depth = None if d.get("depth") is None else _positive(d, "depth", where)
     if el.c_max > 0 and el.depth is None:
         raise DeckError("c_max needs depth (the penetration where c reaches c_max)", where)
-    el.alpha, el.v_nominal = 0.0, None
+    el.alpha, el.v_nominal, el.restitution = 0.0, None, None
+    el.restitution_law = d.get("restitution_law")
     if d.get("restitution") is not None:
         if el.c_max > 0:
             raise DeckError(
@@ -112,7 +114,7 @@ def _damping(el, d: dict, where) -> None:
         if d.get("v_impact") is None:
             raise DeckError("restitution needs v_impact (the approach speed it holds at)", where)
         v = _positive(d, "v_impact", where)
-        el.v_nominal = v
+        el.v_nominal, el.restitution = v, e
         el.alpha = RESTITUTION_ALPHA[d["restitution_law"]](e, v)
 
 
@@ -165,8 +167,65 @@ def _positive(d: dict, key: str, where, allow_zero=False) -> float:
     return v
 
 
+class Impacts(Hybrid):
+    """The part of contact and stop that uses events (:mod:`mbsim.events`): the first touch
+    of each impact and its end are events, and the approach speed at the touch is the
+    impact's own, so that a restitution law's damping alpha = law(e, v) holds at every
+    impact (the deck's ``v_impact`` serves the analyses without events and a contact that
+    is closed at t_start).  Modes: None (apart) or :class:`Impact` (in contact since a
+    touch at speed v).  The touch is also looked for inside each step (PROBES points of
+    the dense output), so that an impact shorter than a step is not stepped over unseen
+    once it is under way at one of them."""
+
+    PROBES = 4
+
+    def _alpha(self, mode) -> float:
+        if self.restitution is None or mode is None or not mode.v > 0:
+            return self.alpha
+        return RESTITUTION_ALPHA[self.restitution_law](self.restitution, mode.v)
+
+    def initial_mode(self, ctx):
+        g, gd = self.penetration(ctx.state)
+        return Impact(self.v_nominal or 0.0) if g > 0 else None
+
+    def switches(self, mode):
+        def pen(ctx):
+            return self.penetration(ctx.state)[0]
+
+        if mode is None:
+            return [Switch("touch", 1, pen, self.name, probe=self.PROBES)]
+        return [Switch("release", -1, pen, self.name)]
+
+    @staticmethod
+    def mode_text(mode) -> str:
+        return "apart" if mode is None else str(mode)
+
+    def next_mode(self, mode, switch, ctx):
+        if switch.name == "touch":
+            return Impact(max(self.penetration(ctx.state)[1], 0.0))
+        return None
+
+
+class Impact:
+    """The mode of a contact or stop in contact: the approach speed v of the touch."""
+
+    __slots__ = ("v",)
+
+    def __init__(self, v):
+        self.v = float(v)
+
+    def __eq__(self, other):
+        return isinstance(other, Impact) and other.v == self.v
+
+    def __hash__(self):
+        return hash(self.v)
+
+    def __str__(self):
+        return f"contact at {self.v:.4g}"
+
+
 @register
-class Contact(ForceElement):
+class Contact(Impacts, ForceElement):
     type = "contact"
     description = (
         "sphere-plane or sphere-sphere contact, F = k g^e + STEP(g, 0, 0, d, c_max) gd "
@@ -242,9 +301,15 @@ class Contact(ForceElement):
         g = self.Ri + self.R - L
         return g, n, Pi + (self.Ri - 0.5 * g) * n
 
-    def state(self, st):
+    def penetration(self, st):
+        """(g, gd): penetration and its rate (Impacts)."""
+        s = self.state(st, loads=False)
+        return s["g"], s["gd"]
+
+    def state(self, st, alpha=None, loads=True):
         """dict: g, gd (penetration rate), n, C (global), fn (normal force >= 0), fe (its
-        elastic part), ft (3,) friction on body j, vt (3,) slip velocity."""
+        elastic part), ft (3,) friction on body j, vt (3,) slip velocity; alpha: the
+        restitution damping of the current impact (default the deck's)."""
         g, n, C = self.geometry_of(st)
         out = dict(g=g, n=n, C=C, gd=0.0, fn=0.0, fe=0.0, ft=np.zeros(3), vt=np.zeros(3))
         if st.rd is None:
@@ -256,9 +321,10 @@ class Contact(ForceElement):
         gd = -float(n @ v)
         vt = v + gd * n
         out.update(gd=gd, vt=vt)
-        if g <= 0.0:
+        if g <= 0.0 or not loads:
             return out
-        fn, fe = impact_force(g, gd, self.k, self.e, self.c_max, self.depth, self.alpha)
+        alpha = self.alpha if alpha is None else alpha
+        fn, fe = impact_force(g, gd, self.k, self.e, self.c_max, self.depth, alpha)
         out.update(fn=fn, fe=fe)
         s = float(np.sqrt(vt @ vt))
         if self.mu and s > 0:
@@ -267,7 +333,10 @@ class Contact(ForceElement):
 
     # -- contract ----------------------------------------------------------------------------
     def apply(self, st, t, F, n_local):
-        s = self.state(st)
+        self.apply_in(None, st, t, None, F, n_local)
+
+    def apply_in(self, mode, st, t, lam, F, n_local):
+        s = self.state(st, self._alpha(mode))
         if s["fn"] == 0.0:
             return
         f = s["fn"] * s["n"] + s["ft"]  # on body j at C, the opposite on body i
@@ -283,7 +352,10 @@ class Contact(ForceElement):
         return self.k * g ** (self.e + 1.0) / (self.e + 1.0) if g > 0 else 0.0
 
     def channels(self, st, t):
-        s = self.state(st)
+        return self.channels_in(None, st, t, None)
+
+    def channels_in(self, mode, st, t, lam):
+        s = self.state(st, self._alpha(mode))
         g = s["g"]
         return {
             "gap": (-g, "m"),
@@ -299,7 +371,7 @@ class Contact(ForceElement):
 
 
 @register
-class JointStop(ForceElement):
+class JointStop(Impacts, ForceElement):
     """End stops on a joint's travel with the contact's normal law.
 
     Translational joint: travel s = f_i . (P_j - P_i) (f_i: the joint axis P->Q on body i);
@@ -397,23 +469,37 @@ class JointStop(ForceElement):
         sd = float(cross(wi, f) @ (Pj - Pi) + f @ (vj - vi))
         return s, f, Pj, sd
 
-    def load(self, st):
-        """(s, sd, g (penetration, 0 inside), Fs, elastic part of Fs, axis, Pj)."""
+    def penetration(self, st):
+        """(g, gd): penetration beyond the nearer limit (negative inside the range) and its
+        rate (Impacts)."""
+        s, _, _, sd = self.travel(st)
+        sd = 0.0 if sd is None else sd
+        if s - self.upper >= self.lower - s:
+            return s - self.upper, sd
+        return self.lower - s, -sd
+
+    def load(self, st, alpha=None):
+        """(s, sd, g (penetration, 0 inside), Fs, elastic part of Fs, axis, Pj); alpha: the
+        restitution damping of the current impact (default the deck's)."""
+        alpha = self.alpha if alpha is None else alpha
         s, a, Pj, sd = self.travel(st)
         sd0 = 0.0 if sd is None else sd
         Fs = fe = g = 0.0
         if s > self.upper:
             g = s - self.upper
-            F, f_el = impact_force(g, sd0, self.k, self.e, self.c_max, self.depth, self.alpha)
+            F, f_el = impact_force(g, sd0, self.k, self.e, self.c_max, self.depth, alpha)
             Fs, fe = -F, -f_el
         elif s < self.lower:
             g = self.lower - s
-            F, f_el = impact_force(g, -sd0, self.k, self.e, self.c_max, self.depth, self.alpha)
+            F, f_el = impact_force(g, -sd0, self.k, self.e, self.c_max, self.depth, alpha)
             Fs, fe = F, f_el
         return s, sd0, g, Fs, fe, a, Pj
 
     def apply(self, st, t, F, n_local):
-        _, _, g, Fs, _, a, Pj = self.load(st)
+        self.apply_in(None, st, t, None, F, n_local)
+
+    def apply_in(self, mode, st, t, lam, F, n_local):
+        _, _, g, Fs, _, a, Pj = self.load(st, self._alpha(mode))
         if Fs == 0.0:
             return
         bi, bj = self.bi, self.bj
@@ -433,7 +519,10 @@ class JointStop(ForceElement):
         return self.k * g ** (self.e + 1.0) / (self.e + 1.0) if g > 0 else 0.0
 
     def channels(self, st, t):
-        s, sd, g, Fs, fe, _, _ = self.load(st)
+        return self.channels_in(None, st, t, None)
+
+    def channels_in(self, mode, st, t, lam):
+        s, sd, g, Fs, fe, _, _ = self.load(st, self._alpha(mode))
         unit = "rad" if self.angular else "m"
         return {
             "travel": (s, unit),

@@ -189,6 +189,32 @@ def test_restitution_from_the_deck_and_the_rebound_height():
     assert e_law == pytest.approx(0.9, abs=1.5 * 0.1**2)
 
 
+@pytest.mark.parametrize("h", [0.01, 0.05])
+def test_restitution_holds_at_each_impacts_own_speed(h):
+    """The touch is an event (mbsim.events) and the restitution damping uses the approach
+    speed located there, not the deck's v_impact (here 0.3 m/s, neither drop's speed): from
+    1 cm and from 5 cm the apex is the 1-D law's at the drop's own speed (relative 1e-4, the
+    bound of the test above), and the summary lists the touch and the release."""
+    g = 9.81
+    v = np.sqrt(2 * g * h)
+    text = DECK.read_text().replace(
+        "    nu: 0.3\n",
+        "    nu: 0.3\n    restitution: 0.9\n    v_impact: 0.3\n    restitution_law: flores\n",
+    )
+    model = compile_model(load_deck_text(text, overrides={"parameters.z0": repr(R + h)}))
+    k = model.forces[0].k
+    fall = np.sqrt(2 * h / g)
+    res = run_model(model, "dynamic", dict(OPT, t_end=fall + 0.95 * v / g, step=1e-4))
+    assert res.complete
+    z = res.channel("bodies/ball/r").data[:, 2] - R
+    _, apex = law_rebound("flores", 0.9, v, k, MASS, h=h, g=g)
+    assert z[res.t > fall + 1e-3].max() == pytest.approx(apex, rel=1e-4)
+    touch, release = res.summary["events"][:2]
+    assert touch["event"] == "touch" and release["event"] == "release"
+    assert touch["t"] == pytest.approx(fall, rel=1e-9)  # free fall to the touch
+    assert float(touch["mode"].split()[-1]) == pytest.approx(v, rel=1e-3)  # 4 digits shown
+
+
 @pytest.mark.parametrize(
     "damping",
     [
