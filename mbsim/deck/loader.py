@@ -189,7 +189,7 @@ def _drop_inactive(root: Node, file: str) -> None:
 
     ``root`` is edited (a copy-on-write tree); the sections and items below it are not: an
     edited section or item is replaced by a copy."""
-    for section in ("bodies", "joints", "drivers", "forces"):
+    for section in ("bodies", "joints", "drivers", "forces", "events"):
         sec = root.value.get(section)
         if sec is None or sec.kind != "map":
             continue
