@@ -37,10 +37,14 @@ Contract of a hybrid force element (besides :class:`mbsim.forces.base.ForceEleme
 6. ``next_mode(mode, switch, ctx) -> mode``: the mode after ``switch`` fired at ``ctx``
    (may test a candidate with ``ctx.trial``).
 7. ``channels_in(mode, st, t, lam) -> dict``: optional channels (as ``channels``).
+8. ``step_limit(mode, ctx) -> float``: optional, the longest next step from the state ctx
+   (inf: none), e.g. so that a contact cannot be stepped through unseen; applied by the
+   driver before every step (:meth:`Watch.step_limit`).
 """
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable
@@ -155,6 +159,9 @@ class Hybrid:
 
     def channels_in(self, mode, st, t, lam):
         return self.channels(st, t)
+
+    def step_limit(self, mode, ctx) -> float:
+        return math.inf
 
     @staticmethod
     def mode_text(mode) -> str:
@@ -369,6 +376,16 @@ class Watch:
         for el in run.system.hybrid:
             out += el.switches(run.modes.get(el.name))
         return out
+
+    def step_limit(self, run, h_max):
+        """The longest next step from the run's state: ``h_max`` (the option) or less where
+        a hybrid element limits it (contract item 8)."""
+        limits = [el for el in run.system.hybrid if type(el).step_limit is not Hybrid.step_limit]
+        if not limits:
+            return h_max
+        s = run.solver
+        ctx = Context(run.system, s.t, s.q, s.qd)
+        return min([h_max] + [el.step_limit(run.modes.get(el.name), ctx) for el in limits])
 
     def reset(self, run, t, q, qd):
         """The switch values at a (re)start of the integration at (t, q, qd)."""

@@ -394,6 +394,7 @@ class Stepper:
             if self.holds:
                 q, qd = self._consistent(self.system, t0, q, qd)
         self.solver = cls(self.system, t0, q, qd, t1, opt)
+        self.h_max = self.solver.h_max  # the option's; events may lower it step by step
         self.changes: list[dict] = []
         self._retired: list[dict] = []  # counters of the integrators before a restart
         self.first_step = None
@@ -588,6 +589,8 @@ def integrate(run, times, record, max_steps):
     while k < len(times):
         before = run.solver.counters["steps"]
         chunk = 1 if watch is not None else int(max(1, min(ADVANCE_STEPS, max_steps - steps)))
+        if watch is not None and run.hybrid:
+            run.solver.h_max = watch.step_limit(run, run.h_max)
         ok, msg = run.advance(times[k], chunk)
         steps += max(1, run.solver.counters["steps"] - before)
         if not ok:

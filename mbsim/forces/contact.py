@@ -51,6 +51,8 @@ could step over a contact.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from mbsim.errors import DeckError
@@ -178,6 +180,7 @@ class Impacts(Hybrid):
     once it is under way at one of them."""
 
     PROBES = 4
+    sphere_pair = False  # two spheres (Contact: sphere-sphere): see step_limit
 
     def _alpha(self, mode) -> float:
         if self.restitution is None or mode is None or not mode.v > 0:
@@ -199,6 +202,22 @@ class Impacts(Hybrid):
     @staticmethod
     def mode_text(mode) -> str:
         return "apart" if mode is None else str(mode)
+
+    def step_limit(self, mode, ctx) -> float:
+        """Apart, two spheres could pass through each other inside one step unseen (a
+        plane is a half-space and a stop one-sided: their penetration stays positive past
+        the touch, so a step's end sees it).  The next step is limited so that at the
+        approach speed it carries the spheres at most DEPTH_PAST x the smaller radius past
+        the touch (half of that: the speed may grow during the step): a step's end or its
+        probes then see every overlap deeper than that."""
+        if mode is not None or not self.sphere_pair:
+            return math.inf
+        g, gd = self.penetration(ctx.state)
+        if gd <= 0.0:
+            return math.inf
+        return 0.5 * (-g + self.DEPTH_PAST * min(self.R, self.Ri)) / gd
+
+    DEPTH_PAST = 0.25
 
     def next_mode(self, mode, switch, ctx):
         if switch.name == "touch":
@@ -244,6 +263,7 @@ class Contact(Impacts, ForceElement):
         el.geometry = d["geometry"]
         el.R = _positive(d, "radius", where)
         el.plane = el.geometry == "sphere-plane"
+        el.sphere_pair = not el.plane
         if el.plane:
             if d.get("radius_i") is not None:
                 raise DeckError("radius_i goes with sphere-sphere", where.child("radius_i"))

@@ -448,3 +448,45 @@ def test_one_sided_angle_stop_sees_its_penetration():
     s, _, g, Fs, *_ = stop.load(core.State(model, model.q0, np.zeros(model.nq)))
     assert (s, g) == pytest.approx((0.3, 0.3), abs=1e-12)
     assert Fs == pytest.approx(-1e4 * 0.3**1.5, rel=1e-12)
+
+
+TUNNEL = """\
+title: a fast ball against a fixed ball (head on)
+gravity: [0, 0, 0]
+bodies:
+  ground: {ground: true}
+  ball: {mass: 0.03, inertia: [1.2e-6, 1.2e-6, 1.2e-6], r: [1.0, 0, 0], rdot: [-100, 0, 0]}
+forces:
+  hit:
+    type: contact
+    geometry: sphere-sphere
+    bodies: [ground, ball]
+    points: {ground: [0, 0, 0], ball: [0, 0, 0]}
+    radius_i: 0.01
+    radius: 0.01
+    k: 1.0e8
+analysis:
+  dynamic: {t_end: 0.03, step: 0.001, rtol: 1.0e-3, atol: 1.0e-5}
+"""
+
+
+def test_a_fast_sphere_is_not_stepped_through(tmp_path, monkeypatch):
+    """A ball at 100 m/s towards a fixed ball of its size, no force in free flight: the
+    error control alone lets the step grow past the 2 cm both balls span, and the ball
+    flies through the other unseen (checked below by switching the limit off).  The step
+    limit of a sphere pair (Contact.step_limit) keeps every step short of passing the
+    touch by more than a quarter radius: the touch is found at (1 - 0.02) / 100 s and the
+    elastic impact returns the ball at 100 m/s (to the loose rtol's 1e-3)."""
+    path = tmp_path / "tunnel.yaml"
+    path.write_text(TUNNEL)
+    _, model = load_model(str(path))
+    res = run_model(model, "dynamic", {"error_estimate": False})
+    assert res.complete
+    assert res.summary["events"][0]["event"] == "touch"
+    # located on the interpolant of the step that crossed it, whose error is within the step's
+    # tolerance rtol |x| (|x| = 0.02 m there): |dt| <= 1e-3 x 0.02 m / 100 m/s = 2e-7 s
+    assert res.summary["events"][0]["t"] == pytest.approx(0.98 / 100, abs=2e-7)
+    assert res.channel("bodies/ball/rd").data[-1, 0] == pytest.approx(100.0, rel=2e-3)
+    monkeypatch.setattr(type(model.forces[0]), "step_limit", lambda self, mode, ctx: np.inf)
+    res = run_model(model, "dynamic", {"error_estimate": False})
+    assert res.channel("bodies/ball/rd").data[-1, 0] == pytest.approx(-100.0)  # through
