@@ -67,9 +67,10 @@ def run_model(model, mode: str, options=None, deck=None) -> Result:
     analysis itself did not already return one (analyses keep partial data themselves).
 
     options: a dict of settings (None: none) or a :class:`~mbsim.options.RunOptions`
-    (resolved already where the run was requested, the CLI: taken as they are); deck: the
-    validated :class:`~mbsim.deck.spec.DeckSpec` the model was compiled from (None: a run
-    without deck settings, deck text or shapes).  A dict is merged and checked here, once
+    (resolved already where the run was requested, the CLI: taken as they are, with their
+    deck context; ``deck`` is not read then); deck: the validated
+    :class:`~mbsim.deck.spec.DeckSpec` the model was compiled from (None: a run without
+    deck settings, deck text or shapes).  A dict is merged and checked here, once
     (:func:`mbsim.options.run_options`): the analysis's defaults, the deck's ``analysis:
     <mode>:`` and ``options``; their names (mbsim.deck.schema.ANALYSIS_SETTINGS: a typo such
     as ``t_ennd`` is a UsageError with a suggestion), tolerances in (0, 1), steps > 0, the
@@ -91,7 +92,7 @@ def run_model(model, mode: str, options=None, deck=None) -> Result:
     context = options.context
     _apply_only(result, context.only)
     result.deck_text = context.text
-    result.arrays.update(context.scene)  # shapes/...: what viewers draw (docs/hdf5.md)
+    result.arrays.update(context.shapes)  # shapes/...: what viewers draw (docs/hdf5.md)
     if not result.wall_time:
         result.wall_time = time.perf_counter() - t0
     log.info("%s: %s in %.3g s; %s", mode, result.status, result.wall_time,

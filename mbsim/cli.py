@@ -519,7 +519,7 @@ def _hold(spec) -> tuple[str, ...]:
     """The deck's ``analysis.assembly.hold`` (the model does not carry its deck)."""
     from mbsim.options import deck_context
 
-    return deck_context(spec, scene=False).hold
+    return deck_context(spec, shapes=False).hold
 
 
 def _info_forces(spec, model) -> None:

@@ -52,7 +52,7 @@ def bench_command(deck, integrators, tolerances, steps_, t_end, outputs, repeats
             progress=lambda r: click.echo(f"  {r.integrator:<18} {r.setting:<11} "
                                           f"error {r.error:.3e}  wall {r.wall:.4f} s/s",
                                           err=True),
-            context=deck_context(spec, scene=False))
+            context=deck_context(spec, shapes=False))
     except (MbsimError, KeyError, RuntimeError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else DeckError(str(exc)), deck)
     click.echo(bench.table())

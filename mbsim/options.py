@@ -49,25 +49,25 @@ class DeckContext:
     another (:meth:`RunOptions.within`); hold: ``analysis.assembly.hold``, coordinates kept
     at their estimates by the assembly ('BODY.COORD', checked by the loader); only: the
     output channel patterns of ``outputs: only:`` (slash form; None: every channel); text:
-    the deck's YAML text and scene: the shapes (``shapes/...`` arrays, docs/hdf5.md), both
-    stored in the results file.  ``DeckContext()``: a run without a deck."""
+    the deck's YAML text and shapes: what viewers draw (``shapes/...`` arrays,
+    docs/hdf5.md), both stored in the results file.  ``DeckContext()``: a run without a deck."""
 
     analysis: Mapping = field(default_factory=dict)
     hold: tuple[str, ...] = ()
     only: tuple[str, ...] | None = None
     text: str = ""
-    scene: Mapping = field(default_factory=dict)
+    shapes: Mapping = field(default_factory=dict)
 
 
 NO_DECK = DeckContext()
 
 
-def deck_context(spec, scene: bool = True) -> DeckContext:
+def deck_context(spec, shapes: bool = True) -> DeckContext:
     """The :class:`DeckContext` of a validated deck (:class:`~mbsim.deck.spec.DeckSpec`);
-    ``scene``: also build the shapes stored in the results file (imports numpy)."""
+    ``shapes``: also build the shapes stored in the results file (imports numpy)."""
     only = getattr(spec, "output_only", None)
     arrays = {}
-    if scene:
+    if shapes:
         from mbsim.view.geometry import scene_arrays
 
         arrays = scene_arrays(spec)
@@ -75,7 +75,7 @@ def deck_context(spec, scene: bool = True) -> DeckContext:
         analysis=MappingProxyType({m: MappingProxyType(dict(s)) for m, s in spec.analysis.items()}),
         hold=tuple(str(h) for h in spec.analysis.get("assembly", {}).get("hold") or ()),
         only=None if only is None else tuple(p.replace(".", "/").strip("/") for p in only),
-        text=spec.text or "", scene=MappingProxyType(arrays))
+        text=spec.text or "", shapes=MappingProxyType(arrays))
 
 
 class RunOptions(Mapping):
@@ -180,19 +180,20 @@ def context_options(mode: str, context: DeckContext = NO_DECK,
 def run_options(mode: str, spec=None, overrides: Mapping | None = None, *,
                 option_names: Mapping[str, str] | None = None,
                 label: str = "analysis setting {key}", internal: bool = True,
-                scene: bool = True) -> RunOptions:
+                shapes: bool = True) -> RunOptions:
     """The options of a run of ``mode`` requested on the deck ``spec`` (a validated
     :class:`~mbsim.deck.spec.DeckSpec`, with its scene and ``--set`` values applied; None: no
     deck): :func:`resolve_options` over the analysis's defaults, the deck's ``analysis:
     <mode>:`` and ``overrides`` (command line, API, case), with the run's
     :class:`DeckContext` (:func:`deck_context`).  The one call the CLI, the API, sweeps and
-    studies make; option_names, label, internal: as :func:`resolve_options`."""
+    studies make; option_names, label, internal: as :func:`resolve_options`; shapes: build
+    the shapes for the results file (False: a run whose result is not written)."""
     if spec is None:
         return resolve_options(mode, {}, overrides, option_names=option_names, label=label,
                                internal=internal)
     return resolve_options(mode, spec.analysis.get(mode, {}), overrides,
                            option_names=option_names, label=label, file=spec.file,
-                           internal=internal, context=deck_context(spec, scene))
+                           internal=internal, context=deck_context(spec, shapes))
 
 
 def dynamic_problems(opt: Mapping) -> list[tuple[str, str]]:

@@ -76,7 +76,7 @@ def test_core_matches_the_reference_on_every_deck(name, scene):
 
     spec = load_deck(ROOT / "models" / f"{name}.yaml", scene=scene)
     model = compile_model(spec)
-    asm = assemble(model, hold=deck_context(spec, scene=False).hold)  # the deck's assembly
+    asm = assemble(model, hold=deck_context(spec, shapes=False).hold)  # the deck's assembly
     q = asm.q + 1e-6 * rng.normal(size=model.nq)
     qd = 0.1 * rng.normal(size=model.nq)
     rows = None if asm.active_rows.size == model.m else asm.active_rows

@@ -62,8 +62,8 @@ def test_deck_context_holds_what_a_run_takes_from_the_deck():
     assert ctx.hold == ("spindle.e2", "collar.y")  # analysis.assembly.hold
     assert dict(ctx.analysis["equilibrium"]) == {"method": "steady", "body": "spindle"}
     assert ctx.only is None and ctx.text == spec.text
-    assert "shapes/layout" in ctx.scene
-    assert deck_context(spec, scene=False).scene == {}
+    assert "shapes/layout" in ctx.shapes
+    assert deck_context(spec, shapes=False).shapes == {}
 
 
 def test_run_options_merge_defaults_deck_and_caller_once():

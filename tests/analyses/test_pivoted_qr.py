@@ -61,7 +61,7 @@ def test_the_rows_reported_redundant_are_lapacks_on_every_deck(deck):
     to 1e-12 of the largest where the pivots are the same; the rows kept independent."""
     spec, model = load_model(deck)
     assert model.nq < DENSE_NQ  # the decks are small: the dense path is the one tested
-    hold = deck_context(spec, scene=False).hold  # the deck's analysis.assembly.hold
+    hold = deck_context(spec, shapes=False).hold  # the deck's analysis.assembly.hold
     for q in (model.q0, assemble(model, hold=hold).q):
         J = core.phi_q(model, None, q, 0.0, sparse=False)
         rank, red = rank_and_redundant(model, J, lapack=False)

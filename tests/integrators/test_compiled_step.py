@@ -61,7 +61,7 @@ def pair(model, q, qd, name, t_end, **opt):
 def deck_state(name):
     spec = load_deck(ROOT / "models" / f"{name}.yaml")
     model = compile_model(spec)
-    q, qd, _ = _initial(model, 0.0, {"tol": 1e-10}, deck_context(spec, scene=False).hold)
+    q, qd, _ = _initial(model, 0.0, {"tol": 1e-10}, deck_context(spec, shapes=False).hold)
     return model, q, qd
 
 

@@ -28,7 +28,7 @@ def test_book_counts():
     spec, model = load_model(DECK)
     assert model.nq == 35  # nc = 5 bodies x 7 (ground counted, as in the book)
     assert model.m == 33  # nh = 2 distances + 3 x 5 revolute + 5 translational + 6 ground + 5
-    asm = assemble(model, hold=deck_context(spec, scene=False).hold)
+    asm = assemble(model, hold=deck_context(spec, shapes=False).hold)
     assert asm.rank == 33 and asm.dof == 2 and not asm.redundant_items
 
 
@@ -71,7 +71,7 @@ def test_assembly_from_perturbed_estimates_returns_to_table(seed):
                                    dp[0] * p[1:] + p[0] * dp[1:] + np.cross(dp[1:], p[1:])])
         if name in ("spindle",):
             q[b, 5] = model.q0[7 * b + 5]
-    asm = assemble(model, q.reshape(-1), hold=deck_context(spec, scene=False).hold)
+    asm = assemble(model, q.reshape(-1), hold=deck_context(spec, shapes=False).hold)
     assert asm.residual < 1e-10
     qa = asm.q.reshape(model.nb, 7)
     for name, (r, p) in TABLE.items():
