@@ -23,8 +23,8 @@ import pytest
 
 from mbsim.analyses.dynamic import dynamic
 from mbsim.api import load_model
-from mbsim.options import run_options
 from mbsim.integrators import INTEGRATORS
+from mbsim.options import run_options
 from tests.integrators import andrews as A
 
 DECK = "models/andrews.yaml"
