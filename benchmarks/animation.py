@@ -39,8 +39,8 @@ def main() -> None:
     print(f"{'deck':<12} {'style':<7} {'frames':>6} {'CPU/frame ms':>13} {'wall/frame ms':>14}")
     with tempfile.TemporaryDirectory() as tmp:
         for deck in args.decks:
-            _, model = load_model(ROOT / "models" / f"{deck}.yaml")
-            h5 = write_result(run_model(model, "dynamic", {"error_estimate": False}),
+            spec, model = load_model(ROOT / "models" / f"{deck}.yaml")
+            h5 = write_result(run_model(model, "dynamic", {"error_estimate": False}, deck=spec),
                               Path(tmp) / f"{deck}.h5")  # fmt: skip
             result = read_result(h5)
             every = max(1, len(result.t) // args.frames)

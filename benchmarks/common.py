@@ -62,6 +62,19 @@ def load(deck, scene=None, overrides=None):
     return load_model(ROOT / "models" / deck, overrides=overrides, scene=scene)[1]
 
 
+def run_with_deck(model, mode, options, spec):
+    """``mbsim.api.run_model`` as ``mbsim run`` runs it: with the deck's settings, ``outputs:
+    only:``, hold, text and shapes.  A checkout whose run_model takes ``deck=`` gets the deck
+    (``spec``) that way; an older one read it from the model (``Model.spec``)."""
+    import inspect
+
+    from mbsim.api import run_model
+
+    if "deck" in inspect.signature(run_model).parameters:
+        return run_model(model, mode, options, deck=spec)
+    return run_model(model, mode, options)
+
+
 def cost_at(points, target):
     """(CPU s at error `target`, extrapolated?) by log-log interpolation over [(cpu, error),
     ...]; past the ladder's end the last two points are extrapolated (flagged)."""

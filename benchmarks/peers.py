@@ -94,6 +94,7 @@ from common import (  # noqa: E402
     mbsim_command,
     mbsim_env,
     run_child,
+    run_with_deck,
 )
 
 TARGETS = (1e-3, 1e-6)
@@ -390,12 +391,12 @@ def fourbar_deck(loops, t_end):
     return yaml.safe_dump(d, sort_keys=False)
 
 
-def fourbar_exact(model, n, t_end):
+def fourbar_exact(model, p, n, t_end):
     """Positions at t_end from the exact reduction (models/parallel_fourbar.yaml's header):
-    (N I_pivot + M L^2) theta'' = -g cos(theta) (N m_c L / 2 + M L); returns {body: r}."""
+    (N I_pivot + M L^2) theta'' = -g cos(theta) (N m_c L / 2 + M L); returns {body: r}.
+    p: the deck's parameters (L, mc, M, s, theta0, w0)."""
     from scipy.integrate import solve_ivp
 
-    p = model.spec.parameters
     L, mc, M, s = (float(p[k]) for k in ("L", "mc", "M", "s"))
     g = float(-model.gravity[1])
     mass = n * (mc * L * L / 12 + mc * L * L / 4) + M * L * L
@@ -419,9 +420,9 @@ def fourbar_case(a):
         path.write_text(fourbar_deck(a.loops, a.fourbar_t_end))
         from mbsim.api import load_model
 
-        model = load_model(path)[1]
+        spec, model = load_model(path)
     t_end = a.fourbar_t_end
-    exact = fourbar_exact(model, n, t_end)
+    exact = fourbar_exact(model, spec.parameters, n, t_end)
     q, qd, *_ = initial_state(model)
     title = (f"parallel four-bar, {a.loops} loops ({n} cranks, nq = {model.nq}, m = "
              f"{model.m}), {t_end:g} s")
@@ -469,7 +470,7 @@ def user_case(a):
     deck's outputs without the estimate; (4) the bare integration: one output, no
     estimate.  The initial state is computed in every variant (as in a user's run); one
     untimed user run first, so that first-use imports count in none of them."""
-    from mbsim.api import load_model, run_model
+    from mbsim.api import load_model
     from mbsim.output.hdf5 import write_result
 
     print("\n=== a run as a user runs it against the bare integration ===", flush=True)
@@ -493,14 +494,15 @@ def user_case(a):
             user_key, nofile_key, noest_key, bare_key = variants
             # warm-up, not timed: first-use imports (h5py, the integrator's modules) and the
             # kernels' loading would land in the first variant's first repeat
-            write_result(run_model(model, "dynamic", dict(opts)), Path(tmp) / "run.h5")
+            write_result(run_with_deck(model, "dynamic", dict(opts), spec),
+                         Path(tmp) / "run.h5")
             # the variants in turn within each repeat, so that the ratios of one repeat
             # compare runs made at nearly the same time (the machine's load drifts)
             cpu_of, status = {name: [] for name in variants}, {}
             for _ in range(max(1, a.repeats)):
                 for name, (o, write) in variants.items():
                     c0 = time.process_time()
-                    res = run_model(model, "dynamic", o)
+                    res = run_with_deck(model, "dynamic", o, spec)
                     if write:
                         write_result(res, Path(tmp) / "run.h5")
                     cpu_of[name].append((time.process_time() - c0) / t_end)
@@ -546,7 +548,7 @@ def compiled_share(a):
     not counted): the C kernels' ctypes functions are wrapped in one thin Python function
     each, so their time shows as the wrappers' own time; share = that / the profile's
     total.  Also printed: the same with perf_counter around each call and no profiler."""
-    from mbsim.api import load_model, run_model
+    from mbsim.api import load_model
     from mbsim.fast import _lib
     from mbsim.output.hdf5 import write_result
 
@@ -571,7 +573,7 @@ def compiled_share(a):
 
     def user_run(tmp):
         spec, model = load_model(ROOT / "models" / "governor.yaml")
-        res = run_model(model, "dynamic", dict(spec.analysis.get("dynamic", {})))
+        res = run_with_deck(model, "dynamic", dict(spec.analysis.get("dynamic", {})), spec)
         write_result(res, Path(tmp) / "governor.h5")
 
     print("\n=== compiled share of a default governor run ===", flush=True)

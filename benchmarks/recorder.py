@@ -12,10 +12,12 @@ on the same states.  Prints seconds per Recorder.result (best of --repeat) and f
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.util
 import tempfile
 import time
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 
@@ -24,6 +26,7 @@ import mbsim.analyses.dynamic as dynamic
 import mbsim.analyses.trajectory as trajectory
 from mbsim.api import load_model
 from mbsim.measures import OutputMeasure
+from mbsim.options import run_options
 from mbsim.output import write_result
 
 DECK = Path(__file__).resolve().parents[1] / "models" / "vehicle.yaml"
@@ -35,11 +38,12 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--old", help="another common.py to time on the same states")
     args = ap.parse_args()
-    _, model = load_model(DECK, scene="lane1")
-    model.spec.output_measures = {  # what a lane-change scene needs: heading and roll
+    spec, model = load_model(DECK, scene="lane1")
+    model = dataclasses.replace(model, measures=MappingProxyType({
+        # what a lane-change scene needs: heading and roll
         "yaw": OutputMeasure("yaw", "body_angle", {"body": "chassis", "axis": np.eye(3)[2]}),
         "roll": OutputMeasure("roll", "body_angle", {"body": "chassis", "axis": np.eye(3)[0],
-                                                     "ref": np.eye(3)[1]})}
+                                                     "ref": np.eye(3)[1]})}))
     kept = []
 
     class Keep(common.Recorder):
@@ -48,7 +52,7 @@ def main() -> None:
             kept.append(self)
 
     trajectory.Recorder = Keep
-    res = dynamic.dynamic(model, {})
+    res = dynamic.dynamic(model, run_options("dynamic", spec, {}))
     rec = kept[-1]
     print(f"vehicle lane change 1: {len(rec)} outputs, {model.nb} bodies, "
           f"{len(model.forces)} force elements")

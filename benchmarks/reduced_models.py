@@ -45,12 +45,12 @@ def counts(model) -> tuple[int, int, int]:
 
 def measure(deck: Path, case: dict, repeats: int):
     """(counts, median CPU s per simulated second, the last result) of one study case."""
-    _, model = load_model(str(deck), overrides=overrides_of(case), scene=case["scene"])
-    run_model(model, case["mode"], case["options"])  # warm-up: compiled kernels, caches
+    spec, model = load_model(str(deck), overrides=overrides_of(case), scene=case["scene"])
+    run_model(model, case["mode"], case["options"], deck=spec)  # warm-up: compiled kernels, caches
     cpus, result = [], None
     for _ in range(repeats):
         c0 = time.process_time()
-        result = run_model(model, case["mode"], case["options"])
+        result = run_model(model, case["mode"], case["options"], deck=spec)
         cpus.append(time.process_time() - c0)
     t_sim = float(result.t[-1] - result.t[0])
     return counts(model), float(np.median(cpus)) / t_sim, result

@@ -113,8 +113,8 @@ def main() -> None:
         sys.exit("no chromium: run .ci/browser.sh")
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        _, model = load_model(ROOT / "models" / f"{args.deck}.yaml")
-        h5 = write_result(run_model(model, "dynamic", {"error_estimate": False}),
+        spec, model = load_model(ROOT / "models" / f"{args.deck}.yaml")
+        h5 = write_result(run_model(model, "dynamic", {"error_estimate": False}, deck=spec),
                           tmp / "r.h5")  # fmt: skip
         result = read_result(h5)
         three = write_page([h5], tmp / "three.html")

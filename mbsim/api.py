@@ -1,7 +1,14 @@
 """The library entry points the CLI (and scripts) call: load a deck, run an analysis.
 
 ``ANALYSES`` maps a mode name to ``(module, function, description)``; each function has the
-signature ``analysis(model, options: dict) -> Result``.
+signature ``analysis(model, options) -> Result``.  A script runs a deck as the CLI does::
+
+    spec, model = load_model("models/governor.yaml")
+    result = run_model(model, "dynamic", {"t_end": 2.0}, deck=spec)
+
+The compiled model does not carry its deck: ``deck=`` gives the run the deck's
+``analysis:`` settings, ``analysis.assembly.hold``, ``outputs: only:`` and the text and
+shapes stored in the results file (:func:`mbsim.options.run_options`, once, here).
 """
 
 from __future__ import annotations
@@ -55,26 +62,26 @@ def analysis_defaults(mode: str) -> dict:
     return dict(getattr(importlib.import_module(ANALYSES[mode][0]), "DEFAULTS", {}))
 
 
-def run_model(model, mode: str, options: dict | None = None) -> Result:
+def run_model(model, mode: str, options=None, deck=None) -> Result:
     """Run one analysis. An MbsimError during the run becomes an incomplete Result only if the
     analysis itself did not already return one (analyses keep partial data themselves).
 
-    The settings are merged and checked here, once (:func:`mbsim.options.resolve_options`):
-    the analysis's defaults, the deck's ``analysis: <mode>:`` and ``options``; their names
-    (mbsim.deck.schema.ANALYSIS_SETTINGS: a typo such as ``t_ennd`` is a UsageError with a
-    suggestion), tolerances in (0, 1), steps > 0, the number of output times
-    (mbsim.deck.limits), so a sweep or study case with ``step: 0`` is a UsageError too
-    (``options`` already a :class:`~mbsim.options.RunOptions`: taken as they are).  The
-    analysis gets the merged RunOptions."""
-    from mbsim.options import RunOptions, resolve_options
+    options: a dict of settings (None: none) or a :class:`~mbsim.options.RunOptions`
+    (resolved already where the run was requested, the CLI: taken as they are, with their
+    deck context; ``deck`` is not read then); deck: the validated
+    :class:`~mbsim.deck.spec.DeckSpec` the model was compiled from (None: a run without
+    deck settings, deck text or shapes).  A dict is merged and checked here, once
+    (:func:`mbsim.options.run_options`): the analysis's defaults, the deck's ``analysis:
+    <mode>:`` and ``options``; their names (mbsim.deck.schema.ANALYSIS_SETTINGS: a typo such
+    as ``t_ennd`` is a UsageError with a suggestion), tolerances in (0, 1), steps > 0, the
+    number of output times (mbsim.deck.limits), so a sweep or study case with ``step: 0`` is
+    a UsageError too.  The analysis gets the merged RunOptions; the Result gets the deck
+    text and shapes of their :class:`~mbsim.options.DeckContext`."""
+    from mbsim.options import RunOptions, run_options
 
     fn = analysis_function(mode)
     if not isinstance(options, RunOptions):  # (resolved already by the CLI)
-        spec = getattr(model, "spec", None)
-        deck = spec.analysis.get(mode, {}) if spec is not None else {}
-        options = resolve_options(mode, deck, options, defaults=analysis_defaults(mode),
-                                  file=getattr(model, "file", None),
-                                  label="analysis setting {key}")
+        options = run_options(mode, deck, options)
     t0 = time.perf_counter()
     log.info("%s analysis of %s: %d bodies, %d constraint equations", mode,
              getattr(model, "title", "") or "the model", model.nb, model.m)
@@ -82,10 +89,10 @@ def run_model(model, mode: str, options: dict | None = None) -> Result:
         result = fn(model, options)
     except (ValueError, FloatingPointError, ArithmeticError) as exc:
         _overflow(mode, exc)
-    _apply_only(model, result)
-    from mbsim.view.geometry import scene_arrays  # shapes/...: what viewers draw (docs/hdf5.md)
-
-    result.arrays.update(scene_arrays(getattr(model, "spec", None)))
+    context = options.context
+    _apply_only(result, context.only)
+    result.deck_text = context.text
+    result.arrays.update(context.shapes)  # shapes/...: what viewers draw (docs/hdf5.md)
     if not result.wall_time:
         result.wall_time = time.perf_counter() - t0
     log.info("%s: %s in %.3g s; %s", mode, result.status, result.wall_time,
@@ -109,12 +116,12 @@ def _overflow(mode: str, exc: Exception) -> None:
                         "magnitudes (values such as 1e308)") from None
 
 
-def _apply_only(model, result) -> None:
-    """Drop the channels the deck's ``outputs: only:`` does not select (the recorder already
-    skipped computing most of them; monitors and multipliers are added by the analyses)."""
-    from mbsim.measures import only_patterns, selected
+def _apply_only(result, patterns) -> None:
+    """Drop the channels the deck's ``outputs: only:`` (slash ``patterns``, None: all) does
+    not select (the recorder already skipped computing most of them; monitors and
+    multipliers are added by the analyses)."""
+    from mbsim.measures import selected
 
-    patterns = only_patterns(getattr(model, "spec", None))
     if patterns is not None:
         for path in [p for p in result.channels if not selected(p, patterns)]:
             del result.channels[path]

@@ -49,17 +49,15 @@ def _fail(exc: Exception, deck: str | None = None) -> None:
 
 
 def _check_settings(deck, mode: str, spec, opts: dict, names: dict[str, str]):
-    """The run's settings merged and checked once (mbsim.options.resolve_options): the
-    analysis's defaults, the deck's ``analysis: <mode>:``, the command line's ``opts``.  A
+    """The run's settings merged and checked once (mbsim.options.run_options): the
+    analysis's defaults, the deck's ``analysis: <mode>:``, the command line's ``opts``, with
+    what the run takes from the deck besides the model (hold, ``outputs: only:``, text).  A
     problem names the option when it came from the command line (``names``: setting ->
     option), else the deck key (exit 2).  Returns the RunOptions for run_model."""
-    from mbsim.api import analysis_defaults
-    from mbsim.options import resolve_options
+    from mbsim.options import run_options
 
     try:
-        return resolve_options(mode, spec.analysis.get(mode, {}), opts,
-                               defaults=analysis_defaults(mode), option_names=names,
-                               file=str(deck), internal=False)
+        return run_options(mode, spec, opts, option_names=names, internal=False)
     except MbsimError as exc:
         _fail(exc, deck)
 
@@ -525,7 +523,7 @@ def info(deck, sets, scene):
     click.echo(f"  {'':<40}nh = {nh}")
     click.echo(f"DOF = {nc} - {nh} = {nc - nh}")
     try:
-        asm = assemble(model)
+        asm = assemble(model, hold=_hold(spec))
         red = f"redundant: {', '.join(asm.redundant_items)}" if asm.redundant_items else \
             "no redundant constraints"
         click.echo(f"Rank of Phi_q at the assembled configuration: {asm.rank} of {model.m} rows "
@@ -534,6 +532,13 @@ def info(deck, sets, scene):
     except MbsimError as exc:
         click.echo(f"assembly failed: {exc}", err=True)
         sys.exit(EXIT_FAILED)
+
+
+def _hold(spec) -> tuple[str, ...]:
+    """The deck's ``analysis.assembly.hold`` (the model does not carry its deck)."""
+    from mbsim.options import deck_context
+
+    return deck_context(spec, shapes=False).hold
 
 
 def _info_forces(spec, model) -> None:
@@ -576,7 +581,7 @@ def check(deck, sets, scene, worst):
                 click.echo(f"    {model.row_label[r]:<40} {ph0[r]: .3e}")
 
     try:
-        asm = assemble(model, lapack=False)  # the rank test in numpy: no scipy import
+        asm = assemble(model, lapack=False, hold=_hold(spec))  # numpy QR: no scipy import
     except MbsimError as exc:  # the residuals at the estimates say where to look
         click.echo(f"{deck}: {model.nb} bodies, {model.m} constraint equations; "
                    "assembly failed")

@@ -39,18 +39,20 @@ def bench_command(deck, integrators, tolerances, steps_, t_end, outputs, repeats
     """
     from mbsim.analyses.bench import work_precision, work_precision_figure
     from mbsim.cli import _fail, _load, check_output
+    from mbsim.options import deck_context
 
     if output:  # before the benchmark: a bad -o costs nothing
         check_output(output, "-o", figure=True)
     names = [n.strip() for n in integrators.split(",")] if integrators else None
     try:
-        _, model = _load(deck, sets, scene)
+        spec, model = _load(deck, sets, scene)
         bench = work_precision(
             model, names, _floats(tolerances, "--tolerances"), _floats(steps_, "--steps"),
             t_end=t_end, outputs=[o.strip() for o in outputs.split(",")], repeats=repeats,
             progress=lambda r: click.echo(f"  {r.integrator:<18} {r.setting:<11} "
                                           f"error {r.error:.3e}  wall {r.wall:.4f} s/s",
-                                          err=True))
+                                          err=True),
+            context=deck_context(spec, shapes=False))
     except (MbsimError, KeyError, RuntimeError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else DeckError(str(exc)), deck)
     click.echo(bench.table())

@@ -149,14 +149,6 @@ def to_text(node) -> str:
     return str(v)
 
 
-def only_patterns(spec) -> tuple[str, ...] | None:
-    """The deck's ``outputs: only:`` as slash patterns (None: everything)."""
-    only = getattr(spec, "output_only", None) if spec is not None else None
-    if only is None:
-        return None
-    return tuple(p.replace(".", "/").strip("/") for p in only)
-
-
 def selected(path: str, patterns) -> bool:
     """Is the channel ``path`` selected by the ``only`` patterns (None: all)?  A pattern is a
     channel path, a group prefix (``bodies/chassis``) or an fnmatch pattern (``points/*``)."""

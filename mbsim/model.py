@@ -3,12 +3,17 @@
 After compilation the Model is frozen: arrays are read-only and every per-step quantity
 travels in function arguments (:mod:`mbsim.core`).  Every constraint row keeps the
 name of the item it came from (``row_item``), so that errors and outputs name joints,
-not matrix rows (MuJoCo's ``efc_id``).
+not matrix rows (MuJoCo's ``efc_id``).  The Model holds physics and names only, not its
+deck: what a run takes from the deck besides (its ``analysis:`` settings, the assembly's
+``hold``, ``outputs: only:``, the text stored in results) is read where the run is
+requested (:func:`mbsim.options.run_options`) and passed in with the options.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -62,8 +67,9 @@ class Model:
     row_label: tuple[str, ...]  # (m,) e.g. 'REV2[4] dot1(h_i,f_j)'
     forces: tuple = ()
     outputs: tuple = ()  # ((name, body index, (3,) local point), ...)
+    # outputs: measures: name -> mbsim.measures.OutputMeasure, evaluated at the outputs
+    measures: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
     events: tuple = ()  # the deck's events (mbsim.events.UserEvent)
-    spec: DeckSpec | None = None
 
     def item(self, name: str) -> Item:
         for it in self.items:
@@ -295,7 +301,7 @@ def compile_model(spec: DeckSpec) -> Model:
         mass=mass, J_local=J, is_ground=ground, q0=q0, rdot0=rdot0, omega0=om0,
         omega0_local=oml0, gravity=np.asarray(spec.gravity, float), blocks=tuple(blocks),
         items=tuple(items), row_item=row_item, row_label=tuple(rows.labels), forces=forces,
-        outputs=outputs, events=events, spec=spec,
+        outputs=outputs, measures=MappingProxyType(dict(spec.output_measures)), events=events,
     )
 
 

@@ -14,33 +14,82 @@ gave.  Every problem is one error naming where the value came from: a command-li
 - dynamic: rtol, atol, accuracy, estimate_ratio, estimate_method, step, h, h_max
   (:func:`dynamic_problems`); atol follows rtol when not given (:data:`ATOL_PER_RTOL`).
 
+What a run takes from its deck besides the compiled model travels with the options, read
+once where the run is requested (:func:`run_options`): :class:`DeckContext` holds the deck's
+``analysis:`` settings of every mode (an analysis that runs another, such as linear about
+the deck's equilibrium, merges them with :meth:`RunOptions.within`), the assembly's
+``hold``, the output patterns ``outputs: only:``, the deck text and the shapes stored in the
+results file.  The compiled :class:`~mbsim.model.Model` holds physics and names only.
+
 Only light modules are imported here (no numpy), so the deck loader and ``mbsim check`` can
-use it.  The callers: :func:`mbsim.api.run_model`, :func:`mbsim.analyses.dynamic.dynamic`
-(for direct calls), the CLI's ``run`` and ``sweep``, the loader's ``analysis:`` section and
-study cases.
+use it.  The callers: :func:`mbsim.api.run_model` (``deck=``), the CLI's ``run``, sweep and
+study cases (:func:`run_options`), the loader's ``analysis:`` section, and the analyses
+called directly (:func:`analysis_options`: no deck settings then).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
 from types import MappingProxyType
 
 from mbsim.errors import DeckError, UsageError, Where
 
 ATOL_PER_RTOL = 1e-2  # atol when not given: rtol / 100 (as mbsim bench's ladder)
 ESTIMATE_METHODS = ("coarse", "tighter")  # mbsim.analyses.estimate
+HOLD_COORDS = ("x", "y", "z", "e0", "e1", "e2", "e3")  # analysis.assembly.hold: BODY.COORD
+
+
+@dataclass(frozen=True)
+class DeckContext:
+    """What a run takes from its deck besides the compiled model (:func:`deck_context`).
+
+    analysis: mode -> the deck's settings (``analysis: <mode>:``), for an analysis that runs
+    another (:meth:`RunOptions.within`); hold: ``analysis.assembly.hold``, coordinates kept
+    at their estimates by the assembly ('BODY.COORD', checked by the loader); only: the
+    output channel patterns of ``outputs: only:`` (slash form; None: every channel); text:
+    the deck's YAML text and shapes: what viewers draw (``shapes/...`` arrays,
+    docs/hdf5.md), both stored in the results file.  ``DeckContext()``: a run without a deck."""
+
+    analysis: Mapping = field(default_factory=dict)
+    hold: tuple[str, ...] = ()
+    only: tuple[str, ...] | None = None
+    text: str = ""
+    shapes: Mapping = field(default_factory=dict)
+
+
+NO_DECK = DeckContext()
+
+
+def deck_context(spec, shapes: bool = True) -> DeckContext:
+    """The :class:`DeckContext` of a validated deck (:class:`~mbsim.deck.spec.DeckSpec`);
+    ``shapes``: also build the shapes stored in the results file (imports numpy)."""
+    only = getattr(spec, "output_only", None)
+    arrays = {}
+    if shapes:
+        from mbsim.view.geometry import scene_arrays
+
+        arrays = scene_arrays(spec)
+    return DeckContext(
+        analysis=MappingProxyType({m: MappingProxyType(dict(s)) for m, s in spec.analysis.items()}),
+        hold=tuple(str(h) for h in spec.analysis.get("assembly", {}).get("hold") or ()),
+        only=None if only is None else tuple(p.replace(".", "/").strip("/") for p in only),
+        text=spec.text or "", shapes=MappingProxyType(arrays))
 
 
 class RunOptions(Mapping):
     """The settings of one run: ``values`` (read-only), ``given`` (the keys the caller gave:
-    command line, API, case), ``deck`` (the keys the deck's ``analysis:`` gave), ``mode``."""
+    command line, API, case), ``deck`` (the keys the deck's ``analysis:`` gave), ``mode``,
+    and ``context``, what the run takes from its deck besides the model
+    (:class:`DeckContext`)."""
 
-    def __init__(self, mode: str, values: dict, given, deck):
+    def __init__(self, mode: str, values: dict, given, deck, context: DeckContext = NO_DECK):
         self.mode = mode
         self.values = MappingProxyType(dict(values))
         self.given = frozenset(given)
         self.deck = frozenset(deck)
+        self.context = context
 
     def __getitem__(self, key):
         return self.values[key]
@@ -54,7 +103,15 @@ class RunOptions(Mapping):
     def replace(self, **values) -> RunOptions:
         """The same settings with ``values`` set by code (a progress callback): not checked
         again, and not counted as given."""
-        return RunOptions(self.mode, {**self.values, **values}, self.given, self.deck)
+        return RunOptions(self.mode, {**self.values, **values}, self.given, self.deck,
+                          self.context)
+
+    def within(self, mode: str, overrides: Mapping | None = None,
+               defaults: Mapping | None = None) -> RunOptions:
+        """The options of a ``mode`` analysis this run runs (equilibrium's settling run,
+        linear about the deck's equilibrium): the deck's ``analysis: <mode>:`` under
+        ``overrides`` (code's, checked), the same :class:`DeckContext`."""
+        return context_options(mode, self.context, overrides, defaults)
 
     def __repr__(self) -> str:
         return f"RunOptions({self.mode!r}, {dict(self.values)!r})"
@@ -65,7 +122,7 @@ def resolve_options(mode: str, deck_settings: Mapping | None = None,
                     option_names: Mapping[str, str] | None = None,
                     label: str = "--{option}", file: str | None = None,
                     where_of: Callable[[str], Where] | None = None,
-                    internal: bool = True) -> RunOptions:
+                    internal: bool = True, context: DeckContext = NO_DECK) -> RunOptions:
     """Merge ``defaults`` < ``deck_settings`` < ``overrides`` (None values in overrides are
     not given) and validate the result once (module doc); returns :class:`RunOptions`.
 
@@ -75,7 +132,8 @@ def resolve_options(mode: str, deck_settings: Mapping | None = None,
     "does not apply to --mode"); label: how other settings the caller gave are named
     (``{option}``: the key with dashes, ``{key}``); file, where_of:
     where a deck value is (default ``Where(file, 'analysis.<mode>.<key>')``); internal:
-    accept the settings code passes (progress, q0, qd0, h0)."""
+    accept the settings code passes (progress, q0, qd0, h0); context: what the run takes
+    from its deck besides the model (:func:`run_options` fills it)."""
     from mbsim.deck.limits import setting_problems
     from mbsim.deck.schema import setting_name_problems
 
@@ -106,7 +164,36 @@ def resolve_options(mode: str, deck_settings: Mapping | None = None,
         if values.get("atol") is None and values.get("rtol") is not None:
             # atol follows rtol: 1e-8 at the default rtol 1e-6
             values["atol"] = ATOL_PER_RTOL * float(values["rtol"])
-    return RunOptions(mode, values, given, deck)
+    return RunOptions(mode, values, given, deck, context)
+
+
+def context_options(mode: str, context: DeckContext = NO_DECK,
+                    overrides: Mapping | None = None,
+                    defaults: Mapping | None = None) -> RunOptions:
+    """The options of a ``mode`` analysis run by code with a deck's ``context`` (an analysis
+    running another, ``mbsim bench``'s runs): the deck's ``analysis: <mode>:`` under
+    ``overrides`` (checked) over ``defaults`` (None: the analysis's)."""
+    return resolve_options(mode, context.analysis.get(mode, {}), overrides, defaults=defaults,
+                           label="analysis setting {key}", context=context)
+
+
+def run_options(mode: str, spec=None, overrides: Mapping | None = None, *,
+                option_names: Mapping[str, str] | None = None,
+                label: str = "analysis setting {key}", internal: bool = True,
+                shapes: bool = True) -> RunOptions:
+    """The options of a run of ``mode`` requested on the deck ``spec`` (a validated
+    :class:`~mbsim.deck.spec.DeckSpec`, with its scene and ``--set`` values applied; None: no
+    deck): :func:`resolve_options` over the analysis's defaults, the deck's ``analysis:
+    <mode>:`` and ``overrides`` (command line, API, case), with the run's
+    :class:`DeckContext` (:func:`deck_context`).  The one call the CLI, the API, sweeps and
+    studies make; option_names, label, internal: as :func:`resolve_options`; shapes: build
+    the shapes for the results file (False: a run whose result is not written)."""
+    if spec is None:
+        return resolve_options(mode, {}, overrides, option_names=option_names, label=label,
+                               internal=internal)
+    return resolve_options(mode, spec.analysis.get(mode, {}), overrides,
+                           option_names=option_names, label=label, file=spec.file,
+                           internal=internal, context=deck_context(spec, shapes))
 
 
 def dynamic_problems(opt: Mapping) -> list[tuple[str, str]]:
@@ -147,13 +234,10 @@ def dynamic_problems(opt: Mapping) -> list[tuple[str, str]]:
 
 def analysis_options(mode: str, model, options, defaults: Mapping) -> RunOptions:
     """The options of an analysis called with ``options``: as they are when resolved where
-    the run was requested (:func:`mbsim.api.run_model`, the CLI), else merged here over
-    the analysis's ``defaults`` and the deck's ``analysis: <mode>:`` and checked (direct
-    calls: scripts, tests, one analysis running another).  The one place an analysis reads
-    the deck's settings from the compiled model (``model.spec``), for those direct calls."""
+    the run was requested (:func:`run_options`: :func:`mbsim.api.run_model`, the CLI), else
+    a dict (or None) merged here over the analysis's ``defaults`` and checked, without deck
+    settings (direct calls: scripts, tests; the model does not carry its deck)."""
     if isinstance(options, RunOptions):
         return options
-    spec = getattr(model, "spec", None)
-    deck = spec.analysis.get(mode, {}) if spec is not None else {}
-    return resolve_options(mode, deck, options, defaults=defaults,
+    return resolve_options(mode, {}, options, defaults=defaults,
                            file=getattr(model, "file", None), label="analysis setting {key}")

@@ -180,7 +180,7 @@ def run_case(deck: str | Path | ParsedDeck, study: str, case: dict,
     try:
         spec, model = case_model(deck, case, overrides)
         out.warnings = list(spec.warnings)
-        result = run_model(model, case["mode"], case["options"])
+        result = run_model(model, case["mode"], case["options"], deck=spec)
         result.settings.setdefault("overrides", overrides)
         if case["scene"]:
             result.settings.setdefault("scene", case["scene"])
@@ -549,8 +549,8 @@ def threshold(deck: str | Path | ParsedDeck, case: dict, path: str, lo: float, h
     def judge(value: float) -> bool:
         t0 = time.perf_counter()
         overrides = overrides_of(case) | {path: json.dumps(float(value))}
-        _, model = case_model(deck, case, overrides)
-        result = run_model(model, case["mode"], case.get("options", {}))
+        spec, model = case_model(deck, case, overrides)
+        result = run_model(model, case["mode"], case.get("options", {}), deck=spec)
         verdict = bool(criterion(result))
         runs.append((float(value), verdict, time.perf_counter() - t0))
         log.info("threshold %s = %g: %s", path, value, verdict)

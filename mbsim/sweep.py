@@ -428,7 +428,7 @@ def run_case(deck_text: str, deck_file: str, overrides: dict[str, str], scene: s
     try:  # the deck is parsed once per process; the case's edits are copy-on-write
         deck = parse_deck_cached(deck_text, deck_file)
         spec = deck.spec(scene, overrides, studies=False)  # studies: checked by plan_sweep
-        result = run_model(compile_model(spec), mode, options)
+        result = run_model(compile_model(spec), mode, options, deck=spec)
     except MbsimError as exc:
         return CaseRun(None, str(exc).replace("\n", " "), time.perf_counter() - t0)
     except Exception as exc:  # a bug or an unexpected value: the case fails, the sweep goes on

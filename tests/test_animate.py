@@ -25,8 +25,8 @@ SLIDER = MODELS / "slider_crank.yaml"
 @pytest.fixture(scope="module")
 def slider_result():
     """Kinematics of the slider-crank over 0.2 s (11 outputs), as `mbsim run` stores it."""
-    _, model = load_model(SLIDER)
-    result = run_model(model, "kinematic", {"t_end": 0.2, "step": 0.02})
+    spec, model = load_model(SLIDER)
+    result = run_model(model, "kinematic", {"t_end": 0.2, "step": 0.02}, deck=spec)
     result.settings.setdefault("overrides", {})
     return result
 
@@ -130,8 +130,8 @@ def test_animate_checks_the_output_before_drawing(slider_result, tmp_path, monke
 
 
 def test_sketch_comes_from_the_stored_deck_with_its_scene(tmp_path):
-    _, model = load_model(SLIDER, scene="three_body")
-    result = run_model(model, "kinematic", {"t_end": 0.02, "step": 0.01})
+    spec, model = load_model(SLIDER, scene="three_body")
+    result = run_model(model, "kinematic", {"t_end": 0.02, "step": 0.01}, deck=spec)
     result.settings.update(scene="three_body", overrides={"parameters.ell": "0.3"})
     write_result(result, tmp_path / "r.h5")
     from mbsim.output import read_result
@@ -218,8 +218,8 @@ def test_mode_shape_animation(tmp_path):
 
     path = tmp_path / "p.yaml"
     path.write_text(PENDULUM2)
-    _, model = load_model(path)
-    res = run_model(model, "linear", {})
+    spec, model = load_model(path)
+    res = run_model(model, "linear", {}, deck=spec)
     write_result(res, tmp_path / "lin.h5")
     back = read_result(tmp_path / "lin.h5")
     lam = back.arrays["linear/eigenvalues"][0]

@@ -27,6 +27,7 @@ from mbsim import core
 from mbsim.constraints import DRIVERS, JOINTS
 from mbsim.deck import load_deck
 from mbsim.model import compile_model
+from mbsim.options import deck_context
 from tests.helpers import spec
 from tests.reference import equations as eq
 from tests.test_constraints import _driver_specs, _joint_spec, _two_bodies
@@ -73,8 +74,9 @@ def test_core_matches_the_reference_on_every_deck(name, scene):
     positions 1e-3 away, where both solves lose every digit), on the assembly's rows."""
     from mbsim.analyses.assembly import assemble
 
-    model = compile_model(load_deck(ROOT / "models" / f"{name}.yaml", scene=scene))
-    asm = assemble(model)
+    spec = load_deck(ROOT / "models" / f"{name}.yaml", scene=scene)
+    model = compile_model(spec)
+    asm = assemble(model, hold=deck_context(spec, shapes=False).hold)  # the deck's assembly
     q = asm.q + 1e-6 * rng.normal(size=model.nq)
     qd = 0.1 * rng.normal(size=model.nq)
     rows = None if asm.active_rows.size == model.m else asm.active_rows

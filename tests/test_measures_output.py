@@ -39,8 +39,8 @@ def write(tmp_path, text, name="deck.yaml"):
 @pytest.fixture(scope="module")
 def slider_run(tmp_path_factory):
     path = write(tmp_path_factory.mktemp("m"), SLIDER_MEASURES)
-    _, model = load_model(path)
-    return model, run_model(model, "kinematic", {"t_end": 2.5, "step": 0.005})
+    spec, model = load_model(path)
+    return model, run_model(model, "kinematic", {"t_end": 2.5, "step": 0.005}, deck=spec)
 
 
 def d_dt(res, y):
@@ -106,8 +106,8 @@ def test_energy_expression_equals_the_dynamic_monitor(tmp_path):
     two_f: {type: expression, value: 'f + f', unit: N, channels: {f: forces.spring.force}}
   points:
 """)
-    _, model = load_model(write(tmp_path, gov))
-    res = run_model(model, "dynamic", {"t_end": 0.3, "step": 0.01})
+    spec, model = load_model(write(tmp_path, gov))
+    res = run_model(model, "dynamic", {"t_end": 0.3, "step": 0.01}, deck=spec)
     np.testing.assert_allclose(res.channel("measures/E").data,
                                res.channel("monitors/energy").data, rtol=1e-10)
     np.testing.assert_allclose(res.channel("measures/two_f").data,
@@ -127,9 +127,9 @@ outputs:
     yaw: {type: body_angle, body: top, axis: z}
     roll: {type: body_angle, body: top, axis: x, ref: z}
 """
-    _, model = load_model(write(tmp_path, deck))
+    spec, model = load_model(write(tmp_path, deck))
     res = run_model(model, "dynamic", {"t_end": 2.0, "step": 0.01, "rtol": 1e-10,
-                                       "atol": 1e-12})
+                                       "atol": 1e-12}, deck=spec)
     np.testing.assert_allclose(res.channel("measures/yaw").data, 5 * res.t, atol=1e-7)
     np.testing.assert_allclose(res.channel("measures/roll").data, np.pi / 2, atol=1e-9)
 
@@ -137,8 +137,8 @@ outputs:
 def test_only_restricts_channels(tmp_path):
     text = SLIDER_MEASURES.replace("outputs:\n", "outputs:\n  only: [measures.crank, "
                                    "'points.*.position', bodies.crank]\n", 1)
-    _, model = load_model(write(tmp_path, text))
-    res = run_model(model, "kinematic", {"t_end": 0.1, "step": 0.01})
+    spec, model = load_model(write(tmp_path, text))
+    res = run_model(model, "kinematic", {"t_end": 0.1, "step": 0.01}, deck=spec)
     names = set(res.channels)
     assert "measures/crank" in names and "measures/crank_rate" not in names
     assert {"points/slider/position", "points/pin_B/position"} <= names

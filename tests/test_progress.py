@@ -97,9 +97,9 @@ def test_kinematic_calls_progress_once_per_output_step():
     from mbsim.api import load_model, run_model
 
     calls = []
-    _, model = load_model(MODELS / "slider_crank.yaml")
+    spec, model = load_model(MODELS / "slider_crank.yaml")
     res = run_model(model, "kinematic", {"t_end": 0.1, "progress": lambda t, te: calls.append(
-        (t, te))})
+        (t, te))}, deck=spec)
     assert len(calls) == len(res.t) == 21
     assert [c[0] for c in calls] == list(res.t) and {c[1] for c in calls} == {0.1}
     assert "progress" not in res.settings
@@ -171,8 +171,8 @@ def test_dynamic_calls_progress_once_per_output_step():
     from mbsim.api import load_model, run_model
 
     calls = []
-    _, model = load_model(MODELS / "governor.yaml")
+    spec, model = load_model(MODELS / "governor.yaml")
     res = run_model(model, "dynamic", {"t_end": 0.1, "progress": lambda t, te: calls.append(
-        (t, te))})
+        (t, te))}, deck=spec)
     assert [c[0] for c in calls] == list(res.t) and {c[1] for c in calls} == {0.1}
     assert "progress" not in res.settings

@@ -230,8 +230,8 @@ def test_label_counts_at_load_match_the_channels_of_a_result(scene, mode):
     from mbsim.deck.loader import _curve_count
     from mbsim.output.export import select_columns
 
-    _, model = load_model(SLIDER, scene=scene)
-    res = run_model(model, mode, {"t_end": 0.02, "step": 0.01})
+    spec, model = load_model(SLIDER, scene=scene)
+    res = run_model(model, mode, {"t_end": 0.02, "step": 0.01}, deck=spec)
     counted = 0
     for name in res.channels:
         cols = select_columns(res, name)

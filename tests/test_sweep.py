@@ -191,8 +191,8 @@ def test_the_deck_is_parsed_once_per_process_not_once_per_case(tmp_path, monkeyp
     assert len(calls) == 2
     for case, a, b in zip(sweep.cases, inherited, fresh):
         assert a.message == b.message == ""
-        _, model = load_model(SLIDER, overrides=sweep.case_overrides(case))
-        ref = run_model(model, "kinematic", sweep.options)
+        spec, model = load_model(SLIDER, overrides=sweep.case_overrides(case))
+        ref = run_model(model, "kinematic", sweep.options, deck=spec)
         for r in (a.result, b.result):
             ok, _, problems = compare_results(r, ref, rtol=0, atol=0)
             assert ok and not problems, case.name

@@ -382,11 +382,11 @@ def test_a_misspelt_setting_of_run_model_is_a_usage_error():
     from mbsim.api import load_model, run_model
     from mbsim.errors import UsageError
 
-    _, model = load_model(SLIDER)
+    spec, model = load_model(SLIDER)
     with pytest.raises(
         UsageError, match="unknown setting 't_ennd' of the inverse analysis; did you mean t_end"
     ):
-        run_model(model, "inverse", {"t_ennd": 1})
+        run_model(model, "inverse", {"t_ennd": 1}, deck=spec)
 
 
 def test_an_option_of_another_mode_is_a_usage_error(tmp_path):

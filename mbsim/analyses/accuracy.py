@@ -12,6 +12,7 @@ import math
 from mbsim.analyses.estimate import attach_estimate, estimate
 from mbsim.analyses.trajectory import Prepared, build_result, main_trajectory, motion_span
 from mbsim.integrators import ALIASES, DEFAULT, INTEGRATORS
+from mbsim.options import NO_DECK
 
 log = logging.getLogger(__name__)
 
@@ -26,13 +27,14 @@ cases and cost 2.5-3.7x the cheapest pair)."""
 ACCURACY_MARGIN = 0.5  # a refinement aims at this fraction of the request
 
 
-def accuracy_with_fallback(model, opt, progress, given, deck_opt):
+def accuracy_with_fallback(model, opt, progress, given, deck_opt, context=NO_DECK):
     """``accuracy``: the deck's integrator is a preference, one asked for by the caller
     (``--integrator``, the API's options) a requirement.  When the preferred method cannot
     deliver (the run stops, or no estimate covers it, or the request is missed), the
-    default method is tried and the better of the two kept, saying so."""
+    default method is tried and the better of the two kept, saying so.  ``context``: the
+    run's :class:`~mbsim.options.DeckContext`."""
     explicit = {k for k in ("integrator", "h") if k in given or (k == "h" and k in deck_opt)}
-    res = accuracy_run(model, opt, progress, explicit)
+    res = accuracy_run(model, opt, progress, explicit, context)
     acc = res.summary["accuracy"]
     name = str(opt["integrator"])
     if ("integrator" in explicit or acc["met"] or acc.get("interrupted")
@@ -42,7 +44,7 @@ def accuracy_with_fallback(model, opt, progress, given, deck_opt):
            or f"estimated {acc['estimate']:.3g} after {acc['runs']} run(s)")
     log.info("accuracy: the deck's integrator %s did not deliver (%s); trying %s", name, why,
              DEFAULT)
-    alt = accuracy_run(model, dict(opt, integrator=DEFAULT, h=None), progress, set())
+    alt = accuracy_run(model, dict(opt, integrator=DEFAULT, h=None), progress, set(), context)
     alt_acc = alt.summary["accuracy"]
     better = alt_acc["met"] or (alt.complete and not res.complete) or (
         alt.complete and math.isfinite(alt_acc["estimate"])
@@ -56,7 +58,7 @@ def accuracy_with_fallback(model, opt, progress, given, deck_opt):
     return alt
 
 
-def accuracy_run(model, opt, progress, explicit):
+def accuracy_run(model, opt, progress, explicit, context=NO_DECK):
     """``accuracy`` = TOL: the run whose estimated position (m) and orientation (rad) errors
     are at most TOL.
 
@@ -71,7 +73,7 @@ def accuracy_run(model, opt, progress, explicit):
     are computed."""
     tol = float(opt["accuracy"])
     opt = dict(opt, error_estimate=True)
-    prep = Prepared(model, opt)
+    prep = Prepared(model, opt, context)
     cls = prep.cls
     fixed = (not cls.adaptive) or ("h" in explicit and opt.get("h") is not None)
     if fixed:

@@ -24,7 +24,8 @@ from mbsim.analyses.common import (
     singular_rows,
     weakest_directions,
 )
-from mbsim.errors import ConvergenceError, DeckError, ModelError, SingularJacobianError
+from mbsim.errors import ConvergenceError, DeckError, ModelError, SingularJacobianError, Where
+from mbsim.options import HOLD_COORDS
 
 log = logging.getLogger(__name__)  # "mbsim.analyses.assembly": -v shows the iterations
 
@@ -204,13 +205,13 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
     )
 
 
-COORDS = {"x": 0, "y": 1, "z": 2, "e0": 3, "e1": 4, "e2": 5, "e3": 6}
+COORDS = {c: k for k, c in enumerate(HOLD_COORDS)}  # offset in a body's [r, p]
 
 
 def hold_indices(model, hold) -> list[int]:
-    """'collar.y', 'spindle.e2' -> coordinate indices (deck: analysis.assembly.hold)."""
-    where = model.spec.where_of("analysis.assembly.hold") if hasattr(model.spec, "where_of") \
-        else None
+    """'collar.y', 'spindle.e2' -> coordinate indices (deck: analysis.assembly.hold, checked
+    by the loader; here for holds given by code)."""
+    where = Where(model.file, "analysis.assembly.hold")
     out = []
     for h in hold or []:
         body, _, coord = str(h).rpartition(".")
@@ -226,14 +227,13 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None,
              lapack=True) -> Assembly:
     """Put q (default: the deck's estimates) on the constraint manifold and check its rank.
 
-    ``hold`` (default: the deck's ``analysis.assembly.hold``) names coordinates kept at their
-    estimates, 'BODY.x|y|z|e0|e1|e2|e3': with DOF > 0 the manifold has many points near the
+    ``hold`` (the deck's ``analysis.assembly.hold``: :attr:`mbsim.options.DeckContext.hold`
+    of the run's options; None: nothing held) names coordinates kept at their estimates,
+    'BODY.x|y|z|e0|e1|e2|e3': with DOF > 0 the manifold has many points near the
     estimates, and holding the independent coordinates picks the one the user means.
     ``lapack``: the rank test's QR (:func:`mbsim.analyses.common.rank_and_redundant`).
     """
     q0 = model.q0 if q is None else q
-    if hold is None and model.spec is not None:
-        hold = model.spec.analysis.get("assembly", {}).get("hold")
     hold_idx = hold_indices(model, hold)
     try:
         q, its, res = newton(model, q0, t, tol, max_iter, hold=hold_idx)

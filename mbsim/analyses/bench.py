@@ -24,6 +24,7 @@ import numpy as np
 from mbsim.analyses.dynamic import dynamic
 from mbsim.analyses.trajectory import integrator_class
 from mbsim.integrators import INTEGRATORS
+from mbsim.options import NO_DECK, context_options
 
 TOLERANCES = (1e-3, 1e-5, 1e-7, 1e-9, 1e-11)
 STEPS = (1e-2, 5e-3, 2.5e-3, 1.25e-3, 6.25e-4)  # fixed-step methods, s
@@ -117,18 +118,25 @@ def _stack(result, names):
 
 def work_precision(model, integrators=None, tolerances=TOLERANCES, steps=STEPS, t_end=1.0,
                    outputs=("bodies/*/r",), output_step=None, repeats=1, reference=None,
-                   options=None, progress=None, low_order_rtol=1e-8) -> Bench:
+                   options=None, progress=None, low_order_rtol=1e-8,
+                   context=NO_DECK) -> Bench:
     """Run the ladder (module doc).  integrators: names (default all); tolerances: rtol values
     of the adaptive methods (atol = 1e-2 rtol); steps: h of the fixed-step ones; options:
     extra dynamic options for every run (e.g. q0/qd0); progress: callback(row);
     low_order_rtol: second-order methods skip tighter tolerances (their step count grows as
-    rtol^-1/2 there: minutes per run, nothing learnt)."""
+    rtol^-1/2 there: minutes per run, nothing learnt); context: the deck's
+    :class:`~mbsim.options.DeckContext` (its ``analysis: dynamic:`` settings under every
+    run's, the assembly's hold: :func:`mbsim.options.deck_context`)."""
+
+    def dynamic_run(opts):
+        return dynamic(model, context_options("dynamic", context, opts))
+
     names = list(integrators or INTEGRATORS)
     classes = {n: integrator_class(n) for n in names}
     base = dict(options or {}, t_end=float(t_end),
                 step=float(output_step or t_end / 20.0))
     ref_opts = dict(REFERENCE, **(reference or {}))
-    ref = dynamic(model, dict(base, error_estimate=False, **ref_opts))
+    ref = dynamic_run(dict(base, error_estimate=False, **ref_opts))
     if not ref.complete:
         raise RuntimeError(f"the reference run failed: {ref.message}")
     channels = [c for c in select_channels(ref, outputs) if not c.startswith("bodies/ground")]
@@ -146,10 +154,10 @@ def work_precision(model, integrators=None, tolerances=TOLERANCES, steps=STEPS, 
             for _ in range(max(1, int(repeats))):
                 # the run's cost without its error estimate (the estimate is timed apart)
                 c0 = time.process_time()
-                res = dynamic(model, dict(opts, error_estimate=False))
+                res = dynamic_run(dict(opts, error_estimate=False))
                 cpus.append(time.process_time() - c0)
                 walls.append(res.wall_time)
-            est = dynamic(model, opts).summary.get("error_estimate", {}).get("position")
+            est = dynamic_run(opts).summary.get("error_estimate", {}).get("position")
             n = min(len(res.t), len(ref.t))
             full = n == len(ref.t)
             dev = np.abs(_stack(res, channels)[:n] - yref[:n]) if n else np.zeros((0, 1))

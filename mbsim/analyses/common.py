@@ -100,8 +100,7 @@ def require_dof_zero(model, dof: int, what: str) -> None:
     if dof == 0:
         return
     drivers = [it for it in model.items if it.kind == "driver"]
-    first = next((d for d in (model.spec.drivers.values() if model.spec else ())), None)
-    where = Where(model.file, "drivers", first.where.line if first is not None else None)
+    where = Where(model.file, "drivers", drivers[0].where.line if drivers else None)
     names = ", ".join(d.name for d in drivers) or "none"
     raise DeckError(f"{what} needs DOF = 0, but the drivers ({names}) leave DOF = {dof}: add "
                     f"{dof} driver(s), or run --mode dynamic", where)
@@ -231,16 +230,17 @@ class Recorder:
             self._kin = (body_kinematics(self.model, self.q, self.qd, self.qdd), self._n)
         return self._kin[0]
 
-    def result(self, mode: str, only=None) -> Result:
-        """The Result with the standard channels (``only``: slash patterns, default the
-        deck's ``outputs: only:``; see :func:`mbsim.measures.selected`)."""
+    def result(self, mode: str, only: tuple[str, ...] | None = None) -> Result:
+        """The Result with the standard channels (``only``: slash patterns, the run's
+        ``outputs: only:`` (:attr:`mbsim.options.DeckContext.only`), None: every channel; see
+        :func:`mbsim.measures.selected`).  The deck text is the caller's to add
+        (:func:`mbsim.api.run_model`)."""
         from mbsim import measures as ms
 
         model = self.model
-        patterns = ms.only_patterns(model.spec) if only is None else only
+        patterns = only
         res = Result(mode=mode, t=self.t.copy())
         res.deck_file = model.file
-        res.deck_text = model.spec.text if model.spec is not None else ""
         res.names = {
             "bodies": list(model.body_names),
             "joints": [it.name for it in model.items if it.kind == "joint"],
@@ -248,7 +248,7 @@ class Recorder:
             "forces": [f.name for f in model.forces],
             "points": [o[0] for o in model.outputs],
         }
-        measures = getattr(model.spec, "output_measures", None) or {}
+        measures = model.measures
         if measures:
             res.names["measures"] = list(measures)
         if self._n == 0:

@@ -24,7 +24,7 @@ from mbsim.analyses.accuracy import accuracy_with_fallback
 from mbsim.analyses.estimate import attach_estimate, estimate
 from mbsim.analyses.trajectory import Prepared, build_result, main_trajectory, motion_span
 from mbsim.integrators import DEFAULT
-from mbsim.options import analysis_options
+from mbsim.options import NO_DECK, analysis_options
 
 DEFAULTS = {"t_start": 0.0, "t_end": 1.0, "step": 0.01, "integrator": DEFAULT, "rtol": 1e-6,
             "atol": None, "h": None, "max_steps": 1_000_000, "tol": 1e-10, "sparse": None,
@@ -37,8 +37,8 @@ def dynamic(model, options=None):
     failure, when the integrator fails).
 
     options: a :class:`~mbsim.options.RunOptions` (merged and checked where the run was
-    requested, :func:`mbsim.api.run_model`), or a dict merged here over the deck's
-    ``analysis: dynamic:`` and DEFAULTS and checked: t_start, t_end, step (output step, s),
+    requested, :func:`mbsim.options.run_options`, with the deck's settings and context), or
+    a dict merged here over DEFAULTS alone and checked: t_start, t_end, step (output step, s),
     integrator (name, see
     ``mbsim list integrators``), rtol, atol, h (fixed step: no error control; a fixed-step
     method without h steps at ``step``), h_max, max_steps, sparse (None: by size), q0/qd0 (a
@@ -56,17 +56,19 @@ def dynamic(model, options=None):
     # states), so numpy's RuntimeWarning lines would only be noise on stderr
     with np.errstate(all="ignore"):
         if opt.get("accuracy") is not None:
-            res = accuracy_with_fallback(model, opt, progress, options.given, options.deck)
+            res = accuracy_with_fallback(model, opt, progress, options.given, options.deck,
+                                         options.context)
         else:
-            res = _single_run(model, opt, progress)
+            res = _single_run(model, opt, progress, options.context)
     res.wall_time = _time.perf_counter() - wall0
     return res
 
 
-def _single_run(model, opt, progress=None):
-    """One integration with its error estimate: the Result of :func:`dynamic`."""
+def _single_run(model, opt, progress=None, context=NO_DECK):
+    """One integration with its error estimate: the Result of :func:`dynamic` (``context``:
+    the run's :class:`~mbsim.options.DeckContext`)."""
     opt = dict(opt)
-    prep = Prepared(model, opt)
+    prep = Prepared(model, opt, context)
     if not prep.cls.adaptive and opt.get("h") is None:
         opt["h"] = float(opt["step"])
     tr = main_trajectory(model, prep, opt, progress)

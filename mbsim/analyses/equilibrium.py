@@ -67,6 +67,7 @@ import scipy.linalg as la
 from mbsim import core
 from mbsim.analyses.assembly import assemble, newton
 from mbsim.analyses.common import Recorder
+from mbsim.analyses.dynamic import DEFAULTS as DYNAMIC_DEFAULTS
 from mbsim.analyses.dynamic import dynamic
 from mbsim.analyses.reactions import add_reaction_channels
 from mbsim.errors import ConvergenceError, DeckError, ModelError
@@ -292,9 +293,6 @@ def stationary_point(prob: Problem, q0, opt) -> Stationary:
                       message, consistent, warnings, N, U, w2)
 
 
-def _options(model, options):
-    opt = dict(analysis_options("equilibrium", model, options, DEFAULTS))
-    return opt
 
 
 def _configuration(model, q):
@@ -305,10 +303,10 @@ def _configuration(model, q):
             for b, n in enumerate(model.body_names)}
 
 
-def _result(model, mode_method, t, q, qd, qdd, lam, sol: Stationary | None, extra=None):
+def _result(model, opt, mode_method, t, q, qd, qdd, lam, sol: Stationary | None, extra=None):
     rec = Recorder(model)
     rec.add(t, q, qd, qdd)
-    res = rec.result("equilibrium")
+    res = rec.result("equilibrium", opt.context.only)
     res.add("constraints/lam", lam[None, :], "", "Lagrange multipliers (rows as in the model)",
             model.row_label)
     add_reaction_channels(res, model, q[None, :], lam[None, :])
@@ -341,10 +339,10 @@ def minimum(model, opt) -> Result:
     """Minimum total potential energy from the estimates (module doc)."""
     t = float(opt["t"])
     q0 = model.q0 if opt.get("q0") is None else np.asarray(opt["q0"], float)
-    asm = assemble(model, q0, t, tol=opt["phi_tol"])
+    asm = assemble(model, q0, t, tol=opt["phi_tol"], hold=opt.context.hold)
     sol = stationary_point(_static_problem(model, t, asm.active_rows), asm.q, opt)
     z = np.zeros(model.nq)
-    return _result(model, "minimum", t, sol.q, z, z, sol.lam, sol, {"dof": asm.dof})
+    return _result(model, opt, "minimum", t, sol.q, z, z, sol.lam, sol, {"dof": asm.dof})
 
 
 class ArtificialDamping(ForceElement):
@@ -375,9 +373,9 @@ def settle(model, opt) -> Result:
     if opt["from_rest"]:  # released at rest from the (assembled) estimates
         q0 = model.q0 if opt.get("q0") is None else np.asarray(opt["q0"], float)
         dyn_opt["q0"] = assemble(model, q0, float(opt.get("t_start") or 0.0),
-                                 tol=opt["phi_tol"]).q
+                                 tol=opt["phi_tol"], hold=opt.context.hold).q
         dyn_opt["qd0"] = np.zeros(model.nq)
-    res = dynamic(run_model, dyn_opt)
+    res = dynamic(run_model, opt.within("dynamic", dyn_opt, DYNAMIC_DEFAULTS))
     res.mode = "equilibrium"
     nt = len(res.t)
     speed = np.zeros(nt)
@@ -405,7 +403,7 @@ def settle(model, opt) -> Result:
 
     q = states_from_result(model, res)[0][-1]
     t = float(res.t[-1])
-    rows = assemble(model, q, t, tol=opt["phi_tol"]).active_rows
+    rows = assemble(model, q, t, tol=opt["phi_tol"], hold=opt.context.hold).active_rows
     prob = _static_problem(model, t, rows)
     J, N = prob.basis(q)
     g = prob.force(q)
@@ -477,7 +475,7 @@ def steady(model, opt) -> Result:
     if opt.get("bodies") is not None:
         bodies = [model.body_index(n) for n in opt["bodies"]]
     q0 = model.q0 if opt.get("q0") is None else np.asarray(opt["q0"], float)
-    asm = assemble(model, q0, t, tol=opt["phi_tol"])
+    asm = assemble(model, q0, t, tol=opt["phi_tol"], hold=opt.context.hold)
     rows = asm.active_rows
 
     def q_eff(q, Omega):
@@ -510,7 +508,7 @@ def steady(model, opt) -> Result:
         sol = stationary_point(prob, asm.q, opt)
         g, qd, qdd = q_eff(sol.q, Omega)
         extra.update(omega=w, holding_torque=_holding_torque(model, sol.q, g, sol.lam, tangent, t))
-        return _result(model, "steady", t, sol.q, qd, qdd, sol.lam, sol, extra)
+        return _result(model, opt, "steady", t, sol.q, qd, qdd, sol.lam, sol, extra)
     # the speed for the given configuration
     q = asm.q
     g0 = q_eff(q, 0.0 * axis)[0]
@@ -533,7 +531,7 @@ def steady(model, opt) -> Result:
     lam[rows] = la.lstsq(J.T, g)[0]
     extra.update(omega=w, speed_residual=resid, holding_torque=_holding_torque(
         model, q, g, lam, tangent, t))
-    res = _result(model, "steady-speed", t, q, qd, qdd, lam, None, extra)
+    res = _result(model, opt, "steady-speed", t, q, qd, qdd, lam, None, extra)
     if resid > opt["tol"] * 1e3 * scale:
         res.status = STATUS_INCOMPLETE
         res.message = (f"no speed makes this configuration steady: best omega = {w:.6g} rad/s "
@@ -548,19 +546,22 @@ def _holding_torque(model, q, g, lam, tangent, t):
     return float(-(tangent(q) @ (g - J.T @ lam)))
 
 
+# method name -> fn(model, opt: RunOptions) -> Result; opt.context: the run's deck context
+# (the assembly's hold, outputs: only:, the deck's dynamic settings for 'settle')
 METHODS = {"minimum": minimum, "settle": settle, "steady": steady}
 
 
 def equilibrium(model, options=None) -> Result:
     """Run the equilibrium method named by ``options['method']`` (see the module doc)."""
-    opt = _options(model, options)
-    progress = opt.pop("progress", None)  # passed on to the dynamic run of 'settle'
+    run = analysis_options("equilibrium", model, options, DEFAULTS)
+    opt = dict(run)
+    opt.pop("progress", None)  # passed on to the dynamic run of 'settle' (in ``run``)
     wall0 = _time.perf_counter()
     fn = METHODS.get(opt["method"])
     if fn is None:
         raise DeckError(f"unknown equilibrium method {opt['method']!r}; choose one of "
                         f"{', '.join(METHODS)}")
-    res = fn(model, dict(opt, progress=progress) if opt["method"] == "settle" else opt)
+    res = fn(model, run)
     res.settings = {k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
                         else v) for k, v in opt.items()
                     if v is not None and not isinstance(v, np.ndarray)}

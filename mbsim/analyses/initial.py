@@ -194,7 +194,7 @@ def _report(labels, C, c, h, qd, free, rtol):
     return info
 
 
-def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10):
+def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10, hold=None):
     """Consistent (q, qd, qdd, lam, info) at t0 (module doc).
 
     Parameters
@@ -203,6 +203,8 @@ def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10):
     t0 : initial time (s).
     q : (nq,) initial estimate; default the deck's ``model.q0``.
     tol : Newton tolerance on max |Phi| for the assembly.
+    hold : coordinates the assembly keeps at their estimates ('BODY.COORD', the deck's
+        ``analysis.assembly.hold``: ``options.context.hold``); None: none.
 
     Returns
     -------
@@ -213,7 +215,7 @@ def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10):
         'changed' ({body: {'rdot'|'omega'|'omega_local': (3,) change}}), 'given' (number of
         given components), 'free_velocity_dof' (freedom fixed by minimum kinetic energy).
     """
-    asm = assemble(model, q, t0, tol)
+    asm = assemble(model, q, t0, tol, hold=hold)
     q = asm.q
     active = asm.active_rows
     qd, info = initial_velocities(model, q, t0, active)

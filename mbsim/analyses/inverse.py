@@ -90,15 +90,16 @@ def inverse(model, options=None) -> Result:
     (lock-up, singular Jacobian) gives status 'incomplete', its message naming time and
     joints, with every channel kept up to the last good time.
     """
-    opt = dict(analysis_options("inverse", model, options, DEFAULTS))
+    run = analysis_options("inverse", model, options, DEFAULTS)
+    opt = dict(run)
     progress = opt.pop("progress", None)  # progress(t, t_end) per output step (mbsim.progress)
     wall0 = _time.perf_counter()
-    asm = assemble(model, t=float(opt["t_start"]), tol=opt["tol"])
+    asm = assemble(model, t=float(opt["t_start"]), tol=opt["tol"], hold=run.context.hold)
     require_dof_zero(model, asm.dof, "inverse dynamics")
     kin_opt = {k: opt[k] for k in KIN_DEFAULTS}
     if progress is not None:
         kin_opt["progress"] = progress
-    res = kinematic(model, kin_opt)
+    res = kinematic(model, run.within("kinematic", kin_opt, KIN_DEFAULTS))
     res.mode = "inverse"
     status, message = res.status, res.message
     q, qd, qdd = states_from_result(model, res)

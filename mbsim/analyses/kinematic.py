@@ -81,11 +81,12 @@ def _solve_output(model, q, t, rows, opt, newton_first, want_cond):
 
 def kinematic(model, options=None):
     """Run a kinematic analysis; returns a Result (status incomplete on failure)."""
-    opt = dict(analysis_options("kinematic", model, options, DEFAULTS))
+    run = analysis_options("kinematic", model, options, DEFAULTS)
+    opt = dict(run)
     progress = opt.pop("progress", None)  # progress(t, t_end) per output step (mbsim.progress)
     wall0 = _time.perf_counter()
     times = output_times(float(opt["t_start"]), float(opt["t_end"]), float(opt["step"]))
-    asm = assemble(model, t=times[0], tol=opt["tol"])
+    asm = assemble(model, t=times[0], tol=opt["tol"], hold=run.context.hold)
     rows = asm.active_rows
     require_dof_zero(model, asm.dof, "kinematic analysis")
     rec = Recorder(model)
@@ -135,7 +136,7 @@ def kinematic(model, options=None):
             message = f"t = {t:.6g} s: interrupted (Ctrl-C) before t_end = {times[-1]:g} s"
             break
     rec.trim()
-    res = rec.result("kinematic")
+    res = rec.result("kinematic", run.context.only)
     if len(rec):
         res.add("constraints/residual", rec.extra["residual"], "", "max |Phi| after Newton")
         if cond:

@@ -430,22 +430,27 @@ def modal_quantities(lam):
 
 
 def _options(model, options):
-    opt = dict(analysis_options("linear", model, options, DEFAULTS))
+    """(run, opt): the RunOptions and the settings as a dict, ``method`` read as ``about``."""
+    run = analysis_options("linear", model, options, DEFAULTS)
+    opt = dict(run)
     if opt.get("method"):  # `mbsim run --mode linear --method steady`
         opt["about"] = opt.pop("method")
-    return opt
+    return run, opt
 
 
-def reference_state(model, opt):
-    """(q0, qd0, t, rows, spin, description, equilibrium result or None)."""
+def reference_state(model, opt, run):
+    """(q0, qd0, t, rows, spin, description, equilibrium result or None); ``run``: the
+    linear analysis' RunOptions (its deck context: the deck's equilibrium and dynamic
+    settings, the assembly's hold)."""
     from mbsim.analyses import equilibrium as eqm
 
     about = opt["about"]
-    eopt = eqm._options(model, {k: opt[k] for k in ("t",) if opt.get(k) is not None})
+    hold = run.context.hold
+    eopt = run.within("equilibrium", {k: opt[k] for k in ("t",) if opt.get(k) is not None})
     if about == "equilibrium":
         about = "steady" if eopt["method"] == "steady" else "minimum"
     if about in ("minimum", "steady"):
-        eopt["method"] = about
+        eopt = eopt.replace(method=about)
         if about == "steady" and eopt.get("body") is None and eopt.get("axis") is None:
             raise DeckError("linear about 'steady' needs analysis.equilibrium.body (or axis and "
                             "point) of the spinning body")
@@ -456,7 +461,7 @@ def reference_state(model, opt):
 
         q = states_from_result(model, res)[0][-1]
         t = float(eopt["t"])
-        rows = assemble(model, q, t, tol=1e-11).active_rows
+        rows = assemble(model, q, t, tol=1e-11, hold=hold).active_rows
         spin = None
         if about == "steady":
             axis, c, _ = eqm._spin_axis(model, eopt)
@@ -479,11 +484,11 @@ def reference_state(model, opt):
         time = float(opt["time"])
         dopt = {"t_end": time, "step": time / max(1, int(np.ceil(time / 0.01)))} if time > 0 \
             else {"t_end": 0.0}
-        res = dynamic(model, dopt)
+        res = dynamic(model, run.within("dynamic", dopt))
         if not res.complete:
             raise ConvergenceError(f"linear: the dynamic run to t = {time:g} s: {res.message}")
         qs, qds = states_from_result(model, res)[:2]
-        rows = assemble(model, qs[-1], time, tol=1e-11).active_rows
+        rows = assemble(model, qs[-1], time, tol=1e-11, hold=hold).active_rows
         return qs[-1], qds[-1], time, rows, None, f"state at t = {time:g} s of a dynamic run", \
             None
     raise DeckError(f"unknown linear 'about' {opt['about']!r}; choose equilibrium, minimum, "
@@ -493,9 +498,9 @@ def reference_state(model, opt):
 def linear(model, options=None) -> Result:
     """Eigenvalues, frequencies, damping ratios and modes about the reference (module doc)."""
     wall0 = _time.perf_counter()
-    opt = _options(model, options)
+    run, opt = _options(model, options)
     opt.pop("progress", None)
-    q0, qd0, t, rows, spin, desc, _ = reference_state(model, opt)
+    q0, qd0, t, rows, spin, desc, _ = reference_state(model, opt, run)
     chart = Chart(model, q0, rows, t, spin, tol=float(opt["phi_tol"]))
     n = chart.n
     if n == 0:
@@ -545,7 +550,7 @@ def linear(model, options=None) -> Result:
     qd_in, _ = chart.spin_terms(q0, qd_rel0) if spin is not None else (qd0, 0.0)
     qdd0 = core.accelerations(model, core.make_data(model, rows), q0, qd_in, t)[0]
     rec.add(t, q0, qd_in, qdd0)
-    res = rec.result("linear")
+    res = rec.result("linear", run.context.only)
     labels_q = [f"{b}.{c}" for b in model.body_names for c in COORD]
     labels_b = [f"{b}.{c}" for b in model.body_names for c in BODY_COORD]
     res.arrays = {

@@ -39,7 +39,11 @@ from mbsim.errors import DeckError, Where
 from mbsim.events import MAX_EVENTS, MAX_EVENTS_AT_ONE_TIME, Context, Watch, extend_model
 from mbsim.integrators import ALIASES, INTEGRATORS, System
 from mbsim.integrators.base import NUMERICAL_ERRORS, IntegratorFailure
+<<<<<<< HEAD
 from mbsim.integrators.system import SolveError
+=======
+from mbsim.options import NO_DECK
+>>>>>>> nodeck
 from mbsim.result import STATUS_INCOMPLETE
 
 log = logging.getLogger(__name__)
@@ -129,12 +133,13 @@ class Prepared:
     """What every integration of one dynamic analysis shares: the method, the output
     times, the consistent initial state and the independent rows chosen at t_start."""
 
-    def __init__(self, model, opt):
+    def __init__(self, model, opt, context=NO_DECK):
         self.cpu0 = _time.process_time()
+        self.context = context  # the run's DeckContext: the assembly's hold, outputs: only:
         self.cls = integrator_class(str(opt["integrator"]))
         t0, t1 = float(opt["t_start"]), float(opt["t_end"])
         self.times = output_times(t0, t1, float(opt["step"]))
-        self.q0, self.qd0, self.summary = initial_conditions(model, t0, opt)
+        self.q0, self.qd0, self.summary = initial_conditions(model, t0, opt, context.hold)
         self.rank, self.red = rank_and_redundant(model, jacobian(model, self.q0, t0))
         self.rows = np.setdiff1d(np.arange(model.m), self.red)
         self.cpu = _time.process_time() - self.cpu0
@@ -155,15 +160,16 @@ def main_trajectory(model, prep, opt, progress=None):
     return trajectory(run, prep.times, prep.q0, prep.qd0, int(opt["max_steps"]), progress)
 
 
-def initial_conditions(model, t0, opt):
-    """(q, qd, summary) from options q0/qd0 or the initial-condition analysis."""
+def initial_conditions(model, t0, opt, hold=None):
+    """(q, qd, summary) from options q0/qd0 or the initial-condition analysis (``hold``: the
+    coordinates its assembly keeps at their estimates)."""
     if opt.get("q0") is not None:
         q = np.array(opt["q0"], dtype=float)
         qd = np.zeros(model.nq) if opt.get("qd0") is None else np.array(opt["qd0"], float)
         return q, qd, {"initial": "given"}
     from mbsim.analyses.initial import initial_state
 
-    q, qd, _, _, info = initial_state(model, t0, tol=float(opt["tol"]))
+    q, qd, _, _, info = initial_state(model, t0, tol=float(opt["tol"]), hold=hold)
     summary = {"initial": "deck"}
     if info.get("warnings"):
         summary["warnings"] = list(info["warnings"])
@@ -265,7 +271,7 @@ def build_result(model, prep, opt, tr, span):
         tr.trim(n)
     if not tr.complete and not tr.interrupted and stopped is None:
         message = explain(model, run.system, run.solver, message)
-    res = rec.result("dynamic")
+    res = rec.result("dynamic", prep.context.only)
     if n:
         from mbsim.analyses.common import kinetic_energies, potential_energies
 

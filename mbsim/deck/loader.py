@@ -47,7 +47,7 @@ from mbsim.deck.tree import (
 from mbsim.deck.values import NAME_RE, Reader, describe
 from mbsim.errors import DeckError, Where
 from mbsim.expr import FUNCTIONS, RESERVED
-from mbsim.options import resolve_options
+from mbsim.options import HOLD_COORDS, resolve_options
 
 
 def load_deck(
@@ -243,7 +243,7 @@ def _build(root: Node, rd: Reader, text: str, scene: str | None,
     outputs = _outputs(rd, *top["outputs"], bodies) if "outputs" in top else {}
     out_measures, out_only = (_output_extras(rd, *top["outputs"], bodies, joints)
                               if "outputs" in top else ({}, None))
-    analysis = _analysis(rd, *top["analysis"]) if "analysis" in top else {}
+    analysis = _analysis(rd, *top["analysis"], bodies) if "analysis" in top else {}
     if "scenes" in top:
         for _name, node, w in rd.items(*top["scenes"]):
             rd.fields(node, w, schema.SCENE_KEYS, what="a scene")
@@ -577,7 +577,7 @@ def _output_extras(rd: Reader, node: Node, where: Where, bodies: dict, joints: d
     return measures, only
 
 
-def _analysis(rd: Reader, node: Node, where: Where) -> dict[str, dict]:
+def _analysis(rd: Reader, node: Node, where: Where, bodies: dict) -> dict[str, dict]:
     got = rd.fields(node, where, schema.ANALYSIS_MODES, what="analysis")
     out = {}
     for mode in got:
@@ -591,7 +591,21 @@ def _analysis(rd: Reader, node: Node, where: Where) -> dict[str, dict]:
         # (documented defaults t_start 0, step 0.01 s stand in for those not given).
         resolve_options(mode, out[mode], defaults={"t_start": 0.0, "step": 0.01},
                         where_of=lambda key, m=mode, w=wheres: w.get(key, got[m][1]))
+        if mode == "assembly" and "hold" in out[mode]:
+            _check_hold(rd, out[mode]["hold"], wheres["hold"], bodies)
     return out
+
+
+def _check_hold(rd: Reader, hold, where: Where, bodies: dict) -> None:
+    """``analysis.assembly.hold``: a list of 'BODY.COORD' (COORD one of HOLD_COORDS), checked
+    here once (the assembly trusts it)."""
+    if not isinstance(hold, list):
+        raise rd.error(where, f"expected a list of BODY.COORD, e.g. [collar.y], got {hold!r}")
+    for k, h in enumerate(hold):
+        body, _, coord = str(h).rpartition(".")
+        if body not in bodies or coord not in HOLD_COORDS:
+            raise rd.error(where.child(k), f"{h!r} is not BODY.COORD with BODY one of "
+                           f"{', '.join(bodies)} and COORD one of {', '.join(HOLD_COORDS)}")
 
 
 # -- studies ------------------------------------------------------------------------------------

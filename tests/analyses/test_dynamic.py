@@ -141,12 +141,14 @@ def test_deck_run_with_initial_conditions_and_alias():
     (11.0174 rad/s), the deck's alias ``dop853`` selects gcp-dop853."""
     pytest.importorskip("yaml")
     from mbsim.api import load_model
+    from mbsim.options import run_options
 
     path = ROOT / "models" / "governor.yaml"
     if not path.exists():
         pytest.skip("models/governor.yaml not present")
-    _, model = load_model(path)
-    res = dynamic(model, {"t_end": 0.1, "step": 0.05, "integrator": "dop853"})
+    spec, model = load_model(path)
+    res = dynamic(model, run_options("dynamic", spec, {"t_end": 0.1, "step": 0.05,
+                                                       "integrator": "dop853"}))
     assert res.complete, res.message
     assert res.settings["integrator"] == "gcp-dop853"
     w = res.channel("bodies/spindle/omega").data[:, 1]

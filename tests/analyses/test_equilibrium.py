@@ -12,6 +12,7 @@ from mbsim.analyses.equilibrium import equilibrium
 from mbsim.api import load_model
 from mbsim.errors import DeckError
 from mbsim.model import compile_model
+from mbsim.options import run_options
 from tests.forces.builders import force
 from tests.helpers import body, driver, func, joint, pts, spec
 
@@ -203,11 +204,12 @@ def test_governor_speed_at_45_degrees(g, book, spring):
     book prints 11.0174) and 11.0232 (g 9.81) to the 4 decimals printed. With the spring,
     exact 45 deg arms put the collar at y = 0.050002 (the table rounds to 0.05): the spring
     is compressed by 2e-6 m (0.002 N), which raises the speed by 3.6e-4 rad/s."""
-    _, model = load_model(GOVERNOR)
+    spec, model = load_model(GOVERNOR)
     model = dataclasses.replace(model, gravity=np.array([0.0, -g, 0.0]),
                                 forces=model.forces if spring else ())
     q, yc = governor_45(model)
-    res = equilibrium(model, {"method": "steady", "body": "spindle", "q0": q})
+    res = equilibrium(model, run_options("equilibrium", spec, {"method": "steady",
+                                                               "body": "spindle", "q0": q}))
     assert res.complete, res.message
     w = res.summary["omega"]
     w_ref = moment_balance_speed(g, k=1000.0 if spring else 0.0, L0=0.15, yc=yc)
@@ -223,12 +225,13 @@ def test_governor_configuration_for_the_book_speed():
     omega = 11.0174 rad/s (Sec. 12.6.2) the arms stand at 45 deg (Table 12.6.6):
     d(omega)/d(angle) ~ 20 rad/s per rad here, so the 5.6e-4 rad/s between the book's speed
     and the exact one (spring included) is 0.0016 deg."""
-    _, model = load_model(GOVERNOR)
+    spec, model = load_model(GOVERNOR)
     q45, yc = governor_45(model)
     w45 = moment_balance_speed(9.80, 1000.0, 0.15, yc)
     q0 = model.q0.copy()
     q0[model.body_index("ball1") * 7: model.body_index("ball1") * 7 + 2] += [-0.01, -0.01]
-    res = equilibrium(model, {"method": "steady", "body": "spindle", "omega": w45, "q0": q0})
+    res = equilibrium(model, run_options("equilibrium", spec, {
+        "method": "steady", "body": "spindle", "omega": w45, "q0": q0}))
     assert res.complete, res.message
     cfg = res.summary["configuration"]
     for name in ("ball1", "ball2", "collar"):
@@ -238,7 +241,8 @@ def test_governor_configuration_for_the_book_speed():
     # the rigid-rotation velocities are stored: the spindle turns at omega about +y
     np.testing.assert_allclose(res.channel("bodies/spindle/omega").data[0], [0, w45, 0],
                                atol=1e-12)
-    book = equilibrium(model, {"method": "steady", "body": "spindle", "omega": 11.0174})
+    book = equilibrium(model, run_options("equilibrium", spec, {
+        "method": "steady", "body": "spindle", "omega": 11.0174}))
     b1 = np.array(book.summary["configuration"]["ball1"]["r"])
     angle = np.degrees(np.arctan2(b1[0], 0.2 - b1[1]))
     assert abs(angle - 45.0) < 0.005

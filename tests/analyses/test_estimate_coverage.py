@@ -26,8 +26,14 @@ OPTIONS = {"t_end": 0.2, "step": 0.01, "rtol": RTOL}
 
 
 @pytest.fixture(scope="module")
-def governor():
-    return load_model(MODELS / "governor.yaml")[1]
+def governor_deck():
+    """(spec, model) of the governor deck; runs get the spec (its settings) with deck=."""
+    return load_model(MODELS / "governor.yaml")
+
+
+@pytest.fixture(scope="module")
+def governor(governor_deck):
+    return governor_deck[1]
 
 
 def stop_companions(monkeypatch, how, methods=None):
@@ -53,9 +59,9 @@ def stop_companions(monkeypatch, how, methods=None):
     monkeypatch.setattr(trajectory.Stepper, "step", stopping)
 
 
-def test_interrupted_companion_gives_no_estimate(governor, monkeypatch, tmp_path):
+def test_interrupted_companion_gives_no_estimate(governor, governor_deck, monkeypatch, tmp_path):
     stop_companions(monkeypatch, "interrupt")
-    res = run_model(governor, "dynamic", dict(OPTIONS))
+    res = run_model(governor, "dynamic", dict(OPTIONS), deck=governor_deck[0])
     assert res.complete  # the run itself reached t_end
     est = res.summary["error_estimate"]
     assert est["position"] is None and "interrupted" in est["reason"]
@@ -67,20 +73,20 @@ def test_interrupted_companion_gives_no_estimate(governor, monkeypatch, tmp_path
         assert "interrupted" in str(f.attrs["error_estimate_reason"])
 
 
-def test_interrupted_companion_never_says_met(governor, monkeypatch):
+def test_interrupted_companion_never_says_met(governor, governor_deck, monkeypatch):
     stop_companions(monkeypatch, "interrupt")
-    res = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6))
+    res = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6), deck=governor_deck[0])
     acc = res.summary["accuracy"]
     assert acc["met"] is False and math.isnan(acc["estimate"])
     assert "interrupted" in acc["reason"]
 
 
 @pytest.fixture(scope="module")
-def governor_reference(governor):
+def governor_reference(governor, governor_deck):
     """The governor over OPTIONS' span at rtol 1e-12 (the run's error is 1.1e-11 m at
     1e-6: the reference is 1e5 times closer to the truth than that)."""
     ref = run_model(governor, "dynamic", dict(OPTIONS, rtol=1e-12, atol=1e-14,
-                                              error_estimate=False))
+                                              error_estimate=False), deck=governor_deck[0])
     return states_from_result(governor, ref)
 
 
@@ -93,8 +99,8 @@ def true_error(model, res, ref):
     ({"projection-dop853"}, "gcp-dop853"),  # the run's method fails at rtol/5 and rtol/2
     ({"projection-dop853@5"}, "projection-dop853"),  # fails at rtol/5 only
 ])
-def test_companion_failing_at_t0_is_replaced(governor, governor_reference, monkeypatch,
-                                              failing, used):
+def test_companion_failing_at_t0_is_replaced(governor, governor_deck, governor_reference,
+                                              monkeypatch, failing, used):
     """The run's own companion fails at its first step; another companion reaches every
     output, and its estimate is honest: within [0.1, 10] of the true error."""
     step = trajectory.Stepper.step
@@ -107,7 +113,7 @@ def test_companion_failing_at_t0_is_replaced(governor, governor_reference, monke
         return step(self)
 
     monkeypatch.setattr(trajectory.Stepper, "step", stopping)
-    res = run_model(governor, "dynamic", dict(OPTIONS))
+    res = run_model(governor, "dynamic", dict(OPTIONS), deck=governor_deck[0])
     est = res.summary["error_estimate"]
     assert est["position"] is not None
     assert f"with {used} at rtol" in est["method"] and "stopped" in est["method"]
@@ -116,10 +122,10 @@ def test_companion_failing_at_t0_is_replaced(governor, governor_reference, monke
     assert any(k.startswith("error/") for k in res.channels)
 
 
-def test_no_companion_reaching_the_end_gives_nan_not_a_partial_figure(governor, monkeypatch,
-                                                                      tmp_path):
+def test_no_companion_reaching_the_end_gives_nan_not_a_partial_figure(governor, governor_deck,
+                                                                      monkeypatch, tmp_path):
     stop_companions(monkeypatch, "fail")  # every method's companion
-    res = run_model(governor, "dynamic", dict(OPTIONS))
+    res = run_model(governor, "dynamic", dict(OPTIONS), deck=governor_deck[0])
     est = res.summary["error_estimate"]
     assert est["position"] is None and "does not cover the run" in est["reason"]
     assert "orientation" not in est and not any(k.startswith("error/") for k in res.channels)
@@ -127,11 +133,12 @@ def test_no_companion_reaching_the_end_gives_nan_not_a_partial_figure(governor, 
     write_result(res, out)
     with h5py.File(out) as f:
         assert math.isnan(f.attrs["error_estimate"])
-    acc = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6)).summary["accuracy"]
+    acc = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6),
+                    deck=governor_deck[0]).summary["accuracy"]
     assert acc["met"] is False and "does not cover the run" in acc["reason"]
 
 
-def test_accuracy_falls_back_from_the_decks_integrator(governor, monkeypatch):
+def test_accuracy_falls_back_from_the_decks_integrator(governor, governor_deck, monkeypatch):
     """A deck's integrator is a preference: when it cannot deliver (here every run of it
     fails at its first step, as gcp-dop853 did at rtol 3e-11 on a seven-body loop), the
     default does and the summary says so; an integrator asked for by the caller is a
@@ -144,17 +151,17 @@ def test_accuracy_falls_back_from_the_decks_integrator(governor, monkeypatch):
         return original(self)
 
     monkeypatch.setattr(trajectory.Stepper, "step", step)
-    spec = governor.spec
+    spec = governor_deck[0]
     monkeypatch.setitem(spec.analysis, "dynamic",
                         dict(spec.analysis.get("dynamic", {}), integrator="projection"))
-    res = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6))
+    res = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6), deck=governor_deck[0])
     acc = res.summary["accuracy"]
     assert res.complete and acc["integrator"] == DEFAULT and acc["met"]
     assert acc["estimate"] <= 1e-6
     assert "the deck's integrator projection could not deliver" in acc["fallback"]
     assert any("--accuracy" in w for w in res.summary["warnings"])
     required = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-6,
-                                                   integrator="projection"))
+                                                   integrator="projection"), deck=governor_deck[0])
     assert not required.complete
     assert required.summary["accuracy"]["integrator"] == "projection"
     assert required.summary["accuracy"]["met"] is False

@@ -8,6 +8,7 @@ from scipy.optimize import brentq
 
 from mbsim.analyses.linear import linear
 from mbsim.api import load_model, run_model
+from mbsim.options import run_options
 from mbsim.output import read_result, write_result
 
 GOVERNOR = Path(__file__).resolve().parents[2] / "models" / "governor.yaml"
@@ -17,7 +18,13 @@ G = 9.81
 def deck(tmp_path, text, name="m.yaml"):
     path = tmp_path / name
     path.write_text(text)
-    return load_model(path)[1]
+    return load_model(path)
+
+
+def linear_on(loaded, options):
+    """The linear analysis of ``loaded`` = (spec, model), with the deck's settings."""
+    spec, model = loaded
+    return linear(model, run_options("linear", spec, options))
 
 
 def pendulum_deck(m=2.0, L=0.5, Izz=0.1, c=0.0, theta0=0.0):
@@ -48,8 +55,8 @@ def test_compound_and_simple_pendulum_frequencies(tmp_path):
     simple pendulum, omega^2 = g / L.  Finite differences of exact accelerations: 1e-6."""
     for Izz in (0.1, 0.0):
         m, L = 2.0, 0.5
-        model = deck(tmp_path, pendulum_deck(m, L, Izz))
-        res = linear(model, {})
+        spec, model = deck(tmp_path, pendulum_deck(m, L, Izz))
+        res = linear(model, run_options("linear", spec, {}))
         lam = np.asarray(res.summary["eigenvalues"])
         w = np.sqrt(m * G * L / (Izz + m * L**2))
         assert lam.size == 2
@@ -87,7 +94,7 @@ forces:
 def test_spring_mass_damper_eigenvalues(tmp_path, c):
     """lambda = -c/2m +- sqrt((c/2m)^2 - k/m) (under-, over-damped), to 1e-6 relative."""
     m, k = 4.0, 100.0
-    res = linear(deck(tmp_path, smd_deck(m, k, c)), {})
+    res = linear_on(deck(tmp_path, smd_deck(m, k, c)), {})
     lam = np.sort_complex(np.asarray(res.summary["eigenvalues"]))
     ref = np.sort_complex(np.roots([m, c, k]).astype(complex))
     np.testing.assert_allclose(lam, ref, rtol=1e-6, atol=1e-6 * np.sqrt(k / m))
@@ -123,7 +130,7 @@ def test_sleeping_top_nutation_and_precession(tmp_path, omega3):
     top) iff C^2 omega3^2 > 4 A' m g l.  The analysis turns with the spin, where the same
     motion shows the frequency s - omega3."""
     A, C, m, l = 0.02, 0.04, 1.0, 0.1
-    res = linear(deck(tmp_path, top_deck(omega3, A, C, m, l)), {"about": "steady"})
+    res = linear_on(deck(tmp_path, top_deck(omega3, A, C, m, l)), {"about": "steady"})
     lam = np.asarray(res.summary["eigenvalues"])
     Ap = A + m * l**2
     s = np.roots([Ap, -C * omega3, m * G * l]).astype(complex)
@@ -144,12 +151,12 @@ def test_damped_pendulum_matches_a_small_amplitude_run(tmp_path):
     """Decay rate and period of a 0.01 rad swing of a damped pendulum (dynamic run, peaks
     and zero crossings of the bob's x) equal Re and Im of the eigenvalue within 1 %."""
     m, L, Izz, c = 2.0, 0.5, 0.1, 0.15
-    lam = np.asarray(linear(deck(tmp_path, pendulum_deck(m, L, Izz, c)), {})
+    lam = np.asarray(linear_on(deck(tmp_path, pendulum_deck(m, L, Izz, c)), {})
                      .summary["eigenvalues"])
     lam = lam[np.argmax(lam.imag)]
-    model = deck(tmp_path, pendulum_deck(m, L, Izz, c, theta0=0.01), "run.yaml")
+    spec, model = deck(tmp_path, pendulum_deck(m, L, Izz, c, theta0=0.01), "run.yaml")
     res = run_model(model, "dynamic", {"t_end": 4.0, "step": 0.005, "rtol": 1e-9,
-                                       "atol": 1e-11})
+                                       "atol": 1e-11}, deck=spec)
     t, x = res.t, res.channel("bodies/bob/r").data[:, 0]
     up = np.flatnonzero((x[:-1] < 0) & (x[1:] >= 0))
     tz = t[up] - x[up] * (t[up + 1] - t[up]) / (x[up + 1] - x[up])
@@ -167,8 +174,7 @@ def governor(C, after_step):
     sets = {"parameters.C": str(C), "parameters.k": "1000"}
     if after_step:
         sets.update({"bodies.collar.r": "[0, 0.05 - Te/C, 0]", "analysis.linear.t": "1"})
-    model = load_model(GOVERNOR, overrides=sets, scene="governed")[1]
-    return linear(model, {})
+    return linear_on(load_model(GOVERNOR, overrides=sets, scene="governed"), {})
 
 
 def test_governor_stability_and_threshold():
@@ -249,15 +255,15 @@ def test_double_pendulum_free_spins_are_neutral_and_named(tmp_path):
     planes) of the independent 2-DOF model to 1e-6."""
     from mbsim.analyses.equilibrium import equilibrium
 
-    model = deck(tmp_path, DOUBLE)
+    spec, model = deck(tmp_path, DOUBLE)
     w_ref = double_rod_frequencies()
-    s = equilibrium(model, {}).summary
+    s = equilibrium(model, run_options("equilibrium", spec, {})).summary
     assert s["stability"] == "neutral" and s["stable"] is True
     assert s["neutral_modes"] == ["link1: rotation about body axis z' (global (0, 0, 1))",
                                   "link2: rotation about body axis z' (global (0, 0, 1))"]
     np.testing.assert_allclose(s["frequencies"], np.repeat(w_ref, 2), rtol=1e-6)
     assert min(s["frequencies_hz"]) > 0
-    res = linear(model, {})
+    res = linear(model, run_options("linear", spec, {}))
     lam = np.asarray(res.summary["eigenvalues"])
     assert res.summary["stability"] == "neutral" and res.summary["stable"] is True
     assert sorted(res.summary["neutral_modes"]) == sorted(s["neutral_modes"])
@@ -285,9 +291,9 @@ def test_governor_growth_and_period_match_a_dynamic_run():
     later: the transient of the step)."""
     lam = np.asarray(governor(12500, True).summary["eigenvalues"])
     lam = lam[np.argmax(lam.imag)]
-    model = load_model(GOVERNOR, overrides={"parameters.C": "12500"}, scene="governed")[1]
+    spec, model = load_model(GOVERNOR, overrides={"parameters.C": "12500"}, scene="governed")
     res = run_model(model, "dynamic", {"t_end": 10.0, "step": 0.005, "rtol": 1e-9,
-                                       "atol": 1e-11})
+                                       "atol": 1e-11}, deck=spec)
     t, y = res.t, res.channel("bodies/collar/r").data[:, 1]
     inner = range(1, len(y) - 1)
     pk = [k for k in inner if y[k] > y[k - 1] and y[k] >= y[k + 1] and t[k] > 4]
@@ -304,8 +310,8 @@ def test_a_car_on_its_tires_has_plan_position_and_heading_neutral():
     turning it about the vertical costs nothing.  Those three directions (six zero
     eigenvalues: Jordan pairs) are named as rigid motions of the whole car; every other
     mode is a damped oscillation (suspension, wheel hop, the stabilizer bars' 188 rad/s)."""
-    _, model = load_model(Path(GOVERNOR).parent / "vehicle.yaml")
-    res = linear(model, {})
+    spec, model = load_model(Path(GOVERNOR).parent / "vehicle.yaml")
+    res = linear(model, run_options("linear", spec, {}))
     s = res.summary
     assert s["stability"] == "neutral" and s["stable"]
     assert s["neutral_modes"][:2] == ["translation of all moving bodies along global x",
@@ -386,8 +392,8 @@ def test_slender_rods_spin_is_neutral_by_structure(tmp_path):
     axial inertia made of them ('unstable').  The other eight eigenvalues match the
     small-angle Lagrangian of the two planes to 1e-6 (the finite differences' truncation,
     fd_check, is below 1e-8 here)."""
-    model = deck(tmp_path, SLENDER)
-    res = linear(model, {})
+    spec, model = deck(tmp_path, SLENDER)
+    res = linear(model, run_options("linear", spec, {}))
     s = res.summary
     assert s["stability"] == "neutral" and s["stable"] is True
     assert len(s["free_spins"]) == 2

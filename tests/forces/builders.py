@@ -23,13 +23,19 @@ def measure(name, type_, bodies=(), points=None, **data):
     return MeasureSpec(name, type_, tuple(bodies), ps, data)
 
 
-def two_body_model(forces, rng, joints=()):
-    """Bodies a and b at random poses (off any constraint), gravity off."""
+def two_body_deck(forces, rng, joints=()):
+    """The deck of :func:`two_body_model` (a DeckSpec: its forces can be edited and the deck
+    compiled again)."""
     bodies = [
         body("a", 2.0, (1, 2, 3), rng.normal(size=3), rng.normal(size=4)),
         body("b", 3.0, (2, 2, 1), rng.normal(size=3), rng.normal(size=4)),
     ]
-    return compile_model(spec(bodies, joints, forces=forces))
+    return spec(bodies, joints, forces=forces)
+
+
+def two_body_model(forces, rng, joints=()):
+    """Bodies a and b at random poses (off any constraint), gravity off."""
+    return compile_model(two_body_deck(forces, rng, joints))
 
 
 def revolute_ab(rng):

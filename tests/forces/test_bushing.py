@@ -38,8 +38,8 @@ def test_six_modes_at_the_centroid_match_the_closed_form():
     """Bushing at the centroid, axes along the principal axes: six decoupled oscillators,
     omega = sqrt(k/m), sqrt(kr/J), zeta = c / (2 sqrt(k m)).  Central differences on a force
     that is linear near the reference: fd error ~ eps |F| / h, far below 1e-6."""
-    _, model = load_model(DECK)
-    res = run_model(model, "linear", {})
+    spec, model = load_model(DECK)
+    res = run_model(model, "linear", {}, deck=spec)
     expected = np.sort_complex(
         np.array(
             [closed_form(M, k, c) for k, c in zip(K, C)]

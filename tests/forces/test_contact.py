@@ -71,7 +71,7 @@ def crossing_out(res) -> float:
 def test_undamped_hertz_impact_lasts_the_closed_form_time():
     """A ball at 1 m/s on the plane, no gravity, undamped Hertz contact: duration t_c to 1e-4
     (the issue asks 1 %; the run's own error is of order rtol), rebound speed 1 m/s."""
-    _, model = load_model(
+    spec, model = load_model(
         DECK,
         overrides={
             "gravity": "[0, 0, 0]",
@@ -82,7 +82,7 @@ def test_undamped_hertz_impact_lasts_the_closed_form_time():
     k = model.forces[0].k
     assert k == pytest.approx(4 / 3 * E / (2 * (1 - NU**2)) * np.sqrt(R), rel=1e-15)
     tc = hertz_duration(MASS, k, 1.0)
-    res = run_model(model, "dynamic", dict(OPT, t_end=1.5 * tc, step=tc / 400))
+    res = run_model(model, "dynamic", dict(OPT, t_end=1.5 * tc, step=tc / 400), deck=spec)
     assert res.complete
     assert crossing_out(res) == pytest.approx(tc, rel=1e-4)
     np.testing.assert_allclose(res.channel("bodies/ball/rd").data[-1], [0, 0, 1], atol=1e-5)
@@ -138,7 +138,7 @@ def test_restitution_laws(law):
     covers the three laws for e >= 0.5 (the 1-D integration here finds 0.3-1.3)."""
     k = hertz_stiffness(E, NU, R)
     for e in (0.5, 0.8, 0.95):
-        _, model = load_model(
+        spec, model = load_model(
             DECK,
             overrides={
                 "gravity": "[0, 0, 0]",
@@ -149,7 +149,7 @@ def test_restitution_laws(law):
         el = model.forces[0]
         el.alpha = RESTITUTION_ALPHA[law](e, 1.0)  # as the deck's restitution sets it
         tc = hertz_duration(MASS, k, 1.0)
-        res = run_model(model, "dynamic", dict(OPT, t_end=1.5 * tc, step=tc / 100))
+        res = run_model(model, "dynamic", dict(OPT, t_end=1.5 * tc, step=tc / 100), deck=spec)
         v_out = res.channel("bodies/ball/rd").data[-1, 2]
         e_law, _ = law_rebound(law, e, 1.0, k, MASS)
         assert v_out == pytest.approx(e_law, abs=1e-5), (law, e)
@@ -382,10 +382,10 @@ def test_end_stops_on_a_translational_and_a_revolute_joint():
     (J = 0.05 kg m^2, 2 rad/s) into its angle stop (k = 1e4 N m/rad^1.5), undamped, both
     starting at the stop: each impact lasts the Hertz-law time t_c(m or J, k, v) and returns
     the speed reversed (1e-4 relative, the run at rtol 1e-8)."""
-    _, model = load_model(STOPS)
+    spec, model = load_model(STOPS)
     t1 = hertz_duration(2.0, 1e7, 0.5)
     t2 = hertz_duration(0.05, 1e4, 2.0)
-    res = run_model(model, "dynamic", dict(OPT, t_end=1.5 * t2, step=t1 / 400))
+    res = run_model(model, "dynamic", dict(OPT, t_end=1.5 * t2, step=t1 / 400), deck=spec)
     assert res.complete
     assert leaves_the_stop(res, "end", 0.0) == pytest.approx(t1, rel=1e-4)
     assert leaves_the_stop(res, "limit", 0.0) == pytest.approx(t2, rel=1e-4)

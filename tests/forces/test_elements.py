@@ -19,6 +19,7 @@ from tests.forces.builders import (
     revolute_ab,
     rotations,
     tangent,
+    two_body_deck,
     two_body_model,
 )
 from tests.helpers import body, joint, pts, spec
@@ -43,11 +44,12 @@ def _case(type_):
     if type_ == "rsda":
         J = revolute_ab(rng)
         f = force("R", "rsda", ("a", "b"), dict(J.points), joint="REV", k=35.0, theta0=0.0)
-        m = two_body_model([f], rng, [J])
+        d = two_body_deck([f], rng, [J])
+        m = compile_model(d)
         # theta0 0.6 rad away from the current angle: far from the wrap at theta0 +- pi
         th, _ = m.forces[0].angle.terms(eq.State(m, m.q0))
         f.data["theta0"] = th + 0.6
-        return compile_model(m.spec)
+        return compile_model(d)
     if type_ == "force":
         f = force("F", "force", ("a",), {"a": rng.normal(size=3)}, vector=rng.normal(size=3))
         return two_body_model([f], rng)
@@ -69,11 +71,12 @@ def _case(type_):
                     nu=0.3, c_max=0.0, restitution_law="lankarani-nikravesh", mu=0.0,
                     v_slip=1e-3)  # fmt: skip
         f = force("C", "contact", ("a", "b"), {"a": [0, 0, 0], "b": [0, 0, 0]}, **data)
-        m = two_body_model([f], rng)
+        d = two_body_deck([f], rng)
+        m = compile_model(d)
         g, _, _ = m.forces[0].geometry_of(eq.State(m, m.q0))
         L = 2.0 - g
         f.data.update(radius=0.55 * L, radius_i=0.55 * L)
-        return compile_model(m.spec)
+        return compile_model(d)
     if type_ == "stop":  # a translational joint's travel beyond the upper stop
         P = rng.normal(size=3)
         Pb = rng.normal(size=(3, 3))
@@ -83,10 +86,11 @@ def _case(type_):
         data = dict(joint="T", joint_type="translational", k=1e3, exponent=1.5, c_max=0.0,
                     restitution_law="lankarani-nikravesh")  # fmt: skip
         f = force("S", "stop", ("a", "b"), dict(J.points), upper=1e9, **data)
-        m = two_body_model([f], rng, [J])
+        d = two_body_deck([f], rng, [J])
+        m = compile_model(d)
         s, *_ = m.forces[0].travel(eq.State(m, m.q0))
         f.data["upper"] = s - 0.3
-        return compile_model(m.spec)
+        return compile_model(d)
     raise KeyError(f"no test case for force type {type_!r}: add one")
 
 
@@ -99,7 +103,7 @@ def test_virtual_work(type_):
     for _ in range(3):
         dq = tangent(model, q, rng)
         if type_ == "torque":
-            T = np.asarray(model.spec.forces["T"].data["vector"])
+            T = np.asarray(model.forces[0].vec, float)  # the deck's vector (frame global)
             dphi = rotations(model, q, dq)
             expected = T @ (dphi[1] - dphi[0])  # +T on b (j), -T on a (i)
             assert abs(Q @ dq - expected) < 1e-12 * max(1, abs(expected))

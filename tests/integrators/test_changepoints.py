@@ -29,6 +29,7 @@ from mbsim.analyses.dynamic import dynamic
 from mbsim.api import load_model
 from mbsim.integrators import changepoints as cp
 from mbsim.integrators import rk
+from mbsim.options import run_options
 from tests.integrators import models as M
 from tests.integrators import references as R
 
@@ -38,8 +39,8 @@ CROSSING_ROUNDOFF = 1e-8  # m: the round-off floor of a slow or repeated passage
 
 
 def _run(**opt):
-    _, model = load_model(DECK, overrides={"parameters.w0": W0})
-    res = dynamic(model, dict({"t_end": 2.0}, **opt))
+    spec, model = load_model(DECK, overrides={"parameters.w0": W0})
+    res = dynamic(model, run_options("dynamic", spec, dict({"t_end": 2.0}, **opt)))
     err = float(R.position_error(res, M.parallel_fourbar_reference(res.t, W0)).max())
     return res, err
 
@@ -138,9 +139,10 @@ def test_dwell_at_the_dead_centre_below_round_off():
     cut its steps to 1e-7 s for the whole turn (40 s had not passed it; some 1e5 steps).
     Asserted: it completes within 2000 steps (max_steps: a crawl fails here instead of
     hanging) and within 10 rtol + CROSSING_ROUNDOFF of the reduction (measured 2.3e-11 m)."""
-    _, model = load_model(DECK, overrides={"parameters.w0": 10.505})
-    res = dynamic(model, {"t_end": 2.0, "integrator": "projection-dop853", "rtol": 1e-11,
-                          "error_estimate": False, "max_steps": 2000})
+    spec, model = load_model(DECK, overrides={"parameters.w0": 10.505})
+    res = dynamic(model, run_options("dynamic", spec, {
+        "t_end": 2.0, "integrator": "projection-dop853", "rtol": 1e-11,
+        "error_estimate": False, "max_steps": 2000}))
     assert res.complete, res.message
     err = float(R.position_error(res, M.parallel_fourbar_reference(res.t, 10.505)).max())
     assert err <= 10 * 1e-11 + CROSSING_ROUNDOFF, f"{err:.3g} m"

@@ -28,6 +28,7 @@ from mbsim.fast import stepper
 from mbsim.integrators import INTEGRATORS
 from mbsim.integrators.rk import StageFailure
 from mbsim.model import compile_model
+from mbsim.options import deck_context
 from tests.integrators import models as M
 from tests.integrators import references as R
 
@@ -58,8 +59,9 @@ def pair(model, q, qd, name, t_end, **opt):
 
 
 def deck_state(name):
-    model = compile_model(load_deck(ROOT / "models" / f"{name}.yaml"))
-    q, qd, _ = _initial(model, 0.0, {"tol": 1e-10})
+    spec = load_deck(ROOT / "models" / f"{name}.yaml")
+    model = compile_model(spec)
+    q, qd, _ = _initial(model, 0.0, {"tol": 1e-10}, deck_context(spec, shapes=False).hold)
     return model, q, qd
 
 

@@ -14,6 +14,7 @@ import pytest
 
 from mbsim.analyses.dynamic import dynamic
 from mbsim.api import load_model
+from mbsim.options import run_options
 from tests.integrators import models as M
 from tests.integrators import references as R
 from tests.integrators.test_changepoints import CROSSING_ROUNDOFF
@@ -83,8 +84,8 @@ def test_deck_through_eleven_flat_passages(integrator):
     10 of the error or of that bound, whichever is larger (an error at the round-off floor
     is not something an estimate of truncation error can follow)."""
     deck = Path(__file__).resolve().parents[2] / "models" / "parallel_fourbar.yaml"
-    _, model = load_model(deck)
-    res = dynamic(model, {"rtol": 1e-11, "integrator": integrator})
+    spec, model = load_model(deck)
+    res = dynamic(model, run_options("dynamic", spec, {"rtol": 1e-11, "integrator": integrator}))
     assert res.complete, res.message
     assert res.counters["tangent_stages"] > 0
     err = float(R.position_error(res, M.parallel_fourbar_reference(res.t)).max())
@@ -101,9 +102,9 @@ def test_seed_decks_never_switch():
     root = Path(__file__).resolve().parents[2] / "models"
     for deck, scene in (("governor.yaml", None), ("slider_crank.yaml", "free"),
                         ("four_bar.yaml", None)):
-        _, model = load_model(root / deck, scene=scene)
-        res = dynamic(model, {"t_end": 0.2, "integrator": "projection-dop853",
-                              "error_estimate": False})
+        spec, model = load_model(root / deck, scene=scene)
+        res = dynamic(model, run_options("dynamic", spec, {
+            "t_end": 0.2, "integrator": "projection-dop853", "error_estimate": False}))
         assert res.complete, (deck, res.message)
         assert res.counters["tangent_stages"] == 0, deck
         assert np.isfinite(res.channel("monitors/energy").data).all()
@@ -146,8 +147,9 @@ def test_swing_to_the_dead_centre(integrator, w0, rtol):
     Without it the Schur path's biased accelerations at the turn left 0.2 m at rtol 1e-6
     (w0 = 10.505, every method) and 4.6e-4, 2.2e-3, 6.4e-4 m at rtol 1e-8 (w0 = 10.51)."""
     deck = Path(__file__).resolve().parents[2] / "models" / "parallel_fourbar.yaml"
-    _, model = load_model(deck, overrides={"parameters.w0": w0})
-    res = dynamic(model, {"rtol": rtol, "integrator": integrator, "t_end": 2.0})
+    spec, model = load_model(deck, overrides={"parameters.w0": w0})
+    res = dynamic(model, run_options("dynamic", spec, {"rtol": rtol, "integrator": integrator,
+                                                       "t_end": 2.0}))
     assert res.complete, res.message
     assert res.counters["tangent_stages"] > 0
     err = float(R.position_error(res, M.parallel_fourbar_reference(res.t, w0)).max())

@@ -16,6 +16,7 @@ import pytest
 
 from mbsim.analyses.dynamic import dynamic
 from mbsim.api import load_model
+from mbsim.options import run_options
 from tests.integrators.test_singular_loops import run
 
 LADDER = (1e-3, 1e-4, 1e-5, 1e-7, 1e-9)
@@ -69,7 +70,8 @@ def test_smooth_decks_interpolate(deck, scene):
     """Away from singular positions the projection of an interpolated state converges in one
     Newton step (or its later steps are far below the tolerance): no output is integrated
     to, so the default's CPU is unchanged."""
-    _, model = load_model(deck, scene=scene)
-    res = dynamic(model, {"integrator": "projection-dop853", "error_estimate": False})
+    spec, model = load_model(deck, scene=scene)
+    res = dynamic(model, run_options("dynamic", spec, {"integrator": "projection-dop853",
+                                                       "error_estimate": False}))
     assert res.complete, res.message
     assert res.counters["output_steps"] == 0

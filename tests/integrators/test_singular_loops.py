@@ -27,6 +27,7 @@ import pytest
 from mbsim.analyses.dynamic import dynamic
 from mbsim.api import load_model
 from mbsim.integrators import INTEGRATORS
+from mbsim.options import run_options
 from tests.integrators import models as M
 from tests.integrators import references as R
 
@@ -140,9 +141,9 @@ def test_deck_is_the_builder():
     crank speed) follows the same reduction: position error of the default run at
     rtol 1e-8 below 1e-6 m over 1 s; the deck's model has rank 41 with 11 redundant rows,
     one degree of freedom."""
-    _, model = load_model("models/parallel_fourbar.yaml")
+    spec, model = load_model("models/parallel_fourbar.yaml")
     assert model.nq == 42 and model.m == 52
-    res = dynamic(model, {"t_end": 1.0, "rtol": 1e-8, "atol": 1e-10})
+    res = dynamic(model, run_options("dynamic", spec, {"t_end": 1.0, "rtol": 1e-8, "atol": 1e-10}))
     assert res.complete, res.message
     assert res.summary["rank"] == 41 and res.summary["dof"] == 1
     assert set(res.summary["redundant"]) <= {f"{k}{i}" for k in "GC" for i in range(4)}

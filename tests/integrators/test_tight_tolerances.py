@@ -24,6 +24,7 @@ import pytest
 from mbsim.analyses.dynamic import dynamic
 from mbsim.api import load_model
 from mbsim.integrators import INTEGRATORS
+from mbsim.options import run_options
 from tests.integrators import andrews as A
 
 DECK = "models/andrews.yaml"
@@ -56,8 +57,14 @@ def cases():
 
 
 @pytest.fixture(scope="module")
-def model():
-    return load_model(DECK)[1]
+def andrews_deck():
+    """(spec, model) of the deck; its runs take the deck's settings (run_options)."""
+    return load_model(DECK)
+
+
+@pytest.fixture(scope="module")
+def model(andrews_deck):
+    return andrews_deck[1]
 
 
 @pytest.fixture(scope="module")
@@ -75,10 +82,11 @@ def test_andrews_reference_meets_the_test_set(reference):
     assert np.abs(A.constraints(reference)).max() <= 1e-14
 
 
-def test_deck_is_the_test_set_mechanism(model):
+def test_deck_is_the_test_set_mechanism(model, andrews_deck):
     """The deck at its start: one degree of freedom with nine redundant rows (three planar
     loops), its centroids those of the test set's initial angles to round-off."""
-    res = dynamic(model, {"t_end": 1e-4, "step": 1e-4, "error_estimate": False})
+    res = dynamic(model, run_options("dynamic", andrews_deck[0], {
+        "t_end": 1e-4, "step": 1e-4, "error_estimate": False}))
     assert res.complete, res.message
     assert res.summary["dof"] == 1 and res.summary["rank"] == 55
     start = A.centroids(A.Y0)
@@ -87,12 +95,12 @@ def test_deck_is_the_test_set_mechanism(model):
 
 
 @pytest.mark.parametrize("name,key", cases())
-def test_tight_tolerance_at_a_regular_point(model, reference, name, key):
+def test_tight_tolerance_at_a_regular_point(model, andrews_deck, reference, name, key):
     rtol, atol = SETTINGS[key]
     opt = {"integrator": name, "rtol": rtol, "t_end": A.T_REF, "error_estimate": False}
     if atol is not None:
         opt["atol"] = atol
-    res = dynamic(model, opt)
+    res = dynamic(model, run_options("dynamic", andrews_deck[0], opt))
     assert res.complete, f"{name} {key}: {res.message}"
     assert res.t[-1] == pytest.approx(A.T_REF)
     err = A.position_error(res, reference)

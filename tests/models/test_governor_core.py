@@ -9,6 +9,7 @@ from click.testing import CliRunner
 from mbsim.analyses.assembly import assemble
 from mbsim.api import load_model
 from mbsim.cli import main
+from mbsim.options import deck_context
 from mbsim.rotations import from_axis_angle
 from tests.reference import equations as eq
 
@@ -24,10 +25,10 @@ TABLE = {
 
 
 def test_book_counts():
-    _, model = load_model(DECK)
+    spec, model = load_model(DECK)
     assert model.nq == 35  # nc = 5 bodies x 7 (ground counted, as in the book)
     assert model.m == 33  # nh = 2 distances + 3 x 5 revolute + 5 translational + 6 ground + 5
-    asm = assemble(model)
+    asm = assemble(model, hold=deck_context(spec, shapes=False).hold)
     assert asm.rank == 33 and asm.dof == 2 and not asm.redundant_items
 
 
@@ -51,7 +52,7 @@ def test_assembly_from_perturbed_estimates_returns_to_table(seed):
     """Perturb every body (except the held independent coordinates, spindle e2 and collar y)
     by up to 1 cm and 5 deg; assembly must come back to Table 12.6.6 within 1e-4."""
     rng = np.random.default_rng(seed)
-    _, model = load_model(DECK)
+    spec, model = load_model(DECK)
     q = model.q0.copy().reshape(model.nb, 7)
     for name in TABLE:
         b = model.body_index(name)
@@ -70,7 +71,7 @@ def test_assembly_from_perturbed_estimates_returns_to_table(seed):
                                    dp[0] * p[1:] + p[0] * dp[1:] + np.cross(dp[1:], p[1:])])
         if name in ("spindle",):
             q[b, 5] = model.q0[7 * b + 5]
-    asm = assemble(model, q.reshape(-1))
+    asm = assemble(model, q.reshape(-1), hold=deck_context(spec, shapes=False).hold)
     assert asm.residual < 1e-10
     qa = asm.q.reshape(model.nb, 7)
     for name, (r, p) in TABLE.items():

@@ -38,8 +38,8 @@ def linear(k: float, C: float, loaded: bool = False):
     overrides = {"parameters.k": str(k), "parameters.C": str(C)}
     if loaded:
         overrides |= {"bodies.collar.r": "[0, 0.05 - Te/C, 0]", "analysis.linear.t": "1"}
-    _, model = load_model(GOVERNOR, scene="governed", overrides=overrides)
-    return run_model(model, "linear", {})
+    spec, model = load_model(GOVERNOR, scene="governed", overrides=overrides)
+    return run_model(model, "linear", {}, deck=spec)
 
 
 def modes(result) -> tuple[float, complex]:
@@ -138,9 +138,10 @@ def test_eigenvalues_agree_with_a_small_amplitude_run():
     b sin w t); the first guesses come from the run (period from its upward crossings, no
     growth), not from the eigenvalues. Growth rate s and period 2 pi/w agree with the
     eigenvalue 0.0908 + 6.570i within 1 % (measured: 0.03 % and 0.005 %)."""
-    _, model = load_model(GOVERNOR, scene="governed", overrides={
+    spec, model = load_model(GOVERNOR, scene="governed", overrides={
         "parameters.k": "1000", "parameters.C": "12500", "parameters.Te": "0.05"})
-    r = run_model(model, "dynamic", {"t_end": 15.0, "step": 0.01, "rtol": 1e-8, "atol": 1e-11})
+    r = run_model(model, "dynamic", {"t_end": 15.0, "step": 0.01, "rtol": 1e-8, "atol": 1e-11},
+                  deck=spec)
     assert r.status == "complete", r.message
     t, y = r.t, r.channel("bodies/collar/r").data[:, 1]
     keep = t >= 5.0

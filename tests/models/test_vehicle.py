@@ -90,8 +90,8 @@ def test_reinterpreted_joints_keep_table_12_5_9():
 
 @pytest.fixture(scope="module")
 def equilibrium_model1():
-    _, model = load_model(DECK, scene="model1", overrides={"parameters.v0": "0"})
-    res = run_model(model, "equilibrium", {"method": "minimum"})
+    spec, model = load_model(DECK, scene="model1", overrides={"parameters.v0": "0"})
+    res = run_model(model, "equilibrium", {"method": "minimum"}, deck=spec)
     assert res.complete, res.message
     return model, res
 
@@ -125,8 +125,8 @@ def test_tire_loads_carry_the_weight(equilibrium_model1):
 def test_initial_state_is_the_model_2_equilibrium():
     """The deck starts at this model's own equilibrium (rounded), so a straight run at 55 mph
     starts without a transient; the minimum-energy search moves no body more than 0.1 mm."""
-    _, model = load_model(DECK, overrides={"parameters.v0": "0"})
-    res = run_model(model, "equilibrium", {"method": "minimum"})
+    spec, model = load_model(DECK, overrides={"parameters.v0": "0"})
+    res = run_model(model, "equilibrium", {"method": "minimum"}, deck=spec)
     r = np.array([res.channel(f"bodies/{b}/r").data[-1] for b in model.body_names])
     moved = np.abs(r - assemble(model).q.reshape(model.nb, 7)[:, :3]).max()
     assert moved < 1e-4

@@ -15,8 +15,8 @@ MODELS = Path(__file__).resolve().parents[2] / "models"
 
 
 def run(deck, mode, **options):
-    _, model = load_model(MODELS / deck)
-    return run_model(model, mode, options)
+    spec, model = load_model(MODELS / deck)
+    return run_model(model, mode, options, deck=spec)
 
 
 def legend_texts(fig):

@@ -24,7 +24,7 @@ def _page(tmp_path, deck, options):
     from mbsim.view.page import write_page
 
     _spec, model = load_model(MODELS / deck)
-    result = run_model(model, "dynamic", options)
+    result = run_model(model, "dynamic", options, deck=_spec)
     assert result.complete, result.message
     h5 = write_result(result, tmp_path / f"{Path(deck).stem}.h5")
     return write_page([h5], tmp_path / f"{Path(deck).stem}.html"), result

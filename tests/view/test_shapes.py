@@ -191,8 +191,9 @@ def test_shapes_and_layout_reach_the_result_file(tmp_path):
 
     (tmp_path / "deck.yaml").write_text(DECK.replace("{shape}", "shape: {type: box, size: "
                                                      "[1, 0.1, 0.1]}"))  # fmt: skip
-    _, model = load_model(tmp_path / "deck.yaml")
-    res = run_model(model, "dynamic", {"t_end": 0.1, "step": 0.05, "error_estimate": False})
+    spec, model = load_model(tmp_path / "deck.yaml")
+    res = run_model(model, "dynamic", {"t_end": 0.1, "step": 0.05, "error_estimate": False},
+                    deck=spec)
     write_result(res, tmp_path / "r.h5")
     scene = geometry.read_scene(read_result(tmp_path / "r.h5"))
     v, f, c = scene.meshes["arm"]
@@ -210,7 +211,8 @@ def test_a_body_without_recorded_pose_is_not_drawn(tmp_path):
 
     (tmp_path / "deck.yaml").write_text(DECK.replace("{shape}", "shape: {type: box, size: "
                                                      "[1, 0.1, 0.1]}"))  # fmt: skip
-    _, model = load_model(tmp_path / "deck.yaml")
-    res = run_model(model, "dynamic", {"t_end": 0.1, "step": 0.05, "error_estimate": False})
+    spec, model = load_model(tmp_path / "deck.yaml")
+    res = run_model(model, "dynamic", {"t_end": 0.1, "step": 0.05, "error_estimate": False},
+                    deck=spec)
     del res.channels["bodies/arm/p"]
     assert "arm" not in geometry.read_scene(res).meshes
