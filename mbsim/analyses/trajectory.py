@@ -39,11 +39,8 @@ from mbsim.errors import DeckError, Where
 from mbsim.events import MAX_EVENTS, MAX_EVENTS_AT_ONE_TIME, Context, Watch, extend_model
 from mbsim.integrators import ALIASES, INTEGRATORS, System
 from mbsim.integrators.base import NUMERICAL_ERRORS, IntegratorFailure
-<<<<<<< HEAD
 from mbsim.integrators.system import SolveError
-=======
 from mbsim.options import NO_DECK
->>>>>>> nodeck
 from mbsim.result import STATUS_INCOMPLETE
 
 log = logging.getLogger(__name__)

@@ -75,8 +75,8 @@ def exact(t):
 
 
 def run(path, **options):
-    _, model = load_model(str(path))
-    return model, run_model(model, "dynamic", options)
+    spec, model = load_model(str(path))
+    return model, run_model(model, "dynamic", options, deck=spec)
 
 
 def true_errors(model, res):

@@ -479,8 +479,8 @@ def test_a_fast_sphere_is_not_stepped_through(tmp_path, monkeypatch):
     elastic impact returns the ball at 100 m/s (to the loose rtol's 1e-3)."""
     path = tmp_path / "tunnel.yaml"
     path.write_text(TUNNEL)
-    _, model = load_model(str(path))
-    res = run_model(model, "dynamic", {"error_estimate": False})
+    spec, model = load_model(str(path))
+    res = run_model(model, "dynamic", {"error_estimate": False}, deck=spec)
     assert res.complete
     assert res.summary["events"][0]["event"] == "touch"
     # located on the interpolant of the step that crossed it, whose error is within the step's
@@ -488,5 +488,5 @@ def test_a_fast_sphere_is_not_stepped_through(tmp_path, monkeypatch):
     assert res.summary["events"][0]["t"] == pytest.approx(0.98 / 100, abs=2e-7)
     assert res.channel("bodies/ball/rd").data[-1, 0] == pytest.approx(100.0, rel=2e-3)
     monkeypatch.setattr(type(model.forces[0]), "step_limit", lambda self, mode, ctx: np.inf)
-    res = run_model(model, "dynamic", {"error_estimate": False})
+    res = run_model(model, "dynamic", {"error_estimate": False}, deck=spec)
     assert res.channel("bodies/ball/rd").data[-1, 0] == pytest.approx(-100.0)  # through
