@@ -11,8 +11,8 @@ the result file (``shapes/layout``, key ``glyphs`` of the force; docs/hdf5.md):
     {"shape": "sphere",  "body": b, "center": (3,), "radius": R}
     {"shape": "square",  "body": b, "center": (3,), "normal": (3,) unit, "size": edge,
                          "corners": (4, 3) in order round the square, "faces": [[0, 1, 2, 3]]}
-    {"shape": "box",     "body": b, "center": (3,), "axes": (3, 3) rows x, y, z unit, "size": edge,
-                         "corners": (8, 3), corner i + 2 j + 4 k at center + (i, j, k - 1/2) . axes size,
+    {"shape": "box",     "body": b, "center": (3,), "axes": (3, 3) rows x, y, z unit,
+                         "size": edge, "corners": (8, 3) (:func:`box_corners`),
                          "faces": (6, 4) corner indices, BOX_FACES}
     {"shape": "marker",  "body": b, "point": (3,)}
     {"shape": "segment", "body": b, "a": (3,), "b": (3,)}
@@ -102,8 +102,8 @@ def contact(force: ForceSpec, spec: DeckSpec, size: float) -> list[dict]:
         n = n / np.linalg.norm(n) if np.linalg.norm(n) > 0 else np.array([0.0, 0, 1])
         edge = max(PLANE_RADII * R, PLANE_SPAN * size)
         out.append({"shape": "square", "body": bi, "center": Pi, "normal": _vec(n),
-                    "size": edge, "corners": square_corners(Pi, n, edge), "faces": [[0, 1, 2, 3]], "color": PLANE_COLOR,
-                    "opacity": TRANSLUCENT})  # fmt: skip
+                    "size": edge, "corners": square_corners(Pi, n, edge), "faces": [[0, 1, 2, 3]],
+                    "color": PLANE_COLOR, "opacity": TRANSLUCENT})  # fmt: skip
     elif d.get("radius_i") is not None:
         out.append({"shape": "sphere", "body": bi, "center": Pi, "radius": float(d["radius_i"]),
                     "color": CONTACT_COLOR, "opacity": TRANSLUCENT})  # fmt: skip
