@@ -101,3 +101,82 @@ def test_bad_parameter_stops_a_run_before_it_starts(tmp_path):
     assert f"error: {bad}:" in r.output
     assert "forces.impact.radius: radius must be positive" in r.output
     assert not out.exists()
+
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "deck.md"
+HOST = """\
+title: host of the documented force blocks
+gravity: [0, 0, -9.81]
+bodies:
+  ground: {ground: true}
+  ball: {mass: 0.03, inertia: [1.0e-6, 1.0e-6, 1.0e-6], r: [0, 0, 0.05]}
+  block: {mass: 2.0, inertia: [0.3, 0.5, 0.7], r: [0.5, 0, 0.3]}
+  slider: {mass: 1.0, inertia: [0.01, 0.01, 0.01], r: [-0.05, 0.5, 0]}
+  shaft: {mass: 1.0, inertia: [0.01, 0.01, 0.01], r: [0, -0.5, 0]}
+joints:
+  T:
+    type: translational
+    bodies: [ground, slider]
+    points:
+      ground: {P: [0, 0.5, 0], Q: [1, 0.5, 0], R: [0, 1.5, 0]}
+      slider: {P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]}
+  CYL:
+    type: cylindrical
+    bodies: [ground, shaft]
+    points:
+      ground: {P: [0, -0.5, 0], Q: [0, -0.5, 1], R: [1, -0.5, 0]}
+      shaft: {P: [0, 0, 0], Q: [0, 0, 1], R: [1, 0, 0]}
+"""
+# each commented alternative of the block swapped in: (lines commented out, lines uncommented)
+ALTERNATIVES = {
+    "curves": (["k: [8000", "kr: [300"],
+               ["force_curves:", "torque_curves:", "{polynomial: [0, 20000]}]"]),
+    "hertz": (["k: 1.0e9"], ["E: 2.0e11", "nu: 0.3"]),
+    "restitution": (["c_max: 20", "depth: 1.0e-4"], ["restitution: 0.8", "v_impact: 1.0",
+                                                      "restitution_law: lankarani"]),
+    "sphere-sphere": (["normal: [0, 0, 1]"], ["radius_i: 0.02"]),
+    "stop-damping": (["restitution: 0.6", "v_impact: 0.5", "restitution_law: flores"],
+                     ["c_max: 50", "depth: 1.0e-4"]),
+    "stop-bodies": ([], ["bodies: [ground, slider]"]),
+}
+
+
+def documented_block() -> str:
+    text = DOC.read_text()
+    section = text[text.index("#### Every key of `bushing`, `contact` and `stop`"):]
+    return section[section.index("```yaml\n") + 8 : section.index("```\n")]
+
+
+def _swap(block: str, off: list[str], on: list[str]) -> str:
+    out = []
+    for line in block.splitlines():
+        body = line.lstrip()
+        pad = line[: len(line) - len(body)]
+        if any(body.startswith(key) for key in off):
+            line = pad + "# " + body
+        elif body.startswith("# ") and any(body[2:].lstrip().startswith(k) for k in on):
+            line = pad + body[2:]
+        out.append(line)
+    return "\n".join(out) + "\n"
+
+
+@pytest.mark.parametrize("variant", [None, *ALTERNATIVES])
+def test_documented_block_with_every_key_loads(variant):
+    from mbsim.deck import load_deck_text
+    from mbsim.model import compile_model
+
+    block = documented_block()
+    if variant == "sphere-sphere":
+        block = block.replace("geometry: sphere-plane", "geometry: sphere-sphere")
+    if variant is not None:
+        off, on = ALTERNATIVES[variant]
+        block = _swap(block, off, on)
+        lines = [line.lstrip() for line in block.splitlines()]
+        for key in on:  # the alternative is in use, the key it replaces commented out
+            assert any(line.startswith(key) for line in lines), key
+        for key in off:
+            assert not any(line.startswith(key) for line in lines), key
+    spec = load_deck_text(HOST + block)
+    assert set(spec.forces) == {"mount", "impact", "end", "spin_stop"}
+    model = compile_model(spec)
+    assert len(model.forces) == 4
