@@ -301,13 +301,18 @@ def read_scene(result) -> Scene:
             r[:, k] = result.channels[f"bodies/{b}/r"].data
         if f"bodies/{b}/p" in result.channels:
             p[:, k] = result.channels[f"bodies/{b}/p"].data
-    meshes = {}
+    meshes, unseen = {}, set()
     for b in names:
         key = f"shapes/{b}/"
         recorded = f"bodies/{b}/r" in result.channels and f"bodies/{b}/p" in result.channels
         if key + "faces" in arrays and recorded:  # a body `outputs: only:` left out: not drawn
             meshes[b] = tuple(np.asarray(arrays[key + q][0]) for q in ("vertices", "faces",
                                                                         "colors"))  # fmt: skip
+        if not recorded and not lay.get("bodies", {}).get(b, {}).get("ground"):
+            unseen.add(b)
+    for f in lay.get("forces", []) if unseen else ():  # nor are the glyphs on such a body
+        if "glyphs" in f:
+            f["glyphs"] = [g for g in f["glyphs"] if g["body"] not in unseen]
     return Scene(names, np.asarray(result.t, float), r, p, meshes, lay)
 
 

@@ -152,6 +152,18 @@ def test_a_force_without_a_drawing_keeps_its_spring_line(scene):
     assert drawn(scene, "spring") is None
 
 
+def test_glyphs_on_a_body_without_recorded_pose_are_not_drawn(result_file):
+    """`outputs: only:` may leave a body's pose out of the file: its glyphs are dropped, not
+    drawn at the origin; those on the ground stay."""
+    from mbsim.output import read_result
+
+    result = read_result(result_file)
+    del result.channels["bodies/ball/p"]
+    scene = geometry.read_scene(result)
+    assert [g["shape"] for g in drawn(scene, "impact")] == ["square"]  # on the ground
+    assert len(drawn(scene, "mount")) == 2
+
+
 def test_sphere_sphere_contact_draws_both_spheres():
     text = DECK.replace("geometry: sphere-plane", "geometry: sphere-sphere\n    radius_i: 0.02")
     text = text.replace("    normal: [0, 0, 2]\n", "")
