@@ -180,3 +180,24 @@ def test_documented_block_with_every_key_loads(variant):
     assert set(spec.forces) == {"mount", "impact", "end", "spin_stop"}
     model = compile_model(spec)
     assert len(model.forces) == 4
+
+
+def test_list_forces_and_info_show_the_new_elements():
+    """`mbsim list forces` has a line for each type; `mbsim info` a line for each element with
+    its own figures (the stiffnesses; a stop's range and its step limit, the contact's is in
+    test_contact.py)."""
+    runner = CliRunner()
+    listed = runner.invoke(main, ["list", "forces"])
+    assert listed.exit_code == 0, listed.output
+    types = {line.split()[0] for line in listed.output.splitlines() if line.strip()}
+    assert {"bushing", "contact", "stop"} <= types
+    info = runner.invoke(main, ["info", str(DATA / "bushing_block.yaml")])
+    assert info.exit_code == 0, info.output
+    assert re.search(r"bushing force: mount +ground, block; k = \[8000, 1\.2e\+04, 2e\+04\] N/m, "
+                     r"kr = \[300, 450, 900\] N m/rad", info.output), info.output  # fmt: skip
+    info = runner.invoke(main, ["info", str(DATA / "stops.yaml")])
+    assert info.exit_code == 0, info.output
+    assert re.search(r"stop force: end +ground, slider; -0\.1 \.\. 0 m, k = 1e\+07; .*keep h_max "
+                     r"below", info.output), info.output  # fmt: skip
+    assert re.search(r"stop force: limit +ground, disc; -1 \.\. 0 rad, k = 1e\+04; .*keep h_max "
+                     r"below", info.output), info.output  # fmt: skip
