@@ -231,8 +231,7 @@ def _overlay(draw, scene: Scene, i: int, cam: Camera, marks, lines, screen, ss: 
     for f in scene.layout.get("forces", []):
         for g in f.get("glyphs", ()):
             if g["body"] in index:
-                to_global = lambda P, b=g["body"]: glob(b, np.asarray(P, float))  # noqa: E731
-                _glyph(draw, g, to_global, cam, screen, ss)
+                _glyph(draw, g, scene.r[i, index[g["body"]]], rot[g["body"]], cam, screen, ss)
     for (bi, Pi), (bj, Pj), color in lines:
         if bi in index and bj in index:
             x, y = screen(np.array([glob(bi, Pi), glob(bj, Pj)]) @ cam.axes.T)
@@ -246,14 +245,15 @@ def _overlay(draw, scene: Scene, i: int, cam: Camera, marks, lines, screen, ss: 
                          outline=INK, width=ss)  # fmt: skip
 
 
-def _glyph(draw, g: dict, glob, cam: Camera, screen, ss: int) -> None:
-    """One primitive of mbsim.view.glyphs, ``glob`` taking its body-frame points to global:
-    squares and boxes as the outlines of their faces, spheres as their outline circle (the
-    orthographic projection of a sphere), markers as dots, segments as lines."""
+def _glyph(draw, g: dict, r: np.ndarray, A_body: np.ndarray, cam: Camera, screen,
+           ss: int) -> None:  # fmt: skip
+    """One primitive of mbsim.view.glyphs on a body at centroid r (3,) and orientation A_body
+    (3, 3): squares and boxes as the outlines of their faces, spheres as their outline circle
+    (the orthographic projection of a sphere), markers as dots, segments as lines."""
     color = tuple(int(g["color"][i : i + 2], 16) for i in (1, 3, 5))
 
-    def xy(P):
-        x, y = screen(glob(P) @ cam.axes.T)
+    def xy(P):  # body frame -> pixel (Haug eq. 6.3.20 for the global point)
+        x, y = screen((r + A_body @ np.asarray(P, float)) @ cam.axes.T)
         return float(x), float(y)
 
     shape = g["shape"]

@@ -25,47 +25,119 @@ CASES = [
     # negative damping
     ("bushing_block.yaml", "c: [4,", "c: [-4,", "forces.mount.c", "must not be negative"),
     ("bushing_block.yaml", "cr: [0.2,", "cr: [-0.2,", "forces.mount.cr", "must not be negative"),
-    ("ball_drop.yaml", "nu: 0.3", "nu: 0.3\n    c_max: -10\n    depth: 1.0e-4",
-     "forces.impact.c_max", "must be >= 0"),
-    ("stops.yaml", "k: 1.0e4", "k: 1.0e4\n    c_max: -3\n    depth: 1.0e-3",
-     "forces.limit.c_max", "must be >= 0"),
-    ("ball_drop.yaml", "nu: 0.3", "nu: 0.3\n    c_max: 10\n    depth: -1.0e-4",
-     "forces.impact.depth", "must be positive"),
+    (
+        "ball_drop.yaml",
+        "nu: 0.3",
+        "nu: 0.3\n    c_max: -10\n    depth: 1.0e-4",
+        "forces.impact.c_max",
+        "must be >= 0",
+    ),
+    (
+        "stops.yaml",
+        "k: 1.0e4",
+        "k: 1.0e4\n    c_max: -3\n    depth: 1.0e-3",
+        "forces.limit.c_max",
+        "must be >= 0",
+    ),
+    (
+        "ball_drop.yaml",
+        "nu: 0.3",
+        "nu: 0.3\n    c_max: 10\n    depth: -1.0e-4",
+        "forces.impact.depth",
+        "must be positive",
+    ),
     # radius, exponent, Poisson's ratio, speeds
     ("ball_drop.yaml", "radius: R", "radius: -R", "forces.impact.radius", "must be positive"),
     ("ball_drop.yaml", "radius: R", "radius: 0", "forces.impact.radius", "must be positive"),
-    ("ball_drop.yaml", "normal: [0, 0, 1]", "radius_i: -0.01", "forces.impact.radius_i",
-     "radius_i goes with sphere-sphere"),
-    ("ball_drop.yaml", "geometry: sphere-plane", "geometry: sphere-sphere",
-     "forces.impact.normal", "normal goes with sphere-plane"),
-    ("ball_drop.yaml", ("geometry: sphere-plane", "normal: [0, 0, 1]"),
-     ("geometry: sphere-sphere", "radius_i: -0.01"), "forces.impact.radius_i",
-     "radius_i must be positive"),
-    ("stops.yaml", "k: 1.0e4", "k: 1.0e4\n    exponent: -1", "forces.limit.exponent",
-     "must be positive"),
+    (
+        "ball_drop.yaml",
+        "normal: [0, 0, 1]",
+        "radius_i: -0.01",
+        "forces.impact.radius_i",
+        "radius_i goes with sphere-sphere",
+    ),
+    (
+        "ball_drop.yaml",
+        "geometry: sphere-plane",
+        "geometry: sphere-sphere",
+        "forces.impact.normal",
+        "normal goes with sphere-plane",
+    ),
+    (
+        "ball_drop.yaml",
+        ("geometry: sphere-plane", "normal: [0, 0, 1]"),
+        ("geometry: sphere-sphere", "radius_i: -0.01"),
+        "forces.impact.radius_i",
+        "radius_i must be positive",
+    ),
+    (
+        "stops.yaml",
+        "k: 1.0e4",
+        "k: 1.0e4\n    exponent: -1",
+        "forces.limit.exponent",
+        "must be positive",
+    ),
     ("ball_drop.yaml", "nu: 0.3", "nu: 0.7", "forces.impact.nu", "must lie in (-1, 0.5)"),
-    ("ball_drop.yaml", "nu: 0.3", "nu: 0.3\n    v_slip: -1", "forces.impact.v_slip",
-     "must be positive"),
-    ("ball_drop.yaml", "nu: 0.3", "nu: 0.3\n    restitution: 0.5\n    v_impact: -1",
-     "forces.impact.v_impact", "must be positive"),
-    ("ball_drop.yaml", "nu: 0.3", "nu: 0.3\n    restitution: 1.5\n    v_impact: 1",
-     "forces.impact.restitution", "must lie in (0, 1]"),
+    (
+        "ball_drop.yaml",
+        "nu: 0.3",
+        "nu: 0.3\n    v_slip: -1",
+        "forces.impact.v_slip",
+        "must be positive",
+    ),
+    (
+        "ball_drop.yaml",
+        "nu: 0.3",
+        "nu: 0.3\n    restitution: 0.5\n    v_impact: -1",
+        "forces.impact.v_impact",
+        "must be positive",
+    ),
+    (
+        "ball_drop.yaml",
+        "nu: 0.3",
+        "nu: 0.3\n    restitution: 1.5\n    v_impact: 1",
+        "forces.impact.restitution",
+        "must lie in (0, 1]",
+    ),
     # mu < 0
     ("ball_drop.yaml", "nu: 0.3", "nu: 0.3\n    mu: -0.2", "forces.impact.mu", "must be >= 0"),
     # unknown law or geometry
-    ("ball_drop.yaml", "nu: 0.3",
-     "nu: 0.3\n    restitution: 0.5\n    v_impact: 1\n    restitution_law: newton",
-     "forces.impact.restitution_law", "hunt-crossley | lankarani-nikravesh | flores"),
-    ("stops.yaml", "k: 1.0e4",
-     "k: 1.0e4\n    restitution: 0.5\n    v_impact: 1\n    restitution_law: newton",
-     "forces.limit.restitution_law", "hunt-crossley | lankarani-nikravesh | flores"),
-    ("ball_drop.yaml", "geometry: sphere-plane", "geometry: sphere-box",
-     "forces.impact.geometry", "sphere-plane | sphere-sphere"),
+    (
+        "ball_drop.yaml",
+        "nu: 0.3",
+        "nu: 0.3\n    restitution: 0.5\n    v_impact: 1\n    restitution_law: newton",
+        "forces.impact.restitution_law",
+        "hunt-crossley | lankarani-nikravesh | flores",
+    ),
+    (
+        "stops.yaml",
+        "k: 1.0e4",
+        "k: 1.0e4\n    restitution: 0.5\n    v_impact: 1\n    restitution_law: newton",
+        "forces.limit.restitution_law",
+        "hunt-crossley | lankarani-nikravesh | flores",
+    ),
+    (
+        "ball_drop.yaml",
+        "geometry: sphere-plane",
+        "geometry: sphere-box",
+        "forces.impact.geometry",
+        "sphere-plane | sphere-sphere",
+    ),
     # a stop on a joint type it does not support, or a motion its joint does not allow
-    ("stops.yaml", "type: revolute", "type: spherical", "forces.limit.joint",
-     "needs a translational or revolute or cylindrical joint; REV is spherical"),
-    ("stops.yaml", "joint: T", "joint: T\n    motion: rotation", "forces.end.motion",
-     "allows only motion: translation"),
+    (
+        "stops.yaml",
+        "type: revolute",
+        "type: spherical",
+        "forces.limit.joint",
+        "needs a translational or revolute or cylindrical joint; REV is spherical",
+    ),
+    (
+        "stops.yaml",
+        "joint: T",
+        "joint: T\n    motion: rotation",
+        "forces.end.motion",
+        "allows only motion: translation",
+    ),
     ("stops.yaml", "lower: -0.1", "lower: 0.1", "forces.end.lower", "lower must be below upper"),
 ]
 
@@ -129,21 +201,27 @@ joints:
 """
 # each commented alternative of the block swapped in: (lines commented out, lines uncommented)
 ALTERNATIVES = {
-    "curves": (["k: [8000", "kr: [300"],
-               ["force_curves:", "torque_curves:", "{polynomial: [0, 20000]}]"]),
+    "curves": (
+        ["k: [8000", "kr: [300"],
+        ["force_curves:", "torque_curves:", "{polynomial: [0, 20000]}]"],
+    ),
     "hertz": (["k: 1.0e9"], ["E: 2.0e11", "nu: 0.3"]),
-    "restitution": (["c_max: 20", "depth: 1.0e-4"], ["restitution: 0.8", "v_impact: 1.0",
-                                                      "restitution_law: lankarani"]),
+    "restitution": (
+        ["c_max: 20", "depth: 1.0e-4"],
+        ["restitution: 0.8", "v_impact: 1.0", "restitution_law: lankarani"],
+    ),
     "sphere-sphere": (["normal: [0, 0, 1]"], ["radius_i: 0.02"]),
-    "stop-damping": (["restitution: 0.6", "v_impact: 0.5", "restitution_law: flores"],
-                     ["c_max: 50", "depth: 1.0e-4"]),
+    "stop-damping": (
+        ["restitution: 0.6", "v_impact: 0.5", "restitution_law: flores"],
+        ["c_max: 50", "depth: 1.0e-4"],
+    ),
     "stop-bodies": ([], ["bodies: [ground, slider]"]),
 }
 
 
 def documented_block() -> str:
     text = DOC.read_text()
-    section = text[text.index("#### Every key of `bushing`, `contact` and `stop`"):]
+    section = text[text.index("#### Every key of `bushing`, `contact` and `stop`") :]
     return section[section.index("```yaml\n") + 8 : section.index("```\n")]
 
 
