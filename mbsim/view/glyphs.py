@@ -22,7 +22,8 @@ needs of them), each with ``color`` ('#rrggbb') and ``opacity`` (1 opaque; the v
 translucent, the frame renderer draws their outlines).  A force type without a drawing is drawn
 as before: a line between its two points (a spring) or a marker at its point.  A new force
 type's drawing is one line in :data:`DRAWINGS` (and, when it needs a new primitive, that
-primitive in each renderer).
+primitive in each renderer); an element that acts in a joint (joint friction) can take
+:func:`joint_marker`: ``"friction": joint_marker``.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ BUSHING_COLOR = "#9467bd"  # purple
 CONTACT_COLOR = "#17becf"  # cyan: the contact spheres
 PLANE_COLOR = "#8c9db5"  # grey-blue: the contact plane
 STOP_COLOR = "#d62728"  # red
+JOINT_ELEMENT_COLOR = "#8c564b"  # brown: an element acting in a joint (joint_marker)
 TRANSLUCENT = 0.35  # opacity of the contact's plane and spheres (they overlap the body shapes)
 BUSHING_EDGE = 0.08  # edge of a bushing's box / the mechanism's size
 PLANE_RADII = 8.0  # edge of a contact plane's square: at least this many sphere radii ...
@@ -136,6 +138,13 @@ def stop(force: ForceSpec, spec: DeckSpec, size: float) -> list[dict]:
             out.append({"shape": "marker", "body": bi, "point": _vec(fr["P"] + s * fr["f"]),
                         "color": STOP_COLOR, "opacity": 1.0})  # fmt: skip
     return out
+
+
+def joint_marker(force: ForceSpec, spec: DeckSpec, size: float) -> list[dict]:
+    """A marker at the element's point P on each of its bodies (for an element on a joint: the
+    joint's points), for elements that act in a joint and have no geometry of their own."""
+    return [{"shape": "marker", "body": body, "point": _vec(ps.P), "color": JOINT_ELEMENT_COLOR,
+             "opacity": 1.0} for body, ps in force.points.items() if ps is not None]  # fmt: skip
 
 
 DRAWINGS: dict[str, Callable[[ForceSpec, DeckSpec, float], list[dict]]] = {

@@ -182,6 +182,11 @@ def test_every_drawing_is_a_force_type_and_a_new_one_is_one_entry(monkeypatch):
     monkeypatch.setitem(glyphs.DRAWINGS, "tsda", lambda force, spec, size: [mark])
     (spring,) = [f for f in geometry.layout(spec)["forces"] if f["name"] == "spring"]
     assert spring["glyphs"] == [mark]
+    # an element in a joint (the stop here, friction to come): markers at the joint's points
+    monkeypatch.setitem(glyphs.DRAWINGS, "stop", glyphs.joint_marker)
+    (limit,) = [f for f in geometry.layout(spec)["forces"] if f["name"] == "limit"]
+    assert [(g["shape"], g["body"], g["point"]) for g in limit["glyphs"]] == [
+        ("marker", "ground", [0.0, -0.5, 0.2]), ("marker", "disc", [0.0, 0.0, 0.0])]
 
 
 def test_viewer_page_carries_the_glyphs(result_file, tmp_path):
