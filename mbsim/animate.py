@@ -18,6 +18,9 @@ point, in body coordinates, is attached to its body.  Each frame draws
 - each massless link (``distance``, ``spherical-spherical``, ``revolute-spherical`` joints,
   ``distance`` drivers) as a dashed line between its two points;
 - each TSDA as a dotted line between its points;
+- the force elements with a drawing of their own (mbsim.view.glyphs) as lines in their
+  colours: a contact's plane (the square's outline) and spheres (their outline circles), a
+  bushing's boxes (their edges), a stop's limits (dots, or rays for an angle);
 - the points on ground bodies as fixed triangles, and the guide of each translational or
   cylindrical joint with ground as a thin line over the travel of the moving body;
 - a body whose points all lie at its centroid (a slider) as a square;
@@ -58,6 +61,7 @@ class Sketch:
     # guides: (ground body, P, axis f (3,), moving body, its joint point), body coordinates
     rails: list[tuple[str, np.ndarray, np.ndarray, str, np.ndarray]] = field(default_factory=list)
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    glyphs: list[dict] = field(default_factory=list)  # mbsim.view.glyphs primitives
 
 
 def _add_point(points: dict[str, list], body: str, P) -> None:
@@ -96,7 +100,13 @@ def sketch_of(spec) -> Sketch:
             links.append((bi, drv.points[bi].P, bj, drv.points[bj].P))
         for body, ps in drv.points.items():
             attach(body, ps.P)
+    from mbsim.view.geometry import mechanism_size
+    from mbsim.view.glyphs import force_glyphs
+
+    glyphs = []
+    size = mechanism_size(spec) if spec.forces else 1.0
     for force in spec.forces.values():
+        glyphs += force_glyphs(force, spec, size) or []
         if force.type == "tsda":
             bi, bj = force.bodies
             springs.append((bi, force.points[bi].P, bj, force.points[bj].P))
@@ -125,6 +135,7 @@ def sketch_of(spec) -> Sketch:
         ground=fixed,
         rails=rails,
         up=up,
+        glyphs=glyphs,
     )
 
 
@@ -170,6 +181,7 @@ def frames(result: Result, sketch: Sketch, view: str, every: int = 1):
     names = set(sketch.bodies) | {b for b, _ in sketch.ground}
     names |= {b for item in sketch.links + sketch.springs for b in (item[0], item[2])}
     names |= {b for item in sketch.rails for b in (item[0], item[3])}
+    names |= {g["body"] for g in sketch.glyphs}
     poses = _poses(result, sorted(names))
     rails = []  # static: the guide over the whole travel of the moving point
     for g, P, f, b, Pb in sketch.rails:
@@ -192,9 +204,34 @@ def frames(result: Result, sketch: Sketch, view: str, every: int = 1):
         springs = [(P2 @ _glob(poses, bi, Pi, k), P2 @ _glob(poses, bj, Pj, k))
                    for bi, Pi, bj, Pj in sketch.springs]  # fmt: skip
         ground = np.array([P2 @ _glob(poses, g, P, k) for g, P in sketch.ground]).reshape(-1, 2)
+        glyphs = [_glyph_line(g, lambda P, b=g["body"], k=k: P2 @ _glob(poses, b, np.asarray(P), k))
+                  for g in sketch.glyphs]  # fmt: skip
         out.append({"t": float(result.t[k]), "bodies": bodies, "links": pair,
-                    "springs": springs, "ground": ground, "rails": rails})  # fmt: skip
+                    "springs": springs, "ground": ground, "rails": rails,
+                    "glyphs": glyphs})  # fmt: skip
     return out
+
+
+CIRCLE = 48  # points round a sphere's outline
+
+
+def _glyph_line(g: dict, to2) -> np.ndarray:
+    """(n, 2) the projected polyline of one primitive (mbsim.view.glyphs), NaN rows between
+    its pieces: the outline of each face of a square or box, a sphere's outline circle (its
+    orthographic projection: the rows of P2 are orthonormal), a segment; a marker's point."""
+    shape = g["shape"]
+    if shape in ("square", "box"):
+        c = [to2(P) for P in g["corners"]]
+        rows = []
+        for face in g["faces"]:
+            rows += [c[i] for i in (*face, face[0])] + [np.full(2, np.nan)]
+        return np.array(rows)
+    if shape == "sphere":
+        a = 2 * np.pi * np.arange(CIRCLE + 1) / CIRCLE
+        return to2(g["center"]) + g["radius"] * np.c_[np.cos(a), np.sin(a)]
+    if shape == "segment":
+        return np.array([to2(g["a"]), to2(g["b"])])
+    return np.array([to2(g["point"])])  # marker
 
 
 def _turn(o, a, b) -> float:
@@ -230,6 +267,7 @@ def _limits(frame_list) -> tuple[np.ndarray, np.ndarray]:
         for a, b in f["links"] + f["springs"] + f["rails"]:
             pts += [a[None, :], b[None, :]]
         pts.append(f["ground"])
+        pts += [xy[np.isfinite(xy).all(axis=1)] for xy in f.get("glyphs", ())]
     allp = np.vstack([p for p in pts if len(p)])
     lo, hi = allp.min(axis=0), allp.max(axis=0)
     span = max(float(np.max(hi - lo)), 1e-9)
@@ -345,6 +383,9 @@ def animate_result(
     links = [ax.plot([], [], "--", color="0.3", lw=1.5)[0] for _ in first["links"]]
     springs = [ax.plot([], [], ":", color="0.45", lw=2)[0] for _ in first["springs"]]
     ground = ax.plot([], [], "^", color="k", ms=7, ls="none")[0]
+    glyphs = [ax.plot([], [], "o" if g["shape"] == "marker" else "-", color=g["color"], ms=5,
+                      lw=1 if g.get("opacity", 1) < 1 else 1.5, zorder=4)[0]
+              for g in sketch.glyphs]  # fmt: skip
     stamp = ax.text(0.02, 0.97, "", transform=ax.transAxes, va="top", family="monospace",
                     fontsize="small")
     time_label = "t" if result.mode != "linear-mode" else "phase t"
@@ -371,6 +412,8 @@ def animate_result(
         for line, (a, b) in zip(springs, f["springs"]):
             line.set_data([a[0], b[0]], [a[1], b[1]])
         ground.set_data(f["ground"][:, 0], f["ground"][:, 1])
+        for line, xy in zip(glyphs, f["glyphs"]):
+            line.set_data(xy[:, 0], xy[:, 1])
         stamp.set_text(f"{time_label} = {f['t']:.3f} s")
         return []
 

@@ -10,6 +10,9 @@ VTK export draw (docs/hdf5.md, "Shapes"), so they need only the ``.h5``:
     shapes/<body>/colors    (nv, 3) float64  RGB in [0, 1]
     shapes/layout           (1,) string      JSON: bodies, joints, forces, points (below)
 
+Force elements with a drawing of their own (bushing, contact, stop) carry it in the layout as
+primitives in body frames (mbsim.view.glyphs: the registry from force type to drawing).
+
 A body without ``shape:`` gets one derived from its inertia and its joints
 (:func:`default_shapes`): the box of uniform density with the body's mass and principal
 moments, in its principal axes, plus a rod from the centroid to every joint or force point
@@ -187,9 +190,29 @@ def body_mesh(pieces: list[ShapeSpec], color: str) -> tuple[np.ndarray, np.ndarr
     return np.concatenate(vs), np.concatenate(fs).astype(np.int32), np.concatenate(cs)
 
 
+def mechanism_size(spec: DeckSpec) -> float:
+    """The mechanism's size (m) at its initial estimates: the largest spread, along any global
+    axis, of the bodies' centroids and their joint and force points; when those all coincide
+    (a body on a bushing at its centroid), the largest edge of a body's inertia box."""
+    from mbsim.rotations import A
+
+    pts = [np.asarray(b.r, float) for b in spec.bodies.values()]
+    for name, local in attachment_points(spec).items():
+        body = spec.bodies[name]
+        pts += [body.r + A(body.p) @ P for P in local]
+    spread = float(np.ptp(np.array(pts), axis=0).max()) if pts else 0.0
+    if spread > 0:
+        return spread
+    edges = [inertia_box(b.mass, b.inertia)[0].max() for b in spec.bodies.values() if not b.ground]
+    return float(max(edges, default=0.0)) or 1.0
+
+
 def layout(spec: DeckSpec) -> dict:
     """What the viewer draws besides the shapes: joints (their points P on each body and the
-    axis P -> Q where the joint has one), force elements and output points, all in body frames."""
+    axis P -> Q where the joint has one), force elements (with ``glyphs``, mbsim.view.glyphs,
+    where their type has a drawing) and output points, all in body frames."""
+    from mbsim.view.glyphs import force_glyphs
+
     def pointset(ps):
         d = {"P": np.asarray(ps.P, float).tolist()}
         if ps.Q is not None:
@@ -201,13 +224,19 @@ def layout(spec: DeckSpec) -> dict:
                  "points": [pointset(ps) for ps in it.points.values()]}
                 for it in group.values()]  # fmt: skip
 
+    forces = items(spec.forces)
+    size = mechanism_size(spec) if spec.forces else 1.0
+    for entry, force in zip(forces, spec.forces.values()):
+        glyphs = force_glyphs(force, spec, size)
+        if glyphs is not None:
+            entry["glyphs"] = glyphs
     return {
         "gravity": np.asarray(spec.gravity, float).tolist(),  # m/s^2: the views' 'up' opposes it
         "bodies": {b.name: {"ground": bool(b.ground), "mass": float(b.mass)}
                    for b in spec.bodies.values()},
         "joints": items(spec.joints),
         "drivers": items(spec.drivers),
-        "forces": items(spec.forces),
+        "forces": forces,
         "points": [{"name": o.name, "body": o.body, "point": np.asarray(o.point).tolist()}
                    for o in spec.outputs.values()],  # fmt: skip
     }
@@ -272,13 +301,18 @@ def read_scene(result) -> Scene:
             r[:, k] = result.channels[f"bodies/{b}/r"].data
         if f"bodies/{b}/p" in result.channels:
             p[:, k] = result.channels[f"bodies/{b}/p"].data
-    meshes = {}
+    meshes, unseen = {}, set()
     for b in names:
         key = f"shapes/{b}/"
         recorded = f"bodies/{b}/r" in result.channels and f"bodies/{b}/p" in result.channels
         if key + "faces" in arrays and recorded:  # a body `outputs: only:` left out: not drawn
             meshes[b] = tuple(np.asarray(arrays[key + q][0]) for q in ("vertices", "faces",
                                                                         "colors"))  # fmt: skip
+        if not recorded and not lay.get("bodies", {}).get(b, {}).get("ground"):
+            unseen.add(b)
+    for f in lay.get("forces", []) if unseen else ():  # nor are the glyphs on such a body
+        if "glyphs" in f:
+            f["glyphs"] = [g for g in f["glyphs"] if g["body"] not in unseen]
     return Scene(names, np.asarray(result.t, float), r, p, meshes, lay)
 
 

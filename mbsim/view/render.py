@@ -5,7 +5,9 @@ file) at its centroid and orientation, projects them orthographically onto the v
 and fills those facing the viewer far to near (back-face culling and the painter's
 algorithm; a mesh wound inwards is turned round first), each shaded by the angle between its
 normal and the line of sight; a ground grid under the mechanism, joint points and the lines
-of distance joints and springs go with it.  One frame of the vehicle (about 8000 triangles)
+of distance joints and springs go with it, and the force elements with a drawing of their own
+(mbsim.view.glyphs: a contact's plane and spheres, a bushing's boxes, a stop's limits) as
+outlines over the shapes.  One frame of the vehicle (about 8000 triangles)
 takes some 10 ms of CPU; the 2D sketch it replaces, 200 ms (benchmarks/animation.py).
 
 Views: ``iso`` looks at the mechanism from above and in front, up against gravity (as the
@@ -211,6 +213,8 @@ def _marks(scene: Scene):
             lines.append((*[(b, np.asarray(ps["P"], float)) for b, ps in
                             zip(j["bodies"], j["points"])], INK))  # fmt: skip
     for f in lay.get("forces", []):
+        if "glyphs" in f:  # drawn by _glyph
+            continue
         if len(f["bodies"]) == 2 and len(f["points"]) == 2:
             lines.append((*[(b, np.asarray(ps["P"], float)) for b, ps in
                             zip(f["bodies"], f["points"])], SPRING))  # fmt: skip
@@ -224,6 +228,10 @@ def _overlay(draw, scene: Scene, i: int, cam: Camera, marks, lines, screen, ss: 
     def glob(b, P):
         return scene.r[i, index[b]] + rot[b] @ P
 
+    for f in scene.layout.get("forces", []):
+        for g in f.get("glyphs", ()):
+            if g["body"] in index:
+                _glyph(draw, g, scene.r[i, index[g["body"]]], rot[g["body"]], cam, screen, ss)
     for (bi, Pi), (bj, Pj), color in lines:
         if bi in index and bj in index:
             x, y = screen(np.array([glob(bi, Pi), glob(bj, Pj)]) @ cam.axes.T)
@@ -235,6 +243,34 @@ def _overlay(draw, scene: Scene, i: int, cam: Camera, marks, lines, screen, ss: 
         for xk, yk in zip(x.tolist(), y.tolist()):
             draw.ellipse([xk - rad, yk - rad, xk + rad, yk + rad], fill=(255, 255, 255),
                          outline=INK, width=ss)  # fmt: skip
+
+
+def _glyph(draw, g: dict, r: np.ndarray, A_body: np.ndarray, cam: Camera, screen,
+           ss: int) -> None:  # fmt: skip
+    """One primitive of mbsim.view.glyphs on a body at centroid r (3,) and orientation A_body
+    (3, 3): squares and boxes as the outlines of their faces, spheres as their outline circle
+    (the orthographic projection of a sphere), markers as dots, segments as lines."""
+    color = tuple(int(g["color"][i : i + 2], 16) for i in (1, 3, 5))
+
+    def xy(P):  # body frame -> pixel (Haug eq. 6.3.20 for the global point)
+        x, y = screen((r + A_body @ np.asarray(P, float)) @ cam.axes.T)
+        return float(x), float(y)
+
+    shape = g["shape"]
+    if shape in ("square", "box"):
+        pts = [xy(P) for P in g["corners"]]
+        for face in g["faces"]:
+            draw.line([pts[k] for k in (*face, face[0])], fill=color, width=ss)
+    elif shape == "sphere":
+        x, y = xy(g["center"])
+        rad = g["radius"] * cam.scale * ss
+        draw.ellipse([x - rad, y - rad, x + rad, y + rad], outline=color, width=ss)
+    elif shape == "marker":
+        x, y = xy(g["point"])
+        rad = 3 * ss
+        draw.ellipse([x - rad, y - rad, x + rad, y + rad], fill=color)
+    elif shape == "segment":
+        draw.line([xy(g["a"]), xy(g["b"])], fill=color, width=2 * ss)
 
 
 # -------------------------------------------------------------------------- writing

@@ -167,14 +167,64 @@
       });
       if (j.bodies.length === 2) c.links.push([j.bodies[0], j.points[0].P, j.bodies[1], j.points[1].P, 0]);
     }
+    // force elements with a drawing of their own (mbsim/view/glyphs.py): primitives on bodies
+    const glyphMats = {};
+    function glyphMat(g) {
+      const key = g.color + '/' + g.opacity;
+      if (!glyphMats[key]) {
+        const m = new T.MeshStandardMaterial({ color: new T.Color(g.color), roughness: 0.5,
+                                               side: T.DoubleSide });
+        if (g.opacity < 1) { m.transparent = true; m.opacity = g.opacity; m.depthWrite = false; }
+        glyphMats[key] = m;
+      }
+      return glyphMats[key];
+    }
+    const vec = (a) => new T.Vector3(a[0], a[1], a[2]);
+    function polyhedron(g) { // flat-shaded quads (g.faces) of g.corners (body frame)
+      const pos = [];
+      for (const [a, b, c2, d] of g.faces) for (const k of [a, b, c2, a, c2, d]) pos.push(...g.corners[k]);
+      const geo = new T.BufferGeometry();
+      geo.setAttribute('position', new T.Float32BufferAttribute(pos, 3));
+      geo.computeVertexNormals();
+      return new T.Mesh(geo, glyphMat(g));
+    }
+    const GLYPHS = { // one per primitive of mbsim/view/glyphs.py
+      sphere: (g) => {
+        const m = new T.Mesh(new T.SphereGeometry(g.radius, 24, 16), glyphMat(g));
+        m.position.copy(vec(g.center));
+        return m;
+      },
+      square: polyhedron,
+      box: polyhedron,
+      marker: (g) => {
+        const m = new T.Mesh(dot, glyphMat(g));
+        m.position.copy(vec(g.point));
+        m.scale.setScalar(1.3);
+        return m;
+      },
+      segment: (g) => new T.Line(new T.BufferGeometry().setFromPoints([vec(g.a), vec(g.b)]),
+                                 new T.LineBasicMaterial({ color: new T.Color(g.color) })),
+    };
+    c.glyphs = [];
+    function glyph(g) {
+      const k = c.index[g.body], make = GLYPHS[g.shape];
+      if (k === undefined || !make) return;
+      const obj = make(g);
+      c.nodes[k].add(obj);
+      c.glyphs.push(obj);
+      c.marksOnBodies = (c.marksOnBodies || []).concat([obj]);
+    }
     for (const f of lay.forces || []) {
-      if (f.bodies.length === 2 && f.points.length === 2) {
+      if (f.glyphs) {
+        f.glyphs.forEach(glyph);
+      } else if (f.bodies.length === 2 && f.points.length === 2) {
         f.bodies.forEach((b, i) => marker(b, f.points[i].P, springMat));
         c.links.push([f.bodies[0], f.points[0].P, f.bodies[1], f.points[1].P, 1]);
       } else {
         f.bodies.forEach((b, i) => marker(b, f.points[i] ? f.points[i].P : [0, 0, 0], forceMat, 1.3));
       }
     }
+    document.body.dataset.glyphs = String(c.glyphs.length); // for the tests (dump_dom)
     for (const p of lay.points || []) marker(p.body, p.point, pointMat, 0.8);
     c.linkPos = [new Float32Array(6 * c.links.length), new Float32Array(6 * c.links.length)];
     c.linkLines = [0, 1].map((kind) => {
