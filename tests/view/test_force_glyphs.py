@@ -84,8 +84,9 @@ def result_file(tmp_path_factory):
     folder = tmp_path_factory.mktemp("glyphs")
     deck = folder / "elements.yaml"
     deck.write_text(DECK)
-    _, model = load_model(deck)
-    result = run_model(model, "dynamic", {"t_end": 0.1, "step": 0.01, "error_estimate": False})
+    spec, model = load_model(deck)
+    result = run_model(model, "dynamic", {"t_end": 0.1, "step": 0.01, "error_estimate": False},
+                       deck=spec)
     assert result.complete, result.message
     return write_result(result, folder / "elements.h5")
 
