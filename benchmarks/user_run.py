@@ -35,10 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(Path(__file__).resolve().parent)]
+# common.ROOT: the checkout measured ($MBSIM_ROOT, set by before_after.py for each side,
+# else this tree), put first on sys.path by common
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import figure  # noqa: E402
+from common import ROOT, figure  # noqa: E402
 
 DECKS = "governor,slider_crank:free,vehicle"
 PHASES = ("set-up", "trajectory", "estimate", "outputs", "shapes", "write")
