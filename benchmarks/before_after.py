@@ -51,6 +51,7 @@ SCRIPTS = {
               ["--cases", "share", "--no-exudyn", "--quick"]),
     "user": ("peers.py", ["--cases", "user", "--no-exudyn"],
              ["--cases", "user", "--no-exudyn", "--quick"]),
+    "user_run": ("user_run.py", [], ["--repeats", "1", "--decks", "governor"]),
     "kinematic": ("kinematic_outputs.py", [], ["--quick"]),
     "chain_scaling": ("chain_scaling.py", [], ["--quick"]),
     "large_chain": ("large_chain.py", [], ["--quick"]),

@@ -5,15 +5,18 @@ compared with it at the output times (Shampine 1985, "global error estimation by
 reintegration"; Hairer, Norsett & Wanner I, Sec. II.4 and II.12).  Which companion
 (option ``estimate_method``):
 
-- ``coarse`` (default) for projection-dop853 and projection (:data:`COARSE_FAMILIES`): the
-  run's method without error control on the run's own mesh coarsened by two, whose error
-  is 2^p times the run's (order p), so err ~ |y - y_c| / (2^p - 1) (:func:`coarse_estimate`).
-  It takes half the run's steps, none rejected, and samples its plain interpolant: 0.2-0.55
-  of the run's CPU on the reference problems, where the companion at rtol/5 took 0.73-1.6.
-  Est / true error there 0.3-2 (tests/integrators/test_error_estimate.py,
-  tests/analyses/test_estimate.py).  A run that met a change point (a singular position,
-  :data:`CHANGE_POINT_COUNTERS`) gets the companion below: a doubled step across it is not
-  in the asymptotic regime (four parallel cranks at rtol 1e-7: 35x the true error).
+- ``coarse`` (default) for projection-dop853, projection, genalpha and hht
+  (:data:`COARSE_FAMILIES`): the run's method without error control on the run's own mesh
+  coarsened by two, whose error is 2^p times the run's (order p), so err ~ |y - y_c| /
+  (2^p - 1) (:func:`coarse_estimate`).  It takes half the run's steps, none rejected, and
+  samples its plain interpolant: 0.2-0.65 of the run's CPU on the reference problems,
+  where the companion at rtol/5 took 0.73-1.8.  Est / true error there 0.3-2
+  (tests/integrators/test_error_estimate.py, tests/analyses/test_estimate.py).  A run
+  that met a change point (a singular position, :data:`CHANGE_POINT_COUNTERS`), and a
+  generalized-alpha run of a model with redundant constraints
+  (:data:`COARSE_NEEDS_INDEPENDENT_ROWS`), get the companion below: a doubled step across
+  a singular position is not in the asymptotic regime (four parallel cranks at rtol 1e-7:
+  35x the true error).
 - ``tighter`` (and for every other method, or when the coarse companion does not reach
   every output): the same method repeats the run more accurately, an adaptive method at
   the tolerances divided by ``estimate_ratio`` (rho, default 5), a fixed-step method at
@@ -90,14 +93,35 @@ def companion_options(cls, opt):
     return copt, factor, method
 
 
-COARSE_FAMILIES = ("projection-dop853", "projection")
-"""The error-controlled Runge-Kutta methods whose estimate is the coarse companion
-(:func:`coarse_estimate`): explicit one-step methods of a fixed order whose error on a mesh
-scales as its step to the power p.  The others keep the companion at rtol / rho:
-generalized-alpha and HHT (error ~ rtol^(2/3)), Baumgarte (its drift term does not scale
-with the step), and the coordinate-partitioning pairs, whose dependent-coordinate Newton
-iteration fails on doubled steps (heavy top, gcp-dop853 at rtol 1e-5: |Phi| 0.24 at
-t = 0.09 s), so that the companion at rtol / rho would follow a wasted coarse run."""
+COARSE_FAMILIES = ("projection-dop853", "projection", "genalpha", "hht")
+"""The error-controlled one-step methods whose estimate is the coarse companion
+(:func:`coarse_estimate`): methods of a fixed order whose global error on a mesh scales as
+its step to the power p: the projected Runge-Kutta pairs and the index-3
+generalized-alpha family (p = 2 for positions and velocities, Arnold & Bruls 2007; the
+second only without redundant constraints, :data:`COARSE_NEEDS_INDEPENDENT_ROWS`).  Their
+error as a function of the *tolerance* (generalized-alpha: rtol^(2/3)) does not enter: the
+companion takes the run's own mesh.  The others keep the companion at rtol / rho:
+Baumgarte (its drift term does not scale with the step), and the coordinate-partitioning
+pairs, whose dependent-coordinate Newton iteration fails on doubled steps (heavy top,
+gcp-dop853 at rtol 1e-5: |Phi| 0.24 at t = 0.09 s), so that the companion at rtol / rho
+would follow a wasted coarse run.
+
+Generalized-alpha on the reference problems (heavy top, pendulum, slider-crank; the four
+parallel cranks at 1e-4 and 1e-6 without the rule below) at rtol 1e-3, 1e-4, 1e-6:
+est / true 0.44-1.02 in position, 0.51-1.22 in velocity, the companion 0.48-0.64 of the
+run's CPU; the companion at rtol/5 gave 0.86-1.32 for 1.2-1.8 of the run's CPU (the heavy
+top at 1e-3, whose doubled steps fail Newton, gets it either way).  HHT on the same three:
+0.56-2.1 in position, 0.47-2.2 in velocity, 0.47-0.66 of the run's CPU (rtol/5: 0.93-1.27,
+1.3-1.7)."""
+
+COARSE_NEEDS_INDEPENDENT_ROWS = ("genalpha", "hht")
+"""Methods that do not detect a singular position (a change of rank of Phi_q, where a
+doubled step can leave the run's branch): for these the coarse companion needs a model
+without redundant constraint rows at t_start, the mechanisms whose rank can change (the
+four parallel cranks, generalized-alpha at rtol 1e-3: the coarse companion left the
+branch at t = 0.85 s, est / true 24; with the companion at rtol/5 0.91).  A mechanism
+without redundant rows can still meet a singular position; there this estimate is too
+large (the safe side), not too small."""
 
 
 COARSE_MIN_STEPS = 4  # fewer accepted steps: the companion at rtol / rho instead
@@ -158,6 +182,10 @@ def coarse_estimate(model, prep, opt, tr):
         return None, f"{cls.name} is not estimated on a coarse mesh"
     if run is None or not tr.complete or len(run.step_ends) < COARSE_MIN_STEPS:
         return None, "the run is incomplete or too short for a coarse mesh"
+    if cls.name in COARSE_NEEDS_INDEPENDENT_ROWS and prep.red.size:
+        return None, (f"redundant constraints ({', '.join(model.items_of_rows(prep.red))}): "
+                      f"{cls.name} does not detect the singular positions they allow, where "
+                      f"a doubled step is not in the asymptotic regime")
     counters = run.all_counters()
     passed = [k for k in CHANGE_POINT_COUNTERS if counters.get(k)]
     if passed:

@@ -60,10 +60,13 @@ LAYOUT_VERSION = 2  # root attribute layout_version; files without it are versio
 JSON_DATASETS = ("settings", "counters", "summary")  # scalar JSON strings (attributes in v1)
 EXTRA_ATTRS = ("stable", "stability", "error_estimate", "error_estimate_reason")  # Result.attrs
 STACKED = ("shapes",)  # arrays <group>/<item>/<leaf> stored one dataset per leaf for all items
-COMPRESS_MIN_SIZE = 1000  # datasets with more elements are chunked and gzip-compressed
+COMPRESS_MIN_SIZE = 1000  # arrays (shapes/...) with more elements are chunked and compressed
 GZIP_LEVEL = 4
-CHUNK_ELEMENTS = 65536  # target elements per chunk (chunks span whole rows, cut along time)
-CHUNK_COLUMNS = 256  # columns of /values per chunk: reading one channel reads few chunks
+CHUNK_ELEMENTS = 65536  # target elements per chunk (chunks span whole rows)
+"""/time and /values are stored contiguous and uncompressed: gzip (level 4, shuffle) made
+them only 1.2-1.4x smaller (simulated float64 series) and cost 8 of a governor run's 17 ms of
+writing, 36 of the vehicle's 48 (benchmarks/user_run.py); the meshes of ``shapes/``
+compress 2.6x (faces, constant colours) and keep it."""
 
 _STR = h5py.string_dtype("utf-8")
 
@@ -130,30 +133,20 @@ def _check_names(channels: dict[str, Channel]) -> list[str]:
     return paths
 
 
-def _dataset_options(shape: tuple[int, ...], chunk_cols: int | None = None) -> dict[str, Any]:
-    """Compression and chunking for datasets above COMPRESS_MIN_SIZE elements: chunks cut
-    along time (whole rows of ``shape[1:]``), or for the 2-D ``/values`` tiles of
-    ``chunk_cols`` columns by as many rows as make about CHUNK_ELEMENTS."""
+def _dataset_options(shape: tuple[int, ...]) -> dict[str, Any]:
+    """Compression and chunking for arrays above COMPRESS_MIN_SIZE elements: chunks of
+    whole rows (``shape[1:]``), about CHUNK_ELEMENTS each."""
     size = int(np.prod(shape)) if shape else 1
     if size <= COMPRESS_MIN_SIZE or shape[0] == 0:
         return {}
-    if chunk_cols is not None:
-        cols = max(1, min(shape[1], chunk_cols))
-        chunks: tuple[int, ...] = (max(1, min(shape[0], CHUNK_ELEMENTS // cols)), cols)
-    else:
-        row = int(np.prod(shape[1:])) if len(shape) > 1 else 1
-        chunks = (max(1, min(shape[0], CHUNK_ELEMENTS // max(row, 1))), *shape[1:])
+    row = int(np.prod(shape[1:])) if len(shape) > 1 else 1
+    chunks = (max(1, min(shape[0], CHUNK_ELEMENTS // max(row, 1))), *shape[1:])
     return {
         "chunks": chunks,
         "compression": "gzip",
         "compression_opts": GZIP_LEVEL,
         "shuffle": True,
     }
-
-
-def _write_dataset(f: h5py.File, path: str, data: np.ndarray) -> h5py.Dataset:
-    data = np.asarray(data, dtype=np.float64)
-    return f.create_dataset(path, data=data, **_dataset_options(data.shape))
 
 
 def _strings(f: h5py.File | h5py.Group, path: str, items) -> None:
@@ -257,11 +250,10 @@ def _write_file(f: h5py.File, result: Result, paths: list[str]) -> None:
     f.create_dataset("deck", data=result.deck_text or "", dtype=_STR)
     for key in JSON_DATASETS:
         f.create_dataset(key, data=to_json(getattr(result, key)), dtype=_STR)
-    _write_dataset(f, "time", np.asarray(result.t, dtype=np.float64).reshape(-1))
+    f.create_dataset("time", data=np.asarray(result.t, dtype=np.float64).reshape(-1))
     f["time"].attrs["unit"] = "s"
     values, table = _channel_table(result, paths)
-    f.create_dataset("values", data=values,
-                     **_dataset_options(values.shape, chunk_cols=CHUNK_COLUMNS))
+    f.create_dataset("values", data=values)  # contiguous, uncompressed (see CHUNK_ELEMENTS)
     g = f.create_group("channels")
     for key, items in table.items():
         if isinstance(items, np.ndarray):

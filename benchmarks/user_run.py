@@ -1,0 +1,132 @@
+"""Where a run as a user runs it spends its CPU, phase by phase (issue 24: user run <= 2x
+the bare integration, the estimate <= 0.5x the run).
+
+    python benchmarks/user_run.py [--repeats 5] [--decks governor,slider_crank:free,vehicle]
+
+Per deck (``name`` or ``name:scene``): the work of ``mbsim run DECK --mode dynamic -o FILE``
+in process (the deck loaded once, untimed; one untimed warm-up run so that first-use imports
+and the kernels' loading count nowhere), split by the functions it calls, process CPU per
+run in ms, median of --repeats [min-max]:
+
+- ``set-up``: :class:`mbsim.analyses.trajectory.Prepared` (initial state, row selection);
+- ``trajectory``: the run's integration with the state at every output
+  (``main_trajectory``);
+- ``estimate``: the error estimate's companion and its differences (``estimate``);
+- ``outputs``: the channels and monitors at the outputs (``build_result``);
+- ``shapes``: the scene arrays of the file (:func:`mbsim.view.geometry.scene_arrays`);
+- ``write``: :func:`mbsim.output.hdf5.write_result` (in memory, then written and synced);
+- ``rest``: the user run less the phases above (option merging, the result's bookkeeping);
+- ``bare``: the same integration with one output and no estimate (its own run), and the
+  ratio user / bare, which ``benchmarks/peers.py --cases user`` also prints.
+
+Phases are timed by wrapping the named functions where the run looks them up (the wrappers'
+own cost, ~1 us a call, is in the phases).  Figures (``phases: ...``, so that
+before_after.py's table keeps them apart from peers.py's): user run / bare, and estimate /
+(user run - estimate - shapes - write) per deck.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+# common.ROOT: the checkout measured ($MBSIM_ROOT, set by before_after.py for each side,
+# else this tree), put first on sys.path by common
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import ROOT, figure  # noqa: E402
+
+DECKS = "governor,slider_crank:free,vehicle"
+PHASES = ("set-up", "trajectory", "estimate", "outputs", "shapes", "write")
+
+
+def timed(module, name, key, spent):
+    """Wrap ``module.name`` so that its process CPU adds to ``spent[key]``; returns the
+    original (to put back)."""
+    f = getattr(module, name)
+
+    def wrapper(*args, **kwargs):
+        c0 = time.process_time()
+        try:
+            return f(*args, **kwargs)
+        finally:
+            spent[key] += time.process_time() - c0
+
+    setattr(module, name, wrapper)
+    return f
+
+
+def measure(deck, scene, repeats, tmp):
+    """{phase: [ms per run]} of the user run of one deck, and the bare runs' ms."""
+    import mbsim.analyses.dynamic as dyn
+    import mbsim.view.geometry as geometry
+    from mbsim.api import load_model, run_model
+    from mbsim.output import hdf5
+
+    spec, model = load_model(ROOT / "models" / f"{deck}.yaml", scene=scene)
+    opts = dict(spec.analysis.get("dynamic", {}))
+    bare = dict(opts, error_estimate=False,
+                step=float(opts.get("t_end", 1.0)) - float(opts.get("t_start", 0.0)))
+    out = Path(tmp) / f"{deck}.h5"
+    hdf5.write_result(run_model(model, "dynamic", dict(opts)), out)  # warm-up
+    spent = dict.fromkeys(PHASES, 0.0)
+    wrapped = [(dyn, "Prepared", "set-up"), (dyn, "main_trajectory", "trajectory"),
+               (dyn, "estimate", "estimate"), (dyn, "build_result", "outputs"),
+               (geometry, "scene_arrays", "shapes")]
+    originals = [(m, n, timed(m, n, k, spent)) for m, n, k in wrapped]
+    got = {k: [] for k in (*PHASES, "rest", "user run", "bare")}
+    try:
+        for _ in range(repeats):
+            for k in spent:
+                spent[k] = 0.0
+            c0 = time.process_time()
+            res = run_model(model, "dynamic", dict(opts))
+            c1 = time.process_time()
+            hdf5.write_result(res, out)
+            c2 = time.process_time()
+            spent["write"] = c2 - c1
+            for k in PHASES:  # (before the bare run, which calls the same functions)
+                got[k].append(1e3 * spent[k])
+            run_model(model, "dynamic", dict(bare))
+            c3 = time.process_time()
+            got["user run"].append(1e3 * (c2 - c0))
+            got["rest"].append(1e3 * (c2 - c0) - sum(got[k][-1] for k in PHASES))
+            got["bare"].append(1e3 * (c3 - c2))
+    finally:
+        for m, n, f in originals:
+            setattr(m, n, f)
+    t_span = float(opts.get("t_end", 1.0)) - float(opts.get("t_start", 0.0))
+    return got, t_span, len(res.t)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--decks", default=DECKS, help=f"name[:scene],... (default {DECKS})")
+    a = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        for item in a.decks.split(","):
+            deck, _, scene = item.partition(":")
+            got, t_span, nt = measure(deck, scene or None, max(1, a.repeats), tmp)
+            label = f"{deck}{' (' + scene + ')' if scene else ''}"
+            print(f"\n=== {label}: {t_span:g} s, {nt} outputs; process CPU ms per run, median "
+                  f"of {a.repeats} [min-max] ===")
+            user = np.median(got["user run"])
+            for k, v in got.items():
+                med = np.median(v)
+                print(f"    {k:<12} {med:8.2f} [{min(v):.2f}-{max(v):.2f}]  "
+                      f"{100 * med / user:5.1f} % of the user run", flush=True)
+            figure(f"phases: user run / bare, {label}",
+                   [u / b for u, b in zip(got["user run"], got["bare"])], "x")
+            figure(f"phases: estimate / run without it, shapes and file, {label}",
+                   [e / (u - e - s - w) for u, e, s, w in
+                    zip(got["user run"], got["estimate"], got["shapes"], got["write"])], "x")
+
+
+if __name__ == "__main__":
+    main()
