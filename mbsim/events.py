@@ -36,7 +36,11 @@ Contract of a hybrid force element (besides :class:`mbsim.forces.base.ForceEleme
 5. ``switches(mode) -> [Switch]``: the event functions watched in ``mode``.
 6. ``next_mode(mode, switch, ctx) -> mode``: the mode after ``switch`` fired at ``ctx``
    (may test a candidate with ``ctx.trial``).
-7. ``channels_in(mode, st, t, lam) -> dict``: optional channels (as ``channels``).
+7. ``channels_in(mode, st, t, lam, modes) -> dict``: optional channels (as ``channels``);
+   ``lam``: the multipliers on the model's rows followed by the held rows, ``modes``: every
+   hybrid element's mode there (which held rows are whose: ``hold_count(mode)`` rows each,
+   in the order of the model's forces).
+8. ``hold_count(mode) -> int``: the number of rows ``holds`` gives in ``mode``.
 """
 
 from __future__ import annotations
