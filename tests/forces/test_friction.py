@@ -1,0 +1,344 @@
+"""Joint friction with true stick-slip (mbsim/forces/friction.py) against closed forms derived
+here, run through the public API (``run_model(..., "dynamic")``) or the CLI.
+
+Event times: an event is the root of its function g on the run's own dense output, found to
+EVENT_TIME_TOL max(1, t); the solution's error e adds |dt| ~ |e_g| / |dg/dt|.  At rtol
+1e-11 the position and velocity errors of these runs are below 1e-10 (m, m/s) and the rates
+|dg/dt| are O(1) (k v_b = 10 N/s at a breakaway, |vdot| = k |x| / m >= 1 m/s^2 at a turning
+point), so the analytic times are met to 1e-8 s with a margin of 100 or more.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mbsim.api import load_model, run_model
+
+G = 9.81
+
+
+def run(path, **options):
+    _, model = load_model(str(path))
+    return model, run_model(model, "dynamic", options)
+
+
+def events_of(res, element):
+    """[(t, event name, q)] of one element's events, in time order."""
+    names, times = res.names["events"], res.arrays["events/time"][0]
+    q = res.arrays["events/q"][0]
+    return [(float(t), n.split(": ", 1)[1], q[k]) for k, (t, n) in enumerate(zip(times, names))
+            if n.startswith(element + ": ")]
+
+
+# -- a block on an incline ------------------------------------------------------------------
+INCLINE = """\
+title: block on an incline
+gravity: [0, -{g}, 0]
+bodies:
+  ground: {{ground: true}}
+  block: {{mass: {m}, inertia: [1, 1, 1], r: [0, 0, 0]}}
+joints:
+  slide:
+    type: translational
+    bodies: [ground, block]
+    points:
+      ground: {{P: [0, 0, 0], Q: [{c}, {ms}, 0], R: [{s}, {c}, 0]}}
+      block: {{P: [0, 0, 0], Q: [{c}, {ms}, 0], R: [{s}, {c}, 0]}}
+forces:
+  fr:
+    type: friction
+    joint: slide
+    mu_s: {mu_s}
+    mu_k: {mu_k}
+analysis:
+  dynamic: {{t_end: 10.0, step: 0.1}}
+"""
+
+
+def incline(tmp_path, theta, mu_s, mu_k, m=2.0):
+    """The joint axis f points down the slope (angle theta below x); the normal load is the
+    joint's reaction m g cos(theta)."""
+    c, s = math.cos(theta), math.sin(theta)
+    path = tmp_path / "incline.yaml"
+    path.write_text(INCLINE.format(g=G, m=m, c=c, s=s, ms=-s, mu_s=mu_s, mu_k=mu_k))
+    return path
+
+
+def test_incline_sticks_when_tan_theta_below_mu_s(tmp_path):
+    """tan(30 deg) = 0.577 < mu_s = 0.7: the block never moves; the stick carries
+    m g sin(theta) with the normal load m g cos(theta)."""
+    theta, m = math.radians(30.0), 2.0
+    model, res = run(incline(tmp_path, theta, 0.7, 0.5, m), rtol=1e-10, atol=1e-12)
+    assert res.complete, res.message
+    r = res.channel("bodies/block/r").data
+    rd = res.channel("bodies/block/rd").data
+    assert np.abs(r - r[0]).max() <= 1e-12  # position drift over 10 s
+    assert np.abs(rd).max() <= 1e-14  # at rest to round-off (accelerations ~1e-16 x 10 s)
+    assert np.all(res.channel("forces/fr/mode").data == 0.0)
+    np.testing.assert_allclose(res.channel("forces/fr/friction").data, -m * G * math.sin(theta),
+                               rtol=1e-12)
+    np.testing.assert_allclose(res.channel("forces/fr/normal_load").data,
+                               m * G * math.cos(theta), rtol=1e-12)
+    assert "events" not in res.summary or res.summary["events"] == []
+
+
+def test_incline_slides_at_g_sin_minus_mu_k_cos(tmp_path):
+    """tan(30 deg) > mu_s = 0.5: the block slides from rest with a = g (sin - mu_k cos)."""
+    theta, m, mu_k = math.radians(30.0), 2.0, 0.4
+    model, res = run(incline(tmp_path, theta, 0.5, mu_k, m), rtol=1e-10, atol=1e-12)
+    assert res.complete, res.message
+    a = G * (math.sin(theta) - mu_k * math.cos(theta))
+    t = res.t
+    f = np.array([math.cos(theta), -math.sin(theta), 0.0])
+    s = (res.channel("bodies/block/r").data - res.channel("bodies/block/r").data[0]) @ f
+    np.testing.assert_allclose(s, 0.5 * a * t**2, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(res.channel("forces/fr/slip_velocity").data, a * t, rtol=1e-9,
+                               atol=1e-12)
+    N = m * G * math.cos(theta)
+    np.testing.assert_allclose(res.channel("forces/fr/normal_load").data, N, rtol=1e-12)
+    np.testing.assert_allclose(res.channel("forces/fr/friction").data, -mu_k * N, rtol=1e-12)
+    assert np.all(res.channel("forces/fr/mode").data == 1.0)
+
+
+# -- a mass-spring on a moving belt --------------------------------------------------------
+BELT = "tests/forces/data/stick_slip_belt.yaml"
+# the deck's values: m, k, v_b, normal load, mu_s, mu_k
+M, K, VB, NLOAD, MU_S, MU_K = 1.0, 100.0, 0.1, 10.0, 0.4, 0.3
+
+
+def belt_cycle():
+    """The limit cycle of m x'' + k x = friction, the belt at v_b (x = 0: spring relaxed).
+    Stick (x' = v_b) ends when k x reaches F_s; the slip then (relative velocity < 0,
+    friction +F_k) is u = x - F_k / k = R cos(w tau - phi), u(0) = D = (F_s - F_k) / k,
+    u'(0) = v_b, so R = sqrt(D^2 + (v_b / w)^2), tan(phi) = v_b / (w D); the relative
+    velocity is 0 again when sin(w tau - phi) = -sin(phi): tau = (pi + 2 phi) / w, where
+    u = -D, i.e. x = (2 F_k - F_s) / k, and the stick holds (|2 F_k - F_s| <= F_s).  The
+    stick that follows lasts 2 D / v_b.  Returns (t_first_breakaway, t_slip, t_stick, R,
+    centre F_k / k)."""
+    fs, fk = MU_S * NLOAD, MU_K * NLOAD
+    w = math.sqrt(K / M)
+    D = (fs - fk) / K
+    phi = math.atan2(VB / w, D)
+    return fs / (K * VB), (math.pi + 2 * phi) / w, 2 * D / VB, math.hypot(D, VB / w), fk / K
+
+
+def belt_x(t):
+    """The block's x(t) of the cycle above, from x = 0 stuck at t = 0."""
+    t1, ts, tk, R, xc = belt_cycle()
+    w = math.sqrt(K / M)
+    D = (MU_S - MU_K) * NLOAD / K
+    phi = math.atan2(VB / w, D)
+    out = np.empty_like(t)
+    for k, tt in enumerate(t):
+        if tt <= t1:
+            out[k] = VB * tt
+            continue
+        tau = (tt - t1) % (ts + tk)
+        if tau <= ts:
+            out[k] = xc + R * math.cos(w * tau - phi)
+        else:
+            out[k] = (2 * MU_K - MU_S) * NLOAD / K + VB * (tau - ts)
+    return out
+
+
+def test_belt_limit_cycle_stick_and_slip_at_the_analytic_times(tmp_path):
+    """Breakaway and re-stick events at the closed form's times (1e-8 s), the block's x
+    there (F_s / k and (2 F_k - F_s) / k), the cycle's amplitude R and period to 1e-6."""
+    deck = tmp_path / "belt.yaml"
+    text = open(BELT).read()
+    deck.write_text(text.replace(
+        "analysis:", "events:\n  top:\n    when: 'block.vx < 0'\n  bottom:\n"
+        "    when: 'block.vx > 0'\nanalysis:"))
+    model, res = run(deck, rtol=1e-11, atol=1e-13)
+    assert res.complete, res.message
+    t1, ts, tk, R, xc = belt_cycle()
+    evs = events_of(res, "belt_friction")
+    b = model.body_index("block")
+    want = []
+    t = t1
+    while t < 3.0:
+        want.append((t, "breakaway", MU_S * NLOAD / K))
+        if t + ts < 3.0:
+            want.append((t + ts, "slip->stick", (2 * MU_K - MU_S) * NLOAD / K))
+        t += ts + tk
+    assert [e[1] for e in evs] == [w[1] for w in want]
+    for (te, _, q), (tw, _, xw) in zip(evs, want):
+        assert abs(te - tw) <= 1e-8, (te, tw)
+        assert abs(q[7 * b] - xw) <= 1e-9
+    modes = [e["mode"] for e in res.summary["events"] if e.get("element") == "belt_friction"]
+    assert modes[:2] == ["stick -> -", "- -> stick"]
+    # amplitude: the block's turning points (deck events on its velocity) at xc +- R
+    tops = [q[7 * b] for t, n, q in events_of_all(res, "top")]
+    bottoms = [q[7 * b] for t, n, q in events_of_all(res, "bottom")]
+    assert tops and bottoms
+    amp = 0.5 * (np.array(tops[:len(bottoms)]) - np.array(bottoms[:len(tops)]))
+    np.testing.assert_allclose(amp, R, rtol=1e-6)
+    period = np.diff([e[0] for e in evs if e[1] == "breakaway"])
+    np.testing.assert_allclose(period, ts + tk, rtol=1e-6)
+
+
+def events_of_all(res, name):
+    names, times = res.names["events"], res.arrays["events/time"][0]
+    q = res.arrays["events/q"][0]
+    return [(float(t), n, q[k]) for k, (t, n) in enumerate(zip(times, names)) if n == name]
+
+
+def test_belt_error_estimate_honest_across_events(tmp_path):
+    """The run's error estimate against the closed form x(t): est / err within [0.1, 10]."""
+    model, res = run(BELT, rtol=1e-8, atol=1e-10)
+    assert res.complete, res.message
+    x = res.channel("bodies/block/r").data[:, 0]
+    err = float(np.abs(x - belt_x(res.t)).max())
+    est = res.summary["error_estimate"]["position"]
+    assert 0.1 <= est / err <= 10, (est, err)
+
+
+# -- a linear oscillator with Coulomb friction (preload only) --------------------------------
+COULOMB = """\
+title: oscillator with Coulomb friction
+gravity: [0, 0, 0]
+bodies:
+  ground: {{ground: true}}
+  block: {{mass: {m}, inertia: [1, 1, 1], r: [{x0}, 0, 0]}}
+joints:
+  slide:
+    type: translational
+    bodies: [ground, block]
+    points:
+      ground: {{P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]}}
+      block: {{P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]}}
+forces:
+  spring:
+    type: tsda
+    bodies: [ground, block]
+    points: {{ground: [-1, 0, 0], block: [0, 0, 0]}}
+    k: {k}
+    L0: 1.0
+  fr:
+    type: friction
+    joint: slide
+    mu_s: {mu}
+    mu_k: {mu}
+    preload: {N}
+    reaction: false
+analysis:
+  dynamic: {{t_end: 2.0, step: 0.01}}
+"""
+CM, CK, CX0, CMU, CN = 1.0, 100.0, 0.17, 0.2, 10.0
+
+
+def coulomb_turns():
+    """Released at rest from x0 (k x0 > F = mu N): each half cycle is a harmonic half swing
+    about +-F/k (the friction opposes the motion), so the turning points are
+    x_n = (-1)^n (x0 - 2 n F / k) at t_n = n pi / w: the amplitude falls by 4 F / k per
+    cycle; the motion stops at the first x_n with k |x_n| <= mu_s N."""
+    F, w = CMU * CN, math.sqrt(CK / CM)
+    out, n = [], 0
+    while True:
+        n += 1
+        x = (-1) ** n * (CX0 - 2 * n * F / CK)
+        out.append((n * math.pi / w, x))
+        if CK * abs(x) <= CMU * CN:
+            return out
+
+
+def coulomb_x(t):
+    F, w = CMU * CN, math.sqrt(CK / CM)
+    turns = coulomb_turns()
+    out = np.empty_like(t)
+    for k, tt in enumerate(t):
+        n = min(int(tt * w / math.pi), len(turns))
+        if n >= len(turns):
+            out[k] = turns[-1][1]
+            continue
+        x_start = CX0 if n == 0 else turns[n - 1][1]
+        centre = math.copysign(F / CK, x_start)  # moving towards -sign(x_start)
+        out[k] = centre + (x_start - centre) * math.cos(w * tt - n * math.pi)
+    return out
+
+
+def coulomb_deck(tmp_path):
+    path = tmp_path / "coulomb.yaml"
+    path.write_text(COULOMB.format(m=CM, k=CK, x0=CX0, mu=CMU, N=CN))
+    return path
+
+
+def test_coulomb_oscillator_amplitude_falls_4F_over_k_and_stops_at_the_predicted_state(
+        tmp_path):
+    model, res = run(coulomb_deck(tmp_path), rtol=1e-11, atol=1e-13)
+    assert res.complete, res.message
+    turns = coulomb_turns()
+    evs = events_of(res, "fr")
+    b = model.body_index("block")
+    assert len(evs) == len(turns)
+    assert all(name == "slip->stick" for _, name, _ in evs)
+    for (te, _, q), (tw, xw) in zip(evs, turns):
+        assert abs(te - tw) <= 1e-8, (te, tw)
+        assert abs(q[7 * b] - xw) <= 1e-8
+    x_turn = np.array([q[7 * b] for _, _, q in evs])
+    F = CMU * CN
+    np.testing.assert_allclose(np.abs(x_turn[2:]) - np.abs(x_turn[:-2]), -4 * F / CK,
+                               atol=1e-9)
+    modes = [e["mode"] for e in res.summary["events"]]
+    assert modes[-1].endswith("-> stick") and all("stick" not in m for m in modes[:-1])
+    # after the stop: at rest at the predicted position
+    t_stop, x_stop = turns[-1]
+    after = res.t > t_stop
+    r = res.channel("bodies/block/r").data[:, 0]
+    np.testing.assert_allclose(r[after], x_stop, atol=1e-8)
+    assert np.abs(res.channel("bodies/block/rd").data[after, 0]).max() <= 1e-14
+    assert np.all(res.channel("forces/fr/mode").data[after] == 0.0)
+
+
+def test_coulomb_error_estimate_honest_across_events(tmp_path):
+    model, res = run(coulomb_deck(tmp_path), rtol=1e-8, atol=1e-10)
+    assert res.complete, res.message
+    x = res.channel("bodies/block/r").data[:, 0]
+    err = float(np.abs(x - coulomb_x(res.t)).max())
+    est = res.summary["error_estimate"]["position"]
+    assert 0.1 <= est / err <= 10, (est, err)
+
+
+# -- bad parameters ------------------------------------------------------------------------
+@pytest.mark.parametrize("edit, key, message", [
+    (("mu_k: 0.2", "mu_k: 0.3"), "forces.fr.mu_k", "must not exceed mu_s"),
+    (("mu_s: 0.2", "mu_s: -0.2"), "forces.fr.mu_s", ">= 0"),
+    (("preload: 10.0", "preload: 10.0\n    viscous: -1"), "forces.fr.viscous", ">= 0"),
+    (("joint: slide", "joint: sliide"), "forces.fr.joint", "sliide"),
+    (("reaction: false", "reaction: maybe"), "forces.fr.reaction", "true or false"),
+])
+def test_bad_parameters_one_error_line_exit_2(tmp_path, edit, key, message):
+    from click.testing import CliRunner
+
+    from mbsim.cli import main
+
+    path = coulomb_deck(tmp_path)
+    text = path.read_text()
+    assert edit[0] in text
+    path.write_text(text.replace(edit[0], edit[1], 1))
+    out = CliRunner().invoke(main, ["run", str(path), "--mode", "dynamic"])
+    assert out.exit_code == 2, out.output
+    lines = [ln for ln in out.output.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1 and "Traceback" not in out.output, out.output
+    assert str(path) in lines[0] and key in lines[0] and message in lines[0], lines[0]
+
+
+def test_friction_on_an_unsupported_joint_type_is_a_deck_error(tmp_path):
+    from click.testing import CliRunner
+
+    from mbsim.cli import main
+
+    path = coulomb_deck(tmp_path)
+    text = path.read_text().replace("type: translational", "type: spherical", 1)
+    text = text.replace("      ground: {P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]}\n      block: "
+                        "{P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]}",
+                        "      ground: {P: [0, 0, 0]}\n      block: {P: [0, 0, 0]}")
+    path.write_text(text)
+    out = CliRunner().invoke(main, ["run", str(path), "--mode", "dynamic"])
+    assert out.exit_code == 2, out.output
+    lines = [ln for ln in out.output.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1, out.output
+    assert str(path) in lines[0] and "forces.fr.joint" in lines[0] and "spherical" in lines[0]
