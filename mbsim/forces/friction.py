@@ -131,7 +131,7 @@ class JointFriction(ForceElement):
             el.angle = Angle(el.bi, el.bj, fi, fj, 0.0)
         else:
             el.si, el.sj, el.f = fi["P"].copy(), fj["P"].copy(), fi["f"].copy()
-        el.model, el._jac = None, (None, None)
+        el.model, el._jac, el._travel = None, (None, None), (None, None)
         return el
 
     def bind(self, model):
@@ -159,7 +159,13 @@ class JointFriction(ForceElement):
     # -- the joint's relative coordinate ------------------------------------------------------
     def travel(self, st):
         """(s, v, axis (3,) global, P_j (3,) global or None): the relative coordinate, its
-        rate (None without velocities) and the direction of Fs."""
+        rate (None without velocities) and the direction of Fs; kept for the last state
+        object (the reaction loop evaluates one state with successive multipliers)."""
+        if self._travel[0] is not st:
+            self._travel = (st, self._travel_of(st))
+        return self._travel[1]
+
+    def _travel_of(self, st):
         if self.angular:
             s, a = self.angle.terms(st)
             return s, None if st.rd is None else self.angle.rate(st, a), a, None
@@ -184,13 +190,14 @@ class JointFriction(ForceElement):
         from mbsim.analyses.reactions import rows_reaction
 
         it, bj = self.item, self.bj
-        q = np.concatenate([st.r, st.p], axis=1).reshape(-1)
         key, J = self._jac  # Phi_q of the joint's rows: one evaluation per state
-        if J is None or not np.array_equal(key, q):
+        if key is not st:
+            q = np.concatenate([st.r, st.p], axis=1).reshape(-1)
             J = core.phi_q(self.model, core.make_data(self.model, it.rows), q)
-            self._jac = (q.copy(), J)
+            self._jac = (st, J)
         r = rows_reaction(it.name, "j", bj, J[None, :, 7 * bj: 7 * bj + 7],
-                          np.asarray(lam)[it.rows][None], st.p[bj][None], it.P_j, None)
+                          np.asarray(lam)[it.rows][None], st.p[bj][None], it.P_j, None,
+                          st.A[bj][None], st.G[bj][None])
         F, M = r.force[0], r.torque[0]
         f = st.A[self.bi] @ self.frames["f_i"]
         N = float(np.linalg.norm(F - (F @ f) * f))

@@ -342,3 +342,126 @@ def test_friction_on_an_unsupported_joint_type_is_a_deck_error(tmp_path):
     lines = [ln for ln in out.output.splitlines() if ln.startswith("error:")]
     assert len(lines) == 1, out.output
     assert str(path) in lines[0] and "forces.fr.joint" in lines[0] and "spherical" in lines[0]
+
+
+# -- a pendulum with pivot friction, the normal load its joint's reaction ----------------------
+PENDULUM = """\
+title: pendulum with pivot friction
+gravity: [0, -{g}, 0]
+bodies:
+  ground: {{ground: true}}
+  rod: {{mass: {m}, inertia: [{J}, {J}, {J}], r: [{x}, {y}, 0]}}
+joints:
+  pivot:
+    type: revolute
+    bodies: [ground, rod]
+    points:
+      ground: {{P: [0, 0, 0], Q: [0, 0, 1], R: [1, 0, 0]}}
+      rod: {{P: [{px}, {py}, 0], Q: [{px}, {py}, 1], R: [{qx}, {py}, 0]}}
+forces:
+  fr:
+    type: friction
+    joint: pivot
+    mu_s: {mu_s}
+    mu_k: {mu_k}
+    pin_radius: {r}
+analysis:
+  dynamic: {{t_end: {t_end}, step: 0.01}}
+"""
+PM, PJ, PL, PR, P_MU_S, P_MU_K = 1.0, 0.02, 0.5, 0.05, 0.4, 0.3
+
+
+def pendulum_deck(tmp_path, theta0, t_end):
+    x, y = PL * math.sin(theta0), -PL * math.cos(theta0)
+    path = tmp_path / "pendulum.yaml"
+    path.write_text(PENDULUM.format(g=G, m=PM, J=PJ, x=x, y=y, px=-x, py=-y, qx=1 - x,
+                                    mu_s=P_MU_S, mu_k=P_MU_K, r=PR, t_end=t_end))
+    return path
+
+
+def pendulum_reference(theta0, t_end):
+    """The pendulum's turning points [(t, theta)] up to its stop, by its own equations (not
+    mbsim): about the pivot, I theta'' = -m g L sin(theta) - s mu_k r |R| (I = J + m L^2,
+    s the sign of theta'), R = m (a_c - g) the pivot's reaction, whose magnitude with
+    a = theta'' and w = theta' is m sqrt(L^2 a^2 + 2 g L sin(theta) a + L^2 w^4
+    + 2 g L w^2 cos(theta) + g^2) (a_c = L a e_t - L w^2 e_r); the implicit a is found by
+    fixed-point iteration (it contracts with mu_k r m L / I < 1).  At a turning point (w = 0)
+    the stuck pendulum needs the torque m g L |sin(theta)| and its pivot carries m g: it
+    stops there when L |sin(theta)| <= mu_s r, else swings back."""
+    from scipy.integrate import solve_ivp
+
+    Ip = PJ + PM * PL**2
+
+    def acc(th, w, s):
+        a = 0.0
+        for _ in range(200):
+            R = PM * math.sqrt(max(PL**2 * a * a + 2 * G * PL * math.sin(th) * a
+                                   + PL**2 * w**4 + 2 * G * PL * w * w * math.cos(th)
+                                   + G * G, 0.0))
+            a_new = (-PM * G * PL * math.sin(th) - s * P_MU_K * PR * R) / Ip
+            if abs(a_new - a) <= 1e-16 * max(1.0, abs(a)):
+                return a_new
+            a = a_new
+        return a
+
+    t, th, turns = 0.0, theta0, []
+    while PL * abs(math.sin(th)) > P_MU_S * PR and t < t_end:
+        s = -math.copysign(1.0, math.sin(th))  # the swing starts towards the bottom
+
+        def rhs(_, y, s=s):
+            return [y[1], acc(y[0], y[1], s)]
+
+        def turn(_, y, s=s):
+            return y[1]
+
+        turn.terminal, turn.direction = True, -s
+        sol = solve_ivp(rhs, (t, t_end), [th, 0.0], method="DOP853", rtol=1e-13,
+                        atol=1e-15, events=turn, first_step=1e-6)
+        t, th = float(sol.t_events[0][0]), float(sol.y_events[0][0][0])
+        turns.append((t, th))
+    return turns
+
+
+def pendulum_angle(res):
+    r = res.channel("bodies/rod/r").data
+    return np.arctan2(r[:, 0], -r[:, 1])
+
+
+def test_pendulum_sticks_at_once_inside_the_friction_cone(tmp_path):
+    """L |sin(theta0)| = 0.015 <= mu_s r = 0.02: the pendulum released at rest never moves;
+    the stick holds the gravity torque m g L sin(theta0) with the pivot load m g."""
+    theta0 = 0.03
+    model, res = run(pendulum_deck(tmp_path, theta0, 2.0), rtol=1e-10, atol=1e-12)
+    assert res.complete, res.message
+    th = pendulum_angle(res)
+    assert np.abs(th - theta0).max() <= 1e-12
+    assert np.abs(res.channel("bodies/rod/rd").data).max() <= 1e-14
+    np.testing.assert_allclose(res.channel("forces/fr/normal_load").data, PM * G, rtol=1e-12)
+    np.testing.assert_allclose(np.abs(res.channel("forces/fr/friction").data),
+                               PM * G * PL * math.sin(theta0), rtol=1e-12)
+    assert np.all(res.channel("forces/fr/mode").data == 0.0)
+
+
+def test_pendulum_swings_then_stops_where_the_friction_cone_says(tmp_path):
+    """From theta0 = 0.3 (L sin = 0.148 > mu_s r): swings, loses energy to the pivot
+    friction (normal load: the reaction, centripetal and tangential parts included), and
+    stops at the first turning point with L |sin(theta)| <= mu_s r; every turning point
+    and the stop against the reference above to 1e-8 (s, rad)."""
+    theta0, t_end = 0.3, 4.5
+    turns = pendulum_reference(theta0, t_end)
+    assert len(turns) >= 3 and turns[-1][0] < t_end - 0.5
+    model, res = run(pendulum_deck(tmp_path, theta0, t_end), rtol=1e-11, atol=1e-13)
+    assert res.complete, res.message
+    evs = events_of(res, "fr")
+    assert len(evs) == len(turns)
+    b = model.body_index("rod")
+    for (te, name, q), (tw, thw) in zip(evs, turns):
+        assert name == "slip->stick"
+        assert abs(te - tw) <= 1e-8, (te, tw)
+        assert abs(math.atan2(q[7 * b], -q[7 * b + 1]) - thw) <= 1e-8
+    # the analytic condition: it swings on where L |sin| > mu_s r, stops where it is not
+    assert all(PL * abs(math.sin(th)) > P_MU_S * PR for _, th in turns[:-1])
+    assert PL * abs(math.sin(turns[-1][1])) <= P_MU_S * PR
+    after = res.t > turns[-1][0]
+    np.testing.assert_allclose(pendulum_angle(res)[after], turns[-1][1], atol=1e-8)
+    assert np.all(res.channel("forces/fr/mode").data[after] == 0.0)
