@@ -465,3 +465,54 @@ def test_pendulum_swings_then_stops_where_the_friction_cone_says(tmp_path):
     after = res.t > turns[-1][0]
     np.testing.assert_allclose(pendulum_angle(res)[after], turns[-1][1], atol=1e-8)
     assert np.all(res.channel("forces/fr/mode").data[after] == 0.0)
+
+
+# -- the hold rows of the stick: zero at the stick state, Jacobian against differences ------
+def _friction_model(joint_type, rng, **data):
+    from mbsim.model import compile_model
+    from tests.forces.builders import force
+    from tests.helpers import body, joint, pts, spec
+
+    P = rng.normal(size=3)
+    points = {"a": pts(P, P + rng.normal(size=3), P + rng.normal(size=3)),
+              "b": pts(rng.normal(size=3), rng.normal(size=3), rng.normal(size=3))}
+    if joint_type == "spherical":
+        points = {"a": pts(P), "b": pts(rng.normal(size=3))}
+    bodies = [body("a", 2.0, (1, 2, 3), rng.normal(size=3), rng.normal(size=4)),
+              body("b", 3.0, (2, 2, 1), rng.normal(size=3), rng.normal(size=4))]
+    fields = dict(joint="J", joint_type=joint_type, mu_s=0.3, mu_k=0.2, viscous=0.0,
+                  preload=0.0, reaction=True)
+    fields.update(data)
+    fr = force("fr", "friction", ("a", "b"), points, **fields)
+    return compile_model(spec(bodies, [joint("J", joint_type, "a", "b", points)], forces=[fr]))
+
+
+HOLD_CASES = [("translational", {}), ("revolute", {"pin_radius": 0.01})]
+
+
+@pytest.mark.parametrize("joint_type, extra", HOLD_CASES, ids=[c[0] for c in HOLD_CASES])
+def test_hold_rows_vanish_at_the_stick_state_and_match_finite_differences(joint_type, extra):
+    """Each row the stick holds: Phi = 0 at the state where the stick begins (its target is
+    the joint's coordinate there) and Phi_q against central differences along random tangent
+    directions (error O(h^2) ~ 1e-10 at h = 1e-5, plus round-off 1e-16 / h)."""
+    from types import SimpleNamespace
+
+    from mbsim import core
+    from mbsim.events import extend_model
+    from tests.forces.builders import tangent
+
+    rng = np.random.default_rng(7)
+    model = _friction_model(joint_type, rng, **extra)
+    el = model.forces[0]
+    q = model.q0.copy()
+    holds = el.holds("stick", SimpleNamespace(state=core.State(model, q)))
+    assert len(holds) == el.hold_count("stick") >= 1
+    ext = extend_model(model, holds)
+    rows = np.arange(model.m, ext.m)
+    np.testing.assert_allclose(core.phi(ext, None, q)[rows], 0.0, atol=1e-14)
+    J = core.phi_q(ext, None, q)[rows]
+    h = 1e-5
+    for _ in range(4):
+        dq = tangent(ext, q, rng)
+        fd = (core.phi(ext, None, q + h * dq)[rows] - core.phi(ext, None, q - h * dq)[rows]) / (2 * h)
+        np.testing.assert_allclose(J @ dq, fd, atol=1e-8 * max(1.0, np.abs(fd).max()))
