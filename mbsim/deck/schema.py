@@ -344,14 +344,16 @@ FORCE_TYPES = {
     "friction": ForceType(  # mbsim/forces/friction.py: stick-slip joint friction (ADAMS FRICTION)
         "pair-joint",
         {
-            "joint": Field("joint", required=True, options=("translational", "revolute")),
+            "joint": Field("joint", required=True,
+                           options=("translational", "revolute", "cylindrical", "spherical")),
             "mu_s": Field("number", required=True),  # static coefficient
             "mu_k": Field("number", required=True),  # kinetic coefficient, <= mu_s
             "viscous": Field("number", default=0.0),  # N s/m or N m s/rad
             "stribeck_velocity": Field("number"),  # m/s or rad/s; none: plain Coulomb
             "preload": Field("number", "force", default=0.0),  # N, added to the normal load
-            "pin_radius": Field("number", "length"),  # revolute: friction torque lever
-            "bearing_length": Field("number", "length"),  # translational: moment -> load
+            "pin_radius": Field("number", "length"),  # revolute, cylindrical: torque lever
+            "ball_radius": Field("number", "length"),  # spherical: torque lever
+            "bearing_length": Field("number", "length"),  # moment -> load (translational, cyl.)
             "reaction": Field("flag", default=True),  # normal load from the joint reaction
         },
     ),

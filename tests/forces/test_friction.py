@@ -309,6 +309,9 @@ def test_coulomb_error_estimate_honest_across_events(tmp_path):
     (("preload: 10.0", "preload: 10.0\n    viscous: -1"), "forces.fr.viscous", ">= 0"),
     (("joint: slide", "joint: sliide"), "forces.fr.joint", "sliide"),
     (("reaction: false", "reaction: maybe"), "forces.fr.reaction", "true or false"),
+    (("preload: 10.0", "preload: 10.0\n    pin_radius: 0.01"), "forces.fr.pin_radius",
+     "goes with a revolute or cylindrical joint"),
+    (("preload: 10.0", "preload: -10.0"), "forces.fr.preload", ">= 0"),
 ])
 def test_bad_parameters_one_error_line_exit_2(tmp_path, edit, key, message):
     from click.testing import CliRunner
@@ -332,16 +335,13 @@ def test_friction_on_an_unsupported_joint_type_is_a_deck_error(tmp_path):
     from mbsim.cli import main
 
     path = coulomb_deck(tmp_path)
-    text = path.read_text().replace("type: translational", "type: spherical", 1)
-    text = text.replace("      ground: {P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]}\n      block: "
-                        "{P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]}",
-                        "      ground: {P: [0, 0, 0]}\n      block: {P: [0, 0, 0]}")
+    text = path.read_text().replace("type: translational", "type: fixed", 1)
     path.write_text(text)
     out = CliRunner().invoke(main, ["run", str(path), "--mode", "dynamic"])
     assert out.exit_code == 2, out.output
     lines = [ln for ln in out.output.splitlines() if ln.startswith("error:")]
     assert len(lines) == 1, out.output
-    assert str(path) in lines[0] and "forces.fr.joint" in lines[0] and "spherical" in lines[0]
+    assert str(path) in lines[0] and "forces.fr.joint" in lines[0] and "fixed" in lines[0]
 
 
 # -- a pendulum with pivot friction, the normal load its joint's reaction ----------------------
@@ -487,7 +487,8 @@ def _friction_model(joint_type, rng, **data):
     return compile_model(spec(bodies, [joint("J", joint_type, "a", "b", points)], forces=[fr]))
 
 
-HOLD_CASES = [("translational", {}), ("revolute", {"pin_radius": 0.01})]
+HOLD_CASES = [("translational", {}), ("revolute", {"pin_radius": 0.01}),
+              ("cylindrical", {"pin_radius": 0.01}), ("spherical", {"ball_radius": 0.01})]
 
 
 @pytest.mark.parametrize("joint_type, extra", HOLD_CASES, ids=[c[0] for c in HOLD_CASES])
@@ -505,8 +506,10 @@ def test_hold_rows_vanish_at_the_stick_state_and_match_finite_differences(joint_
     model = _friction_model(joint_type, rng, **extra)
     el = model.forces[0]
     q = model.q0.copy()
-    holds = el.holds("stick", SimpleNamespace(state=core.State(model, q)))
-    assert len(holds) == el.hold_count("stick") >= 1
+    stick = ("stick", "stick") if joint_type == "cylindrical" else "stick"
+    holds = el.holds(stick, SimpleNamespace(state=core.State(model, q)))
+    assert len(holds) == el.hold_count(stick) == {"cylindrical": 2, "spherical": 3}.get(
+        joint_type, 1)
     ext = extend_model(model, holds)
     rows = np.arange(model.m, ext.m)
     np.testing.assert_allclose(core.phi(ext, None, q)[rows], 0.0, atol=1e-14)
@@ -516,3 +519,84 @@ def test_hold_rows_vanish_at_the_stick_state_and_match_finite_differences(joint_
         dq = tangent(ext, q, rng)
         fd = (core.phi(ext, None, q + h * dq)[rows] - core.phi(ext, None, q - h * dq)[rows]) / (2 * h)
         np.testing.assert_allclose(J @ dq, fd, atol=1e-8 * max(1.0, np.abs(fd).max()))
+    # independent rows: the held rows add their full rank to the joint's
+    rank = np.linalg.matrix_rank
+    J_all = core.phi_q(ext, None, q)
+    assert rank(J_all) == rank(J_all[:model.m]) + len(rows)
+
+
+def test_spherical_pendulum_stops_where_the_ball_friction_cone_says(tmp_path):
+    """The pendulum above on a ball joint (ball_radius = the pin's radius), swinging in its
+    plane: the ball's normal load is the whole reaction force, here in the plane of the
+    swing as the pin's radial one, so the turning points and the stop are the revolute's
+    (same reference, 1e-8)."""
+    theta0, t_end = 0.3, 4.5
+    turns = pendulum_reference(theta0, t_end)
+    path = pendulum_deck(tmp_path, theta0, t_end)
+    text = path.read_text().replace("type: revolute", "type: spherical")
+    text = text.replace("pin_radius:", "ball_radius:")
+    path.write_text(text)
+    model, res = run(path, rtol=1e-11, atol=1e-13)
+    assert res.complete, res.message
+    evs = events_of(res, "fr")
+    assert [e[1] for e in evs] == ["slip->stick"] * len(turns)
+    b = model.body_index("rod")
+    for (te, _, q), (tw, thw) in zip(evs, turns):
+        assert abs(te - tw) <= 1e-8, (te, tw)
+        assert abs(math.atan2(q[7 * b], -q[7 * b + 1]) - thw) <= 1e-8
+    after = res.t > turns[-1][0]
+    np.testing.assert_allclose(pendulum_angle(res)[after], turns[-1][1], atol=1e-8)
+    assert np.all(res.channel("forces/fr/mode").data[after] == 0.0)
+
+
+CYLINDER = """\
+title: a sleeve sliding and spinning on a horizontal shaft
+gravity: [0, -{g}, 0]
+bodies:
+  ground: {{ground: true}}
+  sleeve: {{mass: {m}, inertia: [{J}, 1, 1], r: [0, 0, 0], rdot: [{v0}, 0, 0],
+           omega: [{w0}, 0, 0]}}
+joints:
+  shaft:
+    type: cylindrical
+    bodies: [ground, sleeve]
+    points:
+      ground: {{P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]}}
+      sleeve: {{P: [0, 0, 0], Q: [1, 0, 0], R: [0, 1, 0]}}
+forces:
+  fr:
+    type: friction
+    joint: shaft
+    mu_s: {mu_s}
+    mu_k: {mu_k}
+    pin_radius: {r}
+analysis:
+  dynamic: {{t_end: 2.0, step: 0.01}}
+"""
+
+
+def test_cylindrical_slide_and_spin_stop_independently(tmp_path):
+    """A sleeve (m, J about the shaft) pushed along a horizontal shaft at v0 and spun at w0:
+    the shaft carries m g, so the slide decelerates at mu_k g and stops at v0 / (mu_k g)
+    after v0^2 / (2 mu_k g); the spin decelerates at mu_k m g r / J and stops at
+    w0 J / (mu_k m g r) after w0^2 J / (2 mu_k m g r).  Both then stick (nothing drives
+    them): the two events at those times (1e-8 s), the positions (1e-8)."""
+    m, J, v0, w0, mu_s, mu_k, r = 2.0, 0.01, 0.5, 3.0, 0.3, 0.2, 0.02
+    path = tmp_path / "cylinder.yaml"
+    path.write_text(CYLINDER.format(g=G, m=m, J=J, v0=v0, w0=w0, mu_s=mu_s, mu_k=mu_k, r=r))
+    model, res = run(path, rtol=1e-11, atol=1e-13)
+    assert res.complete, res.message
+    t_slide, t_spin = v0 / (mu_k * G), w0 * J / (mu_k * m * G * r)
+    evs = events_of(res, "fr")
+    want = sorted([(t_slide, "slip->stick (translation)"), (t_spin, "slip->stick (rotation)")])
+    assert [e[1] for e in evs] == [w[1] for w in want]
+    for (te, _, _), (tw, _) in zip(evs, want):
+        assert abs(te - tw) <= 1e-8, (te, tw)
+    after = res.t > max(t_slide, t_spin)
+    x = res.channel("bodies/sleeve/r").data[:, 0]
+    np.testing.assert_allclose(x[after], v0**2 / (2 * mu_k * G), atol=1e-8)
+    theta = res.channel("forces/fr/slip_rate").data
+    assert np.all(theta[after] == 0.0) or np.abs(theta[after]).max() <= 1e-14
+    np.testing.assert_allclose(res.channel("forces/fr/normal_load").data, m * G, rtol=1e-10)
+    assert np.all(res.channel("forces/fr/mode").data[after] == 0.0)
+    assert np.all(res.channel("forces/fr/mode_rotation").data[after] == 0.0)
