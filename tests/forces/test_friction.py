@@ -517,7 +517,8 @@ def test_hold_rows_vanish_at_the_stick_state_and_match_finite_differences(joint_
     h = 1e-5
     for _ in range(4):
         dq = tangent(ext, q, rng)
-        fd = (core.phi(ext, None, q + h * dq)[rows] - core.phi(ext, None, q - h * dq)[rows]) / (2 * h)
+        fd = (core.phi(ext, None, q + h * dq)[rows]
+              - core.phi(ext, None, q - h * dq)[rows]) / (2 * h)
         np.testing.assert_allclose(J @ dq, fd, atol=1e-8 * max(1.0, np.abs(fd).max()))
     # independent rows: the held rows add their full rank to the joint's
     rank = np.linalg.matrix_rank
