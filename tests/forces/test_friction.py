@@ -144,6 +144,53 @@ def belt_x(t):
     return out
 
 
+def belt_v(t):
+    """The block's velocity dx/dt of :func:`belt_x`."""
+    t1, ts, tk, R, xc = belt_cycle()
+    w = math.sqrt(K / M)
+    phi = math.atan2(VB / w, (MU_S - MU_K) * NLOAD / K)
+    out = np.full_like(t, VB)
+    for k, tt in enumerate(t):
+        tau = (tt - t1) % (ts + tk)
+        if tt > t1 and tau <= ts:
+            out[k] = -R * w * math.sin(w * tau - phi)
+    return out
+
+
+FAMILIES = [
+    ("projection-dop853", {"rtol": 1e-9, "atol": 1e-11}),
+    ("projection", {"rtol": 1e-9, "atol": 1e-11}),
+    ("baumgarte", {"rtol": 1e-9, "atol": 1e-11}),
+    ("rk4", {"h": 2e-3}),
+    ("gcp-rk45", {"rtol": 1e-9, "atol": 1e-11}),
+    ("gcp-dop853", {"rtol": 1e-9, "atol": 1e-11}),
+    ("gcp-rk4", {"h": 2e-3}),
+    ("genalpha", {"rtol": 1e-8, "atol": 1e-10}),
+    ("hht", {"rtol": 1e-8, "atol": 1e-10}),
+]
+
+
+@pytest.mark.parametrize("integrator, tols", FAMILIES, ids=[f[0] for f in FAMILIES])
+def test_belt_events_on_every_integrator_family(integrator, tols):
+    """The first four stick-slip events of the belt on every integrator family, each within
+    10 x (the run's true error of the switching function / its rate) of the closed form:
+    a breakaway's g = F_s - k x moves at k v_b (dt ~ e_x / v_b), a re-stick's v at
+    |vdot| = |F_k - k x| / m = 1 m/s^2 there (dt ~ e_v / 1 m/s^2)."""
+    from mbsim.events import EVENT_TIME_TOL
+
+    model, res = run(BELT, integrator=integrator, t_end=1.7, **tols)
+    assert res.complete, res.message
+    t1, ts, tk, _, _ = belt_cycle()
+    want = [t1, t1 + ts, t1 + ts + tk, t1 + 2 * ts + tk]
+    evs = events_of(res, "belt_friction")
+    assert len(evs) == len(want)
+    e_x = float(np.abs(res.channel("bodies/block/r").data[:, 0] - belt_x(res.t)).max())
+    e_v = float(np.abs(res.channel("bodies/block/rd").data[:, 0] - belt_v(res.t)).max())
+    for k, ((te, name, _), tw) in enumerate(zip(evs, want)):
+        bound = 10 * (e_x / VB if name == "breakaway" else e_v / 1.0)
+        assert abs(te - tw) <= bound + EVENT_TIME_TOL, (name, te, tw, bound)
+
+
 def test_belt_limit_cycle_stick_and_slip_at_the_analytic_times(tmp_path):
     """Breakaway and re-stick events at the closed form's times (1e-8 s), the block's x
     there (F_s / k and (2 F_k - F_s) / k), the cycle's amplitude R and period to 1e-6."""
