@@ -186,7 +186,7 @@ def test_belt_events_on_every_integrator_family(integrator, tols):
     assert len(evs) == len(want)
     e_x = float(np.abs(res.channel("bodies/block/r").data[:, 0] - belt_x(res.t)).max())
     e_v = float(np.abs(res.channel("bodies/block/rd").data[:, 0] - belt_v(res.t)).max())
-    for k, ((te, name, _), tw) in enumerate(zip(evs, want)):
+    for (te, name, _), tw in zip(evs, want):
         bound = 10 * (e_x / VB if name == "breakaway" else e_v / 1.0)
         assert abs(te - tw) <= bound + EVENT_TIME_TOL, (name, te, tw, bound)
 
