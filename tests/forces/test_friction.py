@@ -648,3 +648,53 @@ def test_cylindrical_slide_and_spin_stop_independently(tmp_path):
     np.testing.assert_allclose(res.channel("forces/fr/normal_load").data, m * G, rtol=1e-10)
     assert np.all(res.channel("forces/fr/mode").data[after] == 0.0)
     assert np.all(res.channel("forces/fr/mode_rotation").data[after] == 0.0)
+
+
+BEARING = """\
+title: a slider whose weight acts off its bearing
+gravity: [0, -{g}, 0]
+bodies:
+  ground: {{ground: true}}
+  slider: {{mass: {m}, inertia: [1, 1, 1], r: [0, 0, 0], rdot: [{v0}, 0, 0]}}
+joints:
+  guide:
+    type: translational
+    bodies: [ground, slider]
+    points:
+      ground: {{P: [{d}, 0, 0], Q: [{d1}, 0, 0], R: [{d}, 1, 0]}}
+      slider: {{P: [{d}, 0, 0], Q: [{d1}, 0, 0], R: [{d}, 1, 0]}}
+forces:
+  fr:
+    type: friction
+    joint: guide
+    mu_s: {mu_s}
+    mu_k: {mu_k}
+    bearing_length: {L}
+analysis:
+  dynamic: {{t_end: 1.0, step: 0.01}}
+"""
+
+
+def test_bearing_length_turns_the_reaction_moment_into_normal_load(tmp_path):
+    """A slider on a horizontal guide whose bearing centre P lies d ahead of its centroid:
+    the guide carries the weight m g and its moment m g d about P; the friction at P and the
+    slider's inertia m a (at the centroid, on the line through P along the guide) add no
+    moment.  N = m g (1 + 2 d / L) (two end forces m g d / L), so the slider decelerates
+    at mu_k N / m and stops at v0 m / (mu_k N) (the loop friction <-> reaction here settles
+    in one iteration)."""
+    m, v0, d, L, mu_s, mu_k = 3.0, 0.4, 0.05, 0.2, 0.3, 0.2
+    path = tmp_path / "bearing.yaml"
+    path.write_text(BEARING.format(g=G, m=m, v0=v0, d=d, d1=d + 1, L=L, mu_s=mu_s, mu_k=mu_k))
+    model, res = run(path, rtol=1e-11, atol=1e-13)
+    assert res.complete, res.message
+    N = m * G * (1 + 2 * d / L)
+    slipping = res.channel("forces/fr/mode").data == 1.0
+    assert slipping.sum() > 3
+    np.testing.assert_allclose(res.channel("forces/fr/normal_load").data[slipping], N,
+                               rtol=1e-10)
+    t_stop = v0 * m / (mu_k * N)
+    evs = events_of(res, "fr")
+    assert [e[1] for e in evs] == ["slip->stick"]
+    assert abs(evs[0][0] - t_stop) <= 1e-8
+    x = res.channel("bodies/slider/r").data[:, 0]
+    np.testing.assert_allclose(x[res.t > t_stop], v0 * t_stop / 2, atol=1e-8)
