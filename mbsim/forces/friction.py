@@ -93,6 +93,11 @@ HOLD_ROWS = {  # axis -> the hold row (kernel, its slots): the drivers' rows
 BALL_ROWS = (("h_i", "g_j"), ("f_i", "h_j"), ("g_i", "f_j"))  # spherical: dot-1 rows a_i . b_j
 
 
+def _slip(u):
+    """A spherical joint's slip mode with direction u (3,): ('slip', ux, uy, uz)."""
+    return ("slip", *(float(x) for x in u))
+
+
 def _nonnegative(d, key, where, positive=False):
     v = float(d[key])
     if v < 0 or (positive and v == 0):
@@ -445,7 +450,7 @@ class JointFriction(ForceElement):
         n = float(np.sqrt(T @ T))
         if n <= self.mu_s * self.normal_load(ctx.state, lam) * self.ball_radius:
             return "stick"
-        return ("slip", *(-T / n))
+        return _slip(-T / n)
 
     def initial_mode(self, ctx):
         if self.ball:
@@ -453,7 +458,7 @@ class JointFriction(ForceElement):
             n = float(np.sqrt(w @ w))
             if n <= REST_VELOCITY:
                 return self._ball_try_stick(ctx)
-            return ("slip", *(w / n))
+            return _slip(w / n)
         v = [tr[1] for tr in self.travels(ctx.state)]
         modes = ["+" if vk > 0 else "-" for vk in v]
         rest = [k for k, vk in enumerate(v) if abs(vk) <= REST_VELOCITY]
@@ -466,12 +471,12 @@ class JointFriction(ForceElement):
             if switch.name == "breakaway":
                 _, lam = ctx.accelerations()
                 T = self._held_torque(ctx.system, lam, ctx.state)
-                return ("slip", *(-T / float(np.sqrt(T @ T))))
+                return _slip(-T / float(np.sqrt(T @ T)))
             w = self.spin(ctx.state)
             n = float(np.sqrt(w @ w))
             if n <= REST_SPIN:
                 return self._ball_try_stick(ctx)
-            return ("slip", *(w / n))
+            return _slip(w / n)
         modes = list(self._split(mode))
         k = next(i for i in range(len(self.axes)) if switch.name.endswith(self._label(i)))
         if switch.name.startswith("breakaway"):
