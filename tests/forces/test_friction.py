@@ -698,3 +698,35 @@ def test_bearing_length_turns_the_reaction_moment_into_normal_load(tmp_path):
     assert abs(evs[0][0] - t_stop) <= 1e-8
     x = res.channel("bodies/slider/r").data[:, 0]
     np.testing.assert_allclose(x[res.t > t_stop], v0 * t_stop / 2, atol=1e-8)
+
+
+def test_stribeck_and_viscous_slip_law_on_the_incline(tmp_path):
+    """The block on a 30 deg incline (tan > mu_s: it breaks away at once) with a Stribeck
+    transition and a viscous term: m s'' = m g sin - mu(s') m g cos - c s', mu(v) = mu_k +
+    (mu_s - mu_k) exp(-(v / v_s)^2), against scipy's solution of that one equation
+    (rtol 1e-12: 1e-9 m); the friction channel equals the law at every output."""
+    from scipy.integrate import solve_ivp
+
+    theta, m, mu_s, mu_k, vs, c = math.radians(30.0), 2.0, 0.55, 0.3, 0.2, 0.5
+    path = incline(tmp_path, theta, mu_s, mu_k, m)
+    path.write_text(path.read_text().replace(
+        f"mu_k: {mu_k}", f"mu_k: {mu_k}\n    stribeck_velocity: {vs}\n    viscous: {c}"))
+    model, res = run(path, rtol=1e-11, atol=1e-13, t_end=2.0)
+    assert res.complete, res.message
+    N = m * G * math.cos(theta)
+
+    def mu(v):
+        return mu_k + (mu_s - mu_k) * np.exp(-((v / vs) ** 2))
+
+    sol = solve_ivp(lambda _, y: [y[1], G * math.sin(theta) - mu(y[1]) * N / m - c * y[1] / m],
+                    (0.0, 2.0), [0.0, 0.0], t_eval=res.t, rtol=1e-12, atol=1e-14,
+                    method="DOP853")
+    f = np.array([math.cos(theta), -math.sin(theta), 0.0])
+    r = res.channel("bodies/block/r").data
+    np.testing.assert_allclose((r - r[0]) @ f, sol.y[0], atol=1e-9)
+    v = res.channel("forces/fr/slip_velocity").data
+    np.testing.assert_allclose(v, sol.y[1], atol=1e-9)
+    np.testing.assert_allclose(res.channel("forces/fr/friction").data, -mu(v) * N - c * v,
+                               rtol=1e-12, atol=1e-12)
+    power = res.channel("forces/fr/power").data
+    assert np.all(power <= 0.0)
