@@ -36,8 +36,12 @@ Contract of a hybrid force element (besides :class:`mbsim.forces.base.ForceEleme
 5. ``switches(mode) -> [Switch]``: the event functions watched in ``mode``.
 6. ``next_mode(mode, switch, ctx) -> mode``: the mode after ``switch`` fired at ``ctx``
    (may test a candidate with ``ctx.trial``).
-7. ``channels_in(mode, st, t, lam) -> dict``: optional channels (as ``channels``).
-8. ``step_limit(mode, ctx) -> float``: optional, the longest next step from the state ctx
+7. ``channels_in(mode, st, t, lam, modes) -> dict``: optional channels (as ``channels``);
+   ``lam``: the multipliers on the model's rows followed by the held rows, ``modes``: every
+   hybrid element's mode there (which held rows are whose: ``hold_count(mode)`` rows each,
+   in the order of the model's forces).
+8. ``hold_count(mode) -> int``: the number of rows ``holds`` gives in ``mode``.
+9. ``step_limit(mode, ctx) -> float``: optional, the longest next step from the state ctx
    (inf: none), e.g. so that a contact cannot be stepped through unseen; applied by the
    driver before every step (:meth:`Watch.step_limit`).
 """
@@ -157,8 +161,11 @@ class Hybrid:
     def holds(self, mode, ctx):
         return []
 
-    def channels_in(self, mode, st, t, lam):
+    def channels_in(self, mode, st, t, lam, modes=None):
         return self.channels(st, t)
+
+    def hold_count(self, mode) -> int:
+        return 0
 
     def step_limit(self, mode, ctx) -> float:
         return math.inf

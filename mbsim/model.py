@@ -296,13 +296,17 @@ def compile_model(spec: DeckSpec) -> Model:
         a.setflags(write=False)
     row_item = np.array(rows.owner, dtype=int)
     row_item.setflags(write=False)
-    return Model(
+    model = Model(
         title=spec.title, file=spec.file, body_names=names, nb=nb, nq=7 * nb, m=rows.m,
         mass=mass, J_local=J, is_ground=ground, q0=q0, rdot0=rdot0, omega0=om0,
         omega0_local=oml0, gravity=np.asarray(spec.gravity, float), blocks=tuple(blocks),
         items=tuple(items), row_item=row_item, row_label=tuple(rows.labels), forces=forces,
         outputs=outputs, measures=MappingProxyType(dict(spec.output_measures)), events=events,
     )
+    for el in forces:  # elements that read the compiled rows (a friction's joint reaction)
+        if hasattr(el, "bind"):
+            el.bind(model)
+    return model
 
 
 def _item(name, kind, typ, row_list, bi, bj, fr, where, driver=None, func=None) -> Item:

@@ -304,7 +304,8 @@ class Recorder:
             if getattr(el, "hybrid", False):  # in each output's mode (mbsim.events)
                 modes, lam = self.extra.get("modes"), self.extra.get("lam_all")
                 rows = [el.channels_in(None if modes is None else modes[k].get(el.name),
-                                       states[k], ts[k], None if lam is None else lam[k])
+                                       states[k], ts[k], None if lam is None else lam[k],
+                                       None if modes is None else modes[k])
                         for k in range(len(ts))]
                 chans = {key: (np.array([np.asarray(r[key][0], float) for r in rows]), unit)
                          for key, (_, unit) in rows[0].items()}

@@ -84,18 +84,33 @@ def reactions(model, q, lam, t=0.0, kinds=("joint",)) -> list[Reaction]:
         for side, b, s_loc, C in (("i", it.bi, it.P_i, it.C_i), ("j", it.bj, it.P_j, it.C_j)):
             if b < 0:
                 continue
-            Jb = jac[:, rows, 7 * b: 7 * b + 7]  # (nt, k, 7)
-            Qc = -np.einsum("tkj,tk->tj", Jb, L[:, rows])  # (nt, 7) Haug eq. 11.6.x
-            F = Qc[:, :3]
-            n_c = 0.5 * np.einsum("tij,tj->ti", rot_G(P[:, b]), Qc[:, 3:])
-            A = rot_A(P[:, b])  # (nt, 3, 3)
-            F_loc = np.einsum("tji,tj->ti", A, F)  # A^T F
-            n_P = n_c - np.cross(np.broadcast_to(s_loc, F_loc.shape), F_loc)
-            out.append(Reaction(
-                item=it.name, side=side, body=int(b), force=F,
-                torque=np.einsum("tij,tj->ti", A, n_P),
-                force_local=F_loc @ C, torque_local=n_P @ C))
+            out.append(rows_reaction(it.name, side, int(b), jac[:, rows, 7 * b: 7 * b + 7],
+                                     L[:, rows], P[:, b], s_loc, C))
     return out
+
+
+def rows_reaction(item, side, b, Jb, lam_k, p_b, s_loc, C, A=None, G=None) -> Reaction:
+    """The :class:`Reaction` on body ``b`` of constraint rows with Jacobian columns ``Jb``
+    (nt, k, 7) of that body and multipliers ``lam_k`` (nt, k); p_b (nt, 4) its Euler
+    parameters, s_loc (3,) the joint point and C (3, 3) the joint frame (columns f, g, h) in
+    body coordinates (C None: the body frame); A (nt, 3, 3), G (nt, 3, 4): A(p_b), G(p_b)
+    when the caller has them.  The one formula of the module doc (also the per-step normal
+    load of :mod:`mbsim.forces.friction`)."""
+    Qc = -(np.swapaxes(Jb, 1, 2) @ lam_k[:, :, None])[:, :, 0]  # (nt, 7) Haug eq. 11.6.x
+    F = Qc[:, :3]
+    G = rot_G(p_b) if G is None else G
+    A = rot_A(p_b) if A is None else A  # (nt, 3, 3)
+    n_c = 0.5 * (G @ Qc[:, 3:, None])[:, :, 0]
+    F_loc = (np.swapaxes(A, 1, 2) @ F[:, :, None])[:, :, 0]  # A^T F
+    s = np.broadcast_to(s_loc, F_loc.shape)
+    sxF = s[:, _C1] * F_loc[:, _C2] - s[:, _C2] * F_loc[:, _C1]  # s' x (A^T F)
+    n_P = n_c - sxF
+    C = np.eye(3) if C is None else C
+    return Reaction(item=item, side=side, body=b, force=F, torque=(A @ n_P[:, :, None])[:, :, 0],
+                    force_local=F_loc @ C, torque_local=n_P @ C)
+
+
+_C1, _C2 = [1, 2, 0], [2, 0, 1]  # cross product components: (a x b)_k = a_C1 b_C2 - a_C2 b_C1
 
 
 def driver_effort(model, lam, t) -> dict[str, np.ndarray]:

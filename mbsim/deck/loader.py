@@ -524,6 +524,10 @@ def _field(rd: Reader, fld: schema.Field, node: Node, where: Where, bodies: dict
                 for i, v in enumerate(node.value)]  # fmt: skip
     if fld.kind == "choice":
         return rd.choice(node, where, fld.options)
+    if fld.kind == "flag":
+        if node.kind != "scalar" or not isinstance(node.value, bool):
+            raise rd.error(where, f"expected true or false, got {describe(node)}", node)
+        return bool(node.value)
     if fld.kind == "joint":
         jname = rd.name(node, where, joints, "joint")
         if joints[jname].type not in fld.options:

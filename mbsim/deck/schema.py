@@ -195,7 +195,8 @@ class Field(NamedTuple):
 
     kind: 'number' (float), 'vector' (3 floats), 'function' (FunctionSpec of t),
       'law' (FunctionSpec of t, or a bound Expression when it uses other names),
-      'laws' (one law, or a list of 3 laws), 'choice' (one of ``options``), 'joint' (the name
+      'laws' (one law, or a list of 3 laws), 'choice' (one of ``options``), 'flag' (true or
+      false), 'joint' (the name
       of a joint whose type is in ``options``), 'measures' (read by
       ``mbsim.forces.measures.read_measures``: {name: MeasureSpec}).
     dim: key of DIMENSIONS (None: any).  names: the variables a law may use besides t and
@@ -338,6 +339,22 @@ FORCE_TYPES = {
                 "choice", default="lankarani-nikravesh",
                 options=("hunt-crossley", "lankarani-nikravesh", "flores"),
             ),
+        },
+    ),
+    "friction": ForceType(  # mbsim/forces/friction.py: stick-slip joint friction (ADAMS FRICTION)
+        "pair-joint",
+        {
+            "joint": Field("joint", required=True,
+                           options=("translational", "revolute", "cylindrical", "spherical")),
+            "mu_s": Field("number", required=True),  # static coefficient
+            "mu_k": Field("number", required=True),  # kinetic coefficient, <= mu_s
+            "viscous": Field("number", default=0.0),  # N s/m or N m s/rad
+            "stribeck_velocity": Field("number"),  # m/s or rad/s; none: plain Coulomb
+            "preload": Field("number", "force", default=0.0),  # N, added to the normal load
+            "pin_radius": Field("number", "length"),  # revolute, cylindrical: torque lever
+            "ball_radius": Field("number", "length"),  # spherical: torque lever
+            "bearing_length": Field("number", "length"),  # moment -> load (translational, cyl.)
+            "reaction": Field("flag", default=True),  # normal load from the joint reaction
         },
     ),
 }

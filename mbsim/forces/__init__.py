@@ -30,3 +30,4 @@ from mbsim.forces import elements, tire  # noqa: E402, F401  (register the built
 
 # isort: split
 from mbsim.forces import bushing, contact  # noqa: E402, F401  (bushing; contact and stop)
+from mbsim.forces import friction  # noqa: E402, F401  (stick-slip joint friction)

@@ -374,7 +374,7 @@ class Contact(Impacts, ForceElement):
     def channels(self, st, t):
         return self.channels_in(None, st, t, None)
 
-    def channels_in(self, mode, st, t, lam):
+    def channels_in(self, mode, st, t, lam, modes=None):
         s = self.state(st, self._alpha(mode))
         g = s["g"]
         return {
@@ -541,7 +541,7 @@ class JointStop(Impacts, ForceElement):
     def channels(self, st, t):
         return self.channels_in(None, st, t, None)
 
-    def channels_in(self, mode, st, t, lam):
+    def channels_in(self, mode, st, t, lam, modes=None):
         s, sd, g, Fs, fe, _, _ = self.load(st, self._alpha(mode))
         unit = "rad" if self.angular else "m"
         return {

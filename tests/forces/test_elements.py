@@ -91,7 +91,37 @@ def _case(type_):
         s, *_ = m.forces[0].travel(eq.State(m, m.q0))
         f.data["upper"] = s - 0.3
         return compile_model(d)
+    if type_ == "friction":  # a slipping translational joint, normal load the preload
+        P = rng.normal(size=3)
+        J = joint("T", "translational", "a", "b",
+                  {"a": pts(P, P + rng.normal(size=3), P + rng.normal(size=3)),
+                   "b": pts(*rng.normal(size=(3, 3)))})  # fmt: skip
+        data = dict(joint="T", joint_type="translational", mu_s=0.5, mu_k=0.3, viscous=2.0,
+                    preload=5.0, stribeck_velocity=0.1, reaction=False)  # fmt: skip
+        return two_body_model([force("FR", "friction", ("a", "b"), dict(J.points), **data)],
+                              rng, [J])
     raise KeyError(f"no test case for force type {type_!r}: add one")
+
+
+def _slip_virtual_work(model, q):
+    """A hybrid element (joint friction) in slip: its loads (apply_in) do the work Fs ds
+    along the joint's coordinate s (ds by central differences along dq, step 1e-6)."""
+    el = model.forces[0]
+    qd = _velocity(model, q)
+    st = eq.State(model, q, qd)
+    G = eq.State(model, q).G
+    for mode in ("+", "-"):
+        F, n = np.zeros((model.nb, 3)), np.zeros((model.nb, 3))
+        el.apply_in(mode, st, 0.0, None, F, n)
+        Q = np.concatenate([F, 2 * np.einsum("bij,bi->bj", G, n)], axis=1).reshape(-1)
+        Fs = el.slip_load(mode, st, None)[0]
+        assert Fs != 0.0
+        for _ in range(3):
+            dq = tangent(model, q, rng)
+            h = 1e-6
+            ds = (el.travel(eq.State(model, q + h * dq))[0]
+                  - el.travel(eq.State(model, q - h * dq))[0]) / (2 * h)
+            assert abs(Q @ dq - Fs * ds) < 1e-7 * max(1.0, abs(Fs * ds)), (Q @ dq, Fs * ds)
 
 
 @pytest.mark.parametrize("type_", sorted(FORCES))
@@ -99,6 +129,8 @@ def test_virtual_work(type_):
     """Q . dq = -dV for conservative elements; torques do T . dphi."""
     model = _case(type_)
     q = model.q0
+    if getattr(model.forces[0], "hybrid", False):
+        return _slip_virtual_work(model, q)
     Q = Q_of(model, q)
     for _ in range(3):
         dq = tangent(model, q, rng)
