@@ -387,7 +387,8 @@ class Watch:
     def step_limit(self, run, h_max):
         """The longest next step from the run's state: ``h_max`` (the option) or less where
         a hybrid element limits it (contract item 8)."""
-        limits = [el for el in run.system.hybrid if type(el).step_limit is not Hybrid.step_limit]
+        limits = [el for el in run.system.hybrid
+                  if getattr(type(el), "step_limit", Hybrid.step_limit) is not Hybrid.step_limit]
         if not limits:
             return h_max
         s = run.solver

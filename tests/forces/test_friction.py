@@ -21,8 +21,8 @@ G = 9.81
 
 
 def run(path, **options):
-    _, model = load_model(str(path))
-    return model, run_model(model, "dynamic", options)
+    spec, model = load_model(str(path))
+    return model, run_model(model, "dynamic", options, deck=spec)
 
 
 def events_of(res, element):
