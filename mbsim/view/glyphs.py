@@ -151,6 +151,7 @@ DRAWINGS: dict[str, Callable[[ForceSpec, DeckSpec, float], list[dict]]] = {
     "bushing": bushing,
     "contact": contact,
     "stop": stop,
+    "friction": joint_marker,
 }
 
 
