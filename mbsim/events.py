@@ -415,11 +415,36 @@ class Watch:
 
     def check(self, run):
         """After an accepted step of ``run``: the earliest event in the step (:class:`Event`)
-        or None (the values then move to the step's end)."""
+        or None (the values then move to the step's end).
+
+        A switch whose function is back on its first side at the step's end (a crossing and
+        its return inside the step) is seen by its probes (``Switch.probe``), or, where an
+        earlier event cuts the step, by its value at that event: the events are located
+        again until none crosses before the earliest."""
         solver, system = run.solver, run.system
         t0, t1 = solver.t_old, solver.t
         ctx1 = Context(system, t1, solver.q, solver.qd)
-        found, values = [], {}
+        found, values, watched = [], {}, []
+
+        def locate_in(sw, ta, ga, tb, gb):
+            def g(t):
+                Q, QD, _ = solver.dense_output_many([t])
+                return sw.value(Context(system, t, Q[0], QD[0]))
+
+            if not crossed(sw.direction, ga, gb):
+                if not sw.probe:
+                    return None
+                # a crossing and its return inside [ta, tb]: the first probe past it
+                for tp in np.linspace(ta, tb, sw.probe + 2)[1:-1]:
+                    gp = g(tp)
+                    if crossed(sw.direction, ga, gp):
+                        tb, gb = tp, gp
+                        break
+                    ta, ga = tp, gp
+                else:
+                    return None
+            return locate(g, ta, tb, ga, gb, EVENT_TIME_TOL * max(1.0, abs(tb))), ga
+
         for sw in self.switches(run):
             k = _key(sw)
             g1 = sw.value(ctx1)
@@ -427,39 +452,36 @@ class Watch:
             g0 = self.values.get(k)
             if g0 is None or not self.armed.get(k, True):
                 continue
-            tol = EVENT_TIME_TOL * max(1.0, abs(t1))
-
-            def g(t, sw=sw):
-                Q, QD, _ = solver.dense_output_many([t])
-                return sw.value(Context(system, t, Q[0], QD[0]))
-
-            ta, ga, tb, gb = t0, g0, t1, g1
-            if not crossed(sw.direction, g0, g1):
-                if not sw.probe:
-                    continue
-                # a crossing and its return inside the step: the first probe past it
-                for tp in np.linspace(t0, t1, sw.probe + 2)[1:-1]:
-                    gp = g(tp)
-                    if crossed(sw.direction, ga, gp):
-                        tb, gb = tp, gp
-                        break
-                    ta, ga = tp, gp
-                else:
-                    continue
-            found.append((locate(g, ta, tb, ga, gb, tol), sw, ga))
+            watched.append((sw, g0))
+            hit = locate_in(sw, t0, g0, t1, g1)
+            if hit is not None:
+                found.append((hit[0], sw, hit[1]))
         if not found:
             self.values = values
             self._rearm()
             return None
-        te = min(f[0] for f in found)
+        while True:
+            te = min(f[0] for f in found)
+            if te >= t1:
+                Q, QD, W = solver.q[None], solver.qd[None], np.array([solver.w])
+            else:
+                Q, QD, W = solver.dense_output_many([te])
+            ctx_e = Context(system, te, Q[0], QD[0])
+            seen = {_key(f[1]) for f in found}
+            more = False
+            for sw, g0 in watched:
+                if _key(sw) in seen:
+                    continue
+                hit = locate_in(sw, t0, g0, te, sw.value(ctx_e))
+                if hit is not None:
+                    found.append((hit[0], sw, hit[1]))
+                    more = True
+            if not more:
+                break
         tol = EVENT_TIME_TOL * max(1.0, abs(te))
         fired = [(sw, g0) for t, sw, g0 in found if t <= te + 2 * tol]
         for sw, g0 in fired:
             if sw.action != "switch":
                 self.armed[_key(sw)] = False
                 self.since[_key(sw)] = float(np.sign(g0))
-        if te >= t1:
-            Q, QD, W = solver.q[None], solver.qd[None], np.array([solver.w])
-        else:
-            Q, QD, W = solver.dense_output_many([te])
         return Event(float(te), Q[0].copy(), QD[0].copy(), float(W[0]), [sw for sw, _ in fired])

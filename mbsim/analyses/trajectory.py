@@ -490,7 +490,7 @@ class Stepper:
         # step before it says nothing about the one after)
         opt = dict(self.opt, h0=None)
         solver = self.cls(system, ev.t, q, qd, self.t1, opt)
-        solver.w = ev.w
+        solver.set_work(ev.w)
         solver.step_ends = self.step_ends
         self._retired.append(s.all_counters())
         self.system, self.solver = system, solver
@@ -529,7 +529,7 @@ class Stepper:
             solver = self.cls(system, s.t, s.q, s.qd, self.t1, opt)
         except NUMERICAL_ERRORS:  # the new rows do not solve here either: the failure stands
             return False
-        solver.w = s.w
+        solver.set_work(s.w)
         solver.step_ends = self.step_ends
         self._retired.append(s.all_counters())
         names = model.items_of_rows(red) if red.size else []

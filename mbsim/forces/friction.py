@@ -30,7 +30,7 @@ with ``stribeck_velocity`` v_s (no v_s: mu = mu_k in slip, plain Coulomb).  Mode
 (fixed during a step, so that the law is smooth inside steps):
 
 - ``'+'`` / ``'-'``: slipping with v > 0 / v < 0: Fs = -s C(v) - viscous v, s = +1 / -1 the
-  mode's sign; the switch ``slip->stick`` fires when v crosses 0 (falling in '+', rising in
+  mode's sign; the switch ``rest`` fires when v crosses 0 (falling in '+', rising in
   '-'): then the stick is tried (:meth:`JointFriction.next_mode`);
 - ``'stick'``: a constraint row (:class:`mbsim.events.HoldRow`) holds s at its value when the
   stick began (the translation or rotation driver's row with that constant target); its
@@ -415,14 +415,14 @@ class JointFriction(ForceElement):
                 return [Switch("breakaway", -1, self._breakaway(0, mode), self.name)]
             if isinstance(mode, tuple):
                 u = np.array(mode[1:])
-                return [Switch("slip->stick", -1, lambda ctx: float(self.spin(ctx.state) @ u),
+                return [Switch("rest", -1, lambda ctx: float(self.spin(ctx.state) @ u),
                                self.name)]
             return []
         out = []
         for k, m in enumerate(self._split(mode)):
             label = self._label(k)
             if m in ("+", "-"):
-                out.append(Switch("slip->stick" + label, -1 if m == "+" else 1,
+                out.append(Switch("rest" + label, -1 if m == "+" else 1,
                                   self._velocity(k), self.name))
             elif m == "stick":
                 out.append(Switch("breakaway" + label, -1, self._breakaway(k, mode), self.name))

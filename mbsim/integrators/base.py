@@ -196,6 +196,11 @@ class Integrator(ABC):
     def dense_output(self):
         return self._dense_output_impl()
 
+    def set_work(self, w):
+        """Continue the integrated power ``w`` of a run restarted with this integrator (a
+        change of rows or of modes): the run's work monitor goes on from there."""
+        self.w = float(w)
+
     def dense_output_many(self, times):
         """(Q (k, nq), QD (k, nq), W (k,)): the state at each of ``times`` (ascending, in
         the last step [t_old, t]; at t itself the accepted state), failures as

@@ -244,6 +244,10 @@ class RungeKuttaIntegrator(Integrator):
         K[-1] = f_new
         return y_new, f_new
 
+    def set_work(self, w):
+        super().set_work(w)
+        self.y[-1] = self.w  # y = (..., w): the integrated power is its last component
+
     def _step_impl(self):
         t = self.t
         rejected = False

@@ -209,7 +209,7 @@ def test_belt_limit_cycle_stick_and_slip_at_the_analytic_times(tmp_path):
     while t < 3.0:
         want.append((t, "breakaway", MU_S * NLOAD / K))
         if t + ts < 3.0:
-            want.append((t + ts, "slip->stick", (2 * MU_K - MU_S) * NLOAD / K))
+            want.append((t + ts, "rest", (2 * MU_K - MU_S) * NLOAD / K))
         t += ts + tk
     assert [e[1] for e in evs] == [w[1] for w in want]
     for (te, _, q), (tw, _, xw) in zip(evs, want):
@@ -321,7 +321,7 @@ def test_coulomb_oscillator_amplitude_falls_4F_over_k_and_stops_at_the_predicted
     evs = events_of(res, "fr")
     b = model.body_index("block")
     assert len(evs) == len(turns)
-    assert all(name == "slip->stick" for _, name, _ in evs)
+    assert all(name == "rest" for _, name, _ in evs)
     for (te, _, q), (tw, xw) in zip(evs, turns):
         assert abs(te - tw) <= 1e-8, (te, tw)
         assert abs(q[7 * b] - xw) <= 1e-8
@@ -503,7 +503,7 @@ def test_pendulum_swings_then_stops_where_the_friction_cone_says(tmp_path):
     assert len(evs) == len(turns)
     b = model.body_index("rod")
     for (te, name, q), (tw, thw) in zip(evs, turns):
-        assert name == "slip->stick"
+        assert name == "rest"
         assert abs(te - tw) <= 1e-8, (te, tw)
         assert abs(math.atan2(q[7 * b], -q[7 * b + 1]) - thw) <= 1e-8
     # the analytic condition: it swings on where L |sin| > mu_s r, stops where it is not
@@ -587,7 +587,7 @@ def test_spherical_pendulum_stops_where_the_ball_friction_cone_says(tmp_path):
     model, res = run(path, rtol=1e-11, atol=1e-13)
     assert res.complete, res.message
     evs = events_of(res, "fr")
-    assert [e[1] for e in evs] == ["slip->stick"] * len(turns)
+    assert [e[1] for e in evs] == ["rest"] * len(turns)
     b = model.body_index("rod")
     for (te, _, q), (tw, thw) in zip(evs, turns):
         assert abs(te - tw) <= 1e-8, (te, tw)
@@ -636,7 +636,7 @@ def test_cylindrical_slide_and_spin_stop_independently(tmp_path):
     assert res.complete, res.message
     t_slide, t_spin = v0 / (mu_k * G), w0 * J / (mu_k * m * G * r)
     evs = events_of(res, "fr")
-    want = sorted([(t_slide, "slip->stick (translation)"), (t_spin, "slip->stick (rotation)")])
+    want = sorted([(t_slide, "rest (translation)"), (t_spin, "rest (rotation)")])
     assert [e[1] for e in evs] == [w[1] for w in want]
     for (te, _, _), (tw, _) in zip(evs, want):
         assert abs(te - tw) <= 1e-8, (te, tw)
@@ -694,7 +694,7 @@ def test_bearing_length_turns_the_reaction_moment_into_normal_load(tmp_path):
                                rtol=1e-10)
     t_stop = v0 * m / (mu_k * N)
     evs = events_of(res, "fr")
-    assert [e[1] for e in evs] == ["slip->stick"]
+    assert [e[1] for e in evs] == ["rest"]
     assert abs(evs[0][0] - t_stop) <= 1e-8
     x = res.channel("bodies/slider/r").data[:, 0]
     np.testing.assert_allclose(x[res.t > t_stop], v0 * t_stop / 2, atol=1e-8)
