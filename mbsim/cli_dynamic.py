@@ -59,8 +59,8 @@ def bench_command(deck, integrators, tolerances, steps_, t_end, outputs, repeats
     click.echo("\nwall time per simulated second to reach an error of:")
     for target in (1e-3, 1e-6, 1e-9):
         cost = bench.cost_to_reach(target)
-        best = ", ".join(f"{k} {v:.3g}" for k, v in sorted(cost.items(), key=lambda kv: kv[1])
-                         if v == v)
+        reached = [(k, v) for k, v in cost.items() if v == v]  # NaN would upset the sort
+        best = ", ".join(f"{k} {v:.3g}" for k, v in sorted(reached, key=lambda kv: kv[1]))
         click.echo(f"  {target:g}: {best or 'not reached'}")
     if output:
         from mbsim.output import save_figure
