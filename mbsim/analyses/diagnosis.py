@@ -49,7 +49,7 @@ def dropped_rows_conflict(model, system, t, q, ph, tol, cache):
     violation and the Newton tolerance).  ``cache``: {id(system): (red, C, row norms of
     C)}: C is found once per row set and found again at q before a violation is reported
     (the dependency turns with the mechanism)."""
-    rows = system.rows
+    rows = system.rows[system.rows < model.m]  # not the rows a hybrid mode holds
     if rows.size == model.m:
         return None
     level = max(float(np.abs(ph[rows]).max(initial=0.0)), tol)
