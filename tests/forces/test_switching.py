@@ -16,7 +16,8 @@ Tolerances: the runs use rtol 1e-10, atol 1e-12; an event time is off by the sol
 error over the event function's rate (|e_v| / |v'| with |v'(t1)| = 1.41 m/s^2, and alpha' =
 0.2 1/s at t2): 1e-8 s covers both with a margin of 100; positions 1e-8 m (the errors of
 the state, ~1e-12, times the growth of cubic motion over 3 s).  While held, the velocity is
-the projection's round-off (<= 1e-15 m/s) and the position moves by less than 1e-12 m.
+the projection's round-off (<= 1e-15 m/s; the families that do not project: their own
+tolerance) and the position moves by less than 1e-12 m.
 """
 
 from __future__ import annotations
@@ -89,12 +90,27 @@ def events_of(res):
     return [(e["t"], e["event"], e["mode"]) for e in res.summary["events"]]
 
 
-@pytest.mark.parametrize("integrator", ["projection-dop853", "gcp-rk45"])
+# every integrator family; the fixed-step ones at h = 1e-3 s: rk4 and gcp-rk4 (4th order,
+# error ~ h^4 = 1e-12) within the adaptive runs' bounds; genalpha and hht (2nd order, error
+# ~ h^2 x the jerk (1 m/s^3) = 1e-6 m; measured 2e-7 m and 3e-8 s) within 1e-6
+FAMILIES = {"gcp-rk45": None, "gcp-dop853": None, "gcp-rk4": 1e-3, "projection": None,
+            "projection-dop853": None, "baumgarte": None, "rk4": 1e-3, "genalpha": 1e-3,
+            "hht": 1e-3}
+SECOND_ORDER = ("genalpha", "hht")
+# while held, the velocity is the velocity projection's round-off (<= 1e-15) in the families
+# that project; baumgarte, genalpha and hht hold the velocity constraint to their own
+# tolerance (drift stabilisation, Newton on rtol 1e-10: measured 8e-14 and 1.2e-12)
+NOT_PROJECTED = ("baumgarte", "genalpha", "hht")
+
+
+@pytest.mark.parametrize("integrator", list(FAMILIES))
 def test_sliding_mode_enters_holds_and_leaves_at_the_analytic_times(tmp_path, integrator):
-    _, res = run(block(tmp_path, integrator=integrator))
+    h = FAMILIES[integrator]
+    _, res = run(block(tmp_path, integrator=integrator), **({"h": h} if h else {}))
+    tol = 1e-6 if integrator in SECOND_ORDER else 1e-8
     assert res.complete, res.message
     (te, ev1, m1), (tl, ev2, m2) = events_of(res)
-    assert te == pytest.approx(T1, abs=1e-8) and ev1 == "v = 0"
+    assert te == pytest.approx(T1, abs=tol) and ev1 == "v = 0"
     assert m1.startswith("v > 0 -> hold")
     assert tl == pytest.approx(T2, abs=1e-8) and ev2 == "alpha > 1"
     assert m2.endswith("-> v > 0")
@@ -103,15 +119,16 @@ def test_sliding_mode_enters_holds_and_leaves_at_the_analytic_times(tmp_path, in
     v = res.channel("bodies/block/rd").data[:, 0]
     held = (t > te) & (t < tl)
     assert held.sum() > 100
-    assert np.abs(v[held]).max() <= 1e-15
+    assert np.abs(v[held]).max() <= (1e-10 if integrator in NOT_PROJECTED else 1e-15)
     assert np.ptp(x[held]) <= 1e-12
-    np.testing.assert_allclose(x, x_exact(t), rtol=0, atol=1e-8)
+    np.testing.assert_allclose(x, x_exact(t), rtol=0, atol=tol)
     side = res.channel("forces/brake/side").data
-    assert np.all(side[held] == 0) and np.all(side[t < te] == 1) and np.all(side[t > tl + 1e-8] == 1)
+    assert np.all(side[held] == 0) and np.all(side[t < te] == 1)
+    assert np.all(side[t > tl + 1e-8] == 1)
     # at the hold's start the brake carries Filippov's force: -P(t1) (alpha = (P + 5) / 10)
     k = int(np.argmax(held))
     F = res.channel("forces/brake/force").data[k, 0]
-    assert F == pytest.approx(-(1 + 2 * T1), abs=1e-6)
+    assert F == pytest.approx(-(1 + 2 * T1), abs=10 * tol)
 
 
 def test_crossing_without_sliding_mode_keeps_the_plain_law(tmp_path):
