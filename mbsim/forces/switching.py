@@ -269,6 +269,30 @@ class SwitchingLaw:
             return Side(1 if v > 0 else -1, self.mname)
         return plan(ctx).get(self.name, Side(1, self.mname))
 
+    model = None  # the compiled model, where the compiler binds it (bind)
+
+    def bind(self, model):
+        """Keep the compiled model: it says which held rows of ``lam`` are this element's."""
+        self.model = model
+
+    def held_multiplier(self, lam, modes):
+        """The multiplier of this element's hold row in ``lam`` (the model's rows, then the
+        held rows: ``hold_count`` per hybrid element in the order of the model's forces),
+        given every hybrid element's mode ``modes``; None when that is not known."""
+        if self.model is None or lam is None or modes is None:
+            return None
+        row = self.model.m
+        for f in self.model.forces:
+            if not getattr(f, "hybrid", False):
+                continue
+            if not hasattr(f, "hold_count"):
+                return None
+            k = f.hold_count(modes.get(f.name))
+            if f is self:
+                return float(lam[row]) if k and len(lam) > row else None
+            row += k
+        return None
+
     def hold_count(self, mode) -> int:
         return 1 if isinstance(mode, Hold) and mode.lead == self.name else 0
 
@@ -437,6 +461,18 @@ class SwitchingForce(SwitchingLaw, PointForce):
 
     def channels_from(self, st, t, v):
         return {"force": (st.A[self.b] @ v if self.local else np.array(v), "N")}
+
+    def channels_in(self, mode, st, t, lam, modes=None):
+        """As :meth:`SwitchingLaw.channels_in`; the lead of a hold adds its row's force,
+        -lam e_axis at the point (Phi = coordinate - target, M qdd + Phi_q^T lam = Q), so
+        that ``force`` is the whole force that holds v at 0, where the row is known."""
+        out = super().channels_in(mode, st, t, lam, modes)
+        if isinstance(mode, Hold) and mode.lead == self.name:
+            lam_h = self.held_multiplier(lam, modes)
+            if lam_h is not None:
+                axis = int(np.argmax(np.abs(self.measure.u)))
+                out["force"][0][axis] -= lam_h
+        return out
 
 
 class SwitchingTorque(SwitchingLaw, Torque):

@@ -252,3 +252,27 @@ def test_compressor_from_30_rad_s_stops_and_stays_at_rest():
     y = res.channel("bodies/piston1/r").data[:, 1]
     assert np.ptp(y[after]) <= 1e-12
     assert np.all(w[res.t < t_stop - 0.002, 1] > 0)
+
+
+def test_the_lead_of_a_hold_reports_the_holding_force_with_its_row(tmp_path):
+    """While held, the brake applies F(v < 0) + alpha0 (F(v > 0) - F(v < 0)) and the hold
+    row carries the rest: at rest M x'' = 0 = P + F_applied - lam (Phi = x - x1), so the
+    whole holding force F_applied - lam is -P.  With the compiled model bound and every
+    element's mode given, the channel adds the row's part; without them, alpha0's value."""
+    model, _ = run(block(tmp_path))
+    brake = next(el for el in model.forces if isinstance(el, SwitchingLaw))
+    hold = Hold("brake", (("brake", 1),), 0.25)
+    q = model.q0.copy()
+    st = core.State(model, q, np.zeros(model.nq))
+    t = 1.0  # P = 3
+    applied = 5.0 + 0.25 * (-5.0 - 5.0)  # F(v < 0) + alpha0 (F(v > 0) - F(v < 0))
+    lam = np.concatenate([np.zeros(model.m), [3.0 + applied]])
+    modes = {"brake": hold}
+    assert brake.channels_in(hold, st, t, lam, modes)["force"][0][0] == pytest.approx(applied)
+    brake.bind(model)
+    try:
+        F = brake.channels_in(hold, st, t, lam, modes)["force"][0]
+        np.testing.assert_allclose(F, [-3.0, 0.0, 0.0], atol=1e-15)
+        assert brake.held_multiplier(lam, {"brake": Side(1)}) is None
+    finally:
+        brake.model = None
