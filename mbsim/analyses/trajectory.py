@@ -411,8 +411,9 @@ class Stepper:
         modes = self.modes if modes is None else modes
         holds = self.holds if holds is None else holds
         model = extend_model(self.model, holds)
-        if holds:
-            rows = np.concatenate([rows, np.arange(self.model.m, model.m)])
+        if holds:  # rows None: all of the model's
+            rows = np.concatenate([np.arange(self.model.m) if rows is None else rows,
+                                   np.arange(self.model.m, model.m)])
         system = (make_system(model, rows, self.opt.get("sparse"), modes) if modes
                   else make_system(model, rows, self.opt.get("sparse")))
         system.family = self
