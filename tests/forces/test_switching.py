@@ -276,3 +276,47 @@ def test_the_lead_of_a_hold_reports_the_holding_force_with_its_row(tmp_path):
         assert brake.held_multiplier(lam, {"brake": Side(1)}) is None
     finally:
         brake.model = None
+
+
+ROTOR = """\
+title: rotor braked by a switching torque on its angular velocity
+gravity: [0, 0, 0]
+bodies:
+  ground: {ground: true}
+  rotor: {mass: 1.0, inertia: [1, 1, 2], r: [0, 0, 0], omega: [0, 0, 1]}
+joints:
+  shaft:
+    type: revolute
+    bodies: [ground, rotor]
+    points:
+      ground: [0, 0, 0,   0, 0, 1,   1, 0, 0]
+      rotor: [0, 0, 0,   0, 0, 1,   1, 0, 0]
+forces:
+  push: {type: torque, body: rotor, direction: [0, 0, 1], law: '1 + 2*t'}
+  brake:
+    type: torque
+    body: rotor
+    direction: [0, 0, 1]
+    law: 'where(w < 0, 5, -5)'
+    measures:
+      w: {type: angular_velocity, body: rotor, axis: z}
+analysis:
+  dynamic: {t_end: 3.0, step: 0.01, rtol: 1.0e-10, atol: 1.0e-12}
+"""
+
+
+def test_a_sliding_mode_the_element_cannot_hold_ends_the_run_naming_it(tmp_path):
+    """The block's law as a torque on an angular velocity (w' = (P - 5) / 2, the same
+    w(t)): it switches at located events, but a hold needs a velocity along a global axis,
+    so the sliding mode at t = 2 - sqrt(2) ends the run there, incomplete (exit 1), the
+    element named, the outputs before it kept."""
+    deck = tmp_path / "rotor.yaml"
+    deck.write_text(ROTOR)
+    out = tmp_path / "rotor.h5"
+    r = CliRunner().invoke(main, ["run", str(deck), "--mode", "dynamic", "-o", str(out)])
+    assert r.exit_code == 1, r.output
+    assert "brake" in r.output and "sliding mode" in r.output and "Traceback" not in r.output
+    from mbsim.output.hdf5 import read_result
+
+    res = read_result(out)
+    assert res.status == "incomplete" and res.t[-1] == pytest.approx(T1, abs=0.011)
