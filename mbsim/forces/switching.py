@@ -43,8 +43,10 @@ the compressor's stall; otherwise alpha moves and the row's multiplier carries t
 difference).  Channel ``forces/<name>/side``: -1, +1 (the side), 0 while it holds.
 
 A hold needs the measure's coordinate as a constraint row: a ``velocity`` measure along a
-global x, y or z axis (frame global).  Other measures still switch at located events; a
-sliding mode on them ends the run (incomplete, naming the element).
+global x, y or z axis (``absolute`` row), or an ``angular_velocity`` about a global axis
+(``angle`` row against a ground body; exact while the body turns about that axis, as on a
+revolute joint).  Other measures (body-frame axes, oblique velocities) still switch at
+located events; a sliding mode on them ends the run (incomplete, naming the element).
 """
 
 from __future__ import annotations
@@ -249,18 +251,35 @@ class SwitchingLaw:
         return float(m.u @ (A @ wd))
 
     def hold_row(self, ctx):
-        """The HoldRow that holds the measure at 0 (its coordinate at ctx), or None when
-        the measure is not a global coordinate's rate."""
-        m = self.measure
-        if not isinstance(m, Velocity) or m.local:
+        """The HoldRow that holds the measure at 0, or None when it cannot: a ``velocity``
+        along a global x, y or z axis holds that coordinate of its point (``absolute``,
+        target = its value at ctx); an ``angular_velocity`` about a global axis u holds the
+        body's rotation about u against a ground body (``angle`` from g to g_j about
+        f = u, g_j the body-fixed copy of g at ctx, target 0: d(angle)/dt = u . w there,
+        exact while the body turns about u, as on a revolute joint)."""
+        m, st = self.measure, ctx.state
+        if m.local:
             return None
-        axis = int(np.argmax(np.abs(m.u)))
-        if abs(abs(m.u[axis]) - 1.0) > 1e-15:
+        if isinstance(m, Velocity):
+            axis = int(np.argmax(np.abs(m.u)))
+            if abs(abs(m.u[axis]) - 1.0) > 1e-15:
+                return None
+            target = float(st.r[m.b, axis] + (st.A[m.b] @ m.s)[axis])
+            return HoldRow("absolute", {"s": "P_i"},
+                           {"P_i": np.array(m.s, float), "axis": axis},
+                           m.b, -1, target, self.name, f"{self.name} hold")
+        grounds = np.flatnonzero(ctx.model.is_ground)
+        if grounds.size == 0:
             return None
-        st = ctx.state
-        target = float(st.r[m.b, axis] + (st.A[m.b] @ m.s)[axis])
-        return HoldRow("absolute", {"s": "P_i"}, {"P_i": np.array(m.s, float), "axis": axis},
-                       m.b, -1, target, self.name, f"{self.name} hold")
+        g0 = int(grounds[0])
+        u = m.u / np.linalg.norm(m.u)
+        g = np.cross(u, np.eye(3)[int(np.argmin(np.abs(u)))])
+        g /= np.linalg.norm(g)
+        h = np.cross(u, g)  # g x h = u
+        A0, Ab = st.A[g0], st.A[m.b]
+        frames = {"f_i": A0.T @ u, "g_i": A0.T @ g, "h_i": A0.T @ h, "g_j": Ab.T @ g}
+        return HoldRow("angle", {"gi": "g_i", "hi": "h_i", "gj": "g_j"}, frames, g0, m.b,
+                       0.0, self.name, f"{self.name} hold")
 
     # -- the hybrid contract ---------------------------------------------------------------
     def initial_mode(self, ctx):
@@ -447,7 +466,8 @@ def _decide(ctx, lead, members) -> dict:
         if lead.hold_row(ctx) is None:
             raise SolveError(f"{lead.name}: its law holds {lead.mname} at 0 (a sliding "
                              f"mode), which needs a velocity measure along a global x, y "
-                             f"or z axis")
+                             f"or z axis or an angular velocity about a global axis with a "
+                             f"ground body")
         den = a_neg - a_pos
         alpha = min(max(a_neg / den, 0.0), 1.0) if den > 0 else 0.0
         mode = Hold(lead.name, tuple(m for m, _ in members), float(alpha))
@@ -467,7 +487,8 @@ class SwitchingForce(SwitchingLaw, PointForce):
         -lam e_axis at the point (Phi = coordinate - target, M qdd + Phi_q^T lam = Q), so
         that ``force`` is the whole force that holds v at 0, where the row is known."""
         out = super().channels_in(mode, st, t, lam, modes)
-        if isinstance(mode, Hold) and mode.lead == self.name:
+        if (isinstance(mode, Hold) and mode.lead == self.name
+                and isinstance(self.measure, Velocity)):
             lam_h = self.held_multiplier(lam, modes)
             if lam_h is not None:
                 axis = int(np.argmax(np.abs(self.measure.u)))
@@ -480,6 +501,17 @@ class SwitchingTorque(SwitchingLaw, Torque):
 
     def channels_from(self, st, t, v):
         return {"torque": (np.array(self.torque_global(st, t, v)), "N m")}
+
+    def channels_in(self, mode, st, t, lam, modes=None):
+        """As :meth:`SwitchingLaw.channels_in`; the lead of a hold on an angular velocity
+        adds its row's torque on the body, -lam u (the angle row's gradient is u there)."""
+        out = super().channels_in(mode, st, t, lam, modes)
+        if (isinstance(mode, Hold) and mode.lead == self.name
+                and isinstance(self.measure, AngularVelocity)):
+            lam_h = self.held_multiplier(lam, modes)
+            if lam_h is not None:
+                out["torque"][0][:] -= lam_h * self.measure.u / np.linalg.norm(self.measure.u)
+        return out
 
 
 SWITCHING = {PointForce: SwitchingForce, Torque: SwitchingTorque}

@@ -305,13 +305,31 @@ analysis:
 """
 
 
-def test_a_sliding_mode_the_element_cannot_hold_ends_the_run_naming_it(tmp_path):
-    """The block's law as a torque on an angular velocity (w' = (P - 5) / 2, the same
-    w(t)): it switches at located events, but a hold needs a velocity along a global axis,
-    so the sliding mode at t = 2 - sqrt(2) ends the run there, incomplete (exit 1), the
-    element named, the outputs before it kept."""
+def test_an_angular_velocity_holds_by_an_angle_row(tmp_path):
+    """The block's law as torques on a rotor (I_zz = 2 = M, w = theta'): the same closed
+    form, theta(t) = x(t), held by an angle row to ground about z from 2 - sqrt(2) s to 2 s."""
     deck = tmp_path / "rotor.yaml"
     deck.write_text(ROTOR)
+    _, res = run(deck)
+    assert res.complete, res.message
+    (te, _, m1), (tl, _, m2) = events_of(res)
+    assert te == pytest.approx(T1, abs=1e-8) and m1.startswith("w > 0 -> hold")
+    assert tl == pytest.approx(T2, abs=1e-8) and m2.endswith("-> w > 0")
+    p = res.channel("bodies/rotor/p").data
+    theta = 2 * np.arctan2(p[:, 3], p[:, 0])
+    np.testing.assert_allclose(theta, x_exact(res.t), rtol=0, atol=1e-8)
+    w = res.channel("bodies/rotor/omega").data[:, 2]
+    held = (res.t > te) & (res.t < tl)
+    assert np.abs(w[held]).max() <= 1e-15 and np.ptp(theta[held]) <= 1e-12
+
+
+def test_a_sliding_mode_the_element_cannot_hold_ends_the_run_naming_it(tmp_path):
+    """The rotor's brake on its angular velocity in the body frame (frame: local): it
+    switches at located events, but a hold needs a velocity along a global axis or an
+    angular velocity about one, so the sliding mode at t = 2 - sqrt(2) ends the run there,
+    incomplete (exit 1), the element named, the outputs before it kept."""
+    deck = tmp_path / "rotor.yaml"
+    deck.write_text(ROTOR.replace("axis: z}", "axis: z, frame: local}"))
     out = tmp_path / "rotor.h5"
     r = CliRunner().invoke(main, ["run", str(deck), "--mode", "dynamic", "-o", str(out)])
     assert r.exit_code == 1, r.output
