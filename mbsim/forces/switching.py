@@ -16,8 +16,8 @@ the motion is a sliding mode that no integrator can step across.  Here:
   a_neg (side m < 0) and a_pos (side m > 0).  a_neg < 0 or a_pos > 0 alone: the motion
   goes on to that side (a crossing, or a return).  a_neg >= 0 and a_pos <= 0: both sides
   drive m back to 0, the sliding mode: the element *holds* m at 0 (:class:`Hold`, a
-  constraint row: ``absolute`` on the measured point and axis, target = its coordinate
-  there), with the force of Filippov's convex combination
+  constraint row on the coordinate whose rate m is: :meth:`SwitchingLaw.hold_row`), with
+  the force of Filippov's convex combination
   F = (1 - alpha) F_neg + alpha F_pos, alpha = a_neg / (a_neg - a_pos) in [0, 1]
   (the value that makes dm/dt = 0).  alpha is watched (switches ``alpha < 0`` and
   ``alpha > 1``, from the same two one-sided accelerations at the current state); when it
