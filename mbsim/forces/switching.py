@@ -37,10 +37,13 @@ the motion is a sliding mode that no integrator can step across.  Here:
 
 While an element holds, its load is F_neg + alpha0 (F_pos - F_neg) with alpha0 the value
 at the start of the hold, and the hold row's multiplier carries the rest: the motion is
-exact (the row holds m at 0 to round-off) and ``forces/<name>/force`` reports the load
-with alpha0 (exact while the loads on the mechanism do not change during the hold, as at
-the compressor's stall; otherwise alpha moves and the row's multiplier carries the
-difference).  Channel ``forces/<name>/side``: -1, +1 (the side), 0 while it holds.
+exact (the row holds m at 0 to round-off).  ``forces/<name>/force`` (``torque``) reports
+that load; the lead adds its row's force where it can tell its row among the multipliers
+(the compiled model bound by :meth:`SwitchingLaw.bind` and every element's mode passed to
+``channels_in``), so that it is the whole holding force; else it is exact while the loads
+on the mechanism do not change during the hold (the compressor's stall) and otherwise
+leaves out what the row carries.  Channel ``forces/<name>/side``: -1, +1 (the side), 0
+while it holds.
 
 A hold needs the measure's coordinate as a constraint row: a ``velocity`` measure along a
 global x, y or z axis (``absolute`` row), or an ``angular_velocity`` about a global axis
