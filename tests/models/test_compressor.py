@@ -317,7 +317,7 @@ PROJECT12_2 = {
     },
     "inverse9_psi0": {"torque max [N m]": 71.7417, "torque min [N m]": -71.7417},
     "inverse15_psi0": {"torque max [N m]": 92.5904, "torque min [N m]": -92.5904},
-    "dynamic9": {"speed min [rad/s]": 33.0786},
+    "dynamic9": {"speed min [rad/s]": 33.0348},
     "dynamic15": {"speed min [rad/s]": 37.9354},
 }
 
