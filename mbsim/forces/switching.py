@@ -72,6 +72,11 @@ V_ZERO = 1e-9
 """An element is at its switching surface when |m| <= V_ZERO x max(1, max |qd|) (m/s or
 rad/s): an event is located to 1e-12 s, so m there is off 0 by |dm/dt| x 1e-12 (1e-9 up
 to accelerations of 1e3 m/s^2) plus the run's round-off."""
+V_GROUP = 1e-4
+"""A group's members (elements whose velocity is beta x the lead's on the mechanism) must
+be at rest to |m| <= V_GROUP x max(1, max |qd|): the velocity drift of the methods that do
+not project (baumgarte at rtol 1e-6: 4e-7 m/s at the compressor's stall), not the motion
+a driver gives them."""
 RANK_TOL = 1e-9
 """Relative singular-value tolerance of the extended Jacobian [Phi_q; J_lead] (as the
 rank of Phi_q in :func:`mbsim.analyses.common.rank_and_redundant`)."""
@@ -338,6 +343,14 @@ class SwitchingLaw:
     def _value(self, ctx):
         return self.measure.value(ctx.state, ctx.t)
 
+    def joins(self, mode, ctx):
+        """The mode this element takes at an event where its own switch did not fire but
+        the switching elements that did put it in their plan (the members of a group whose
+        roots the dense output placed a round-off apart); None: no change."""
+        memo = ctx.__dict__.get("_switching_plan")
+        new = None if memo is None else memo.get(self.name)
+        return None if new is None or new == mode else new
+
     def next_mode(self, mode, switch, ctx):
         new = plan(ctx).get(self.name)
         # a hold ends where alpha reaches 0 or 1; located to EVENT_TIME_TOL, the test there
@@ -407,24 +420,31 @@ def plan(ctx) -> dict:
         return memo
     st, t = ctx.state, ctx.t
     vz = _v_zero(ctx)
-    at = [el for el in _members_of(ctx.system) if abs(el.measure.value(st, t)) <= vz]
+    els = _members_of(ctx.system)
+    v = {el.name: el.measure.value(st, t) for el in els}
+    at = [el for el in els if abs(v[el.name]) <= vz]
     out: dict = {}
     if at:
         nq = ctx.model.nq
-        grads = {el.name: el.gradient(st, nq) for el in at}
-        base = _jacobian_without(ctx, {el.name for el in at})
-        remaining = list(at)
-        while True:
-            lead = next((el for el in remaining if el.jumps(st, t)), None)
-            if lead is None:
-                break
-            members = _group(base, grads, lead, remaining)
+        grads = {el.name: el.gradient(st, nq) for el in els}
+        base = _jacobian_without(ctx, {el.name for el in els})
+        s = np.linalg.svd(base, compute_uv=False)
+        rank_base = int(np.sum(s > RANK_TOL * s[0])) if s.size else 0
+        # members: the elements whose velocity the lead's fixes on the mechanism, at rest
+        # to the velocity drift of the methods that do not project (V_GROUP)
+        vg = V_GROUP * max(1.0, float(np.abs(ctx.qd).max(initial=0.0)))
+        free = [el for el in els if abs(v[el.name]) <= vg]
+        for lead in at:
+            if lead not in free or not lead.jumps(st, t):
+                continue
+            members = _group(base, rank_base, grads, lead, free)
             out.update(_decide(ctx, lead, members))
             done = {el.name for _, el in members}
-            remaining = [el for el in remaining if el.name not in done]
-        if remaining:  # no jump in their laws: the side their measure moves to
+            free = [el for el in free if el.name not in done]
+        rest = [el for el in at if el.name not in out]
+        if rest:  # no jump in their laws: the side their measure moves to
             qdd, _ = ctx.accelerations()
-            for el in remaining:
+            for el in rest:
                 a = el.rate(ctx, qdd)
                 old = ctx.system.modes.get(el.name)
                 sign = 1 if a > 0 else -1 if a < 0 else (old.sign if isinstance(old, Side) else 1)
@@ -433,12 +453,16 @@ def plan(ctx) -> dict:
     return out
 
 
-def _group(base, grads, lead, candidates):
+def _group(base, rank_base, grads, lead, candidates):
     """[((name, sigma), el)]: the candidates whose measure is beta x the lead's on the
-    mechanism (their gradient in the row space of [Phi_q; J_lead]), sigma = sign(beta)."""
+    mechanism (their gradient in the row space of [Phi_q; J_lead]), sigma = sign(beta);
+    the lead alone when its measure is not a direction of its own (rank of [Phi_q;
+    J_lead] = rank of Phi_q: a dead centre)."""
     A = np.vstack([base, grads[lead.name]])
     _, s, Vt = np.linalg.svd(A)
     rank = int(np.sum(s > RANK_TOL * s[0]))
+    if rank <= rank_base:
+        return [((lead.name, 1), lead)]
     null = Vt[rank:]
     e = np.zeros(A.shape[0])
     e[-1] = 1.0
