@@ -232,23 +232,30 @@ def test_modes_print_for_the_summary():
 DECKS = Path(__file__).resolve().parents[2] / "models"
 
 
-def test_compressor_from_30_rad_s_stops_and_stays_at_rest():
+@pytest.mark.parametrize("integrator", ["gcp-rk45", "projection-dop853", "baumgarte",
+                                        "genalpha"])
+def test_compressor_from_30_rad_s_stops_and_stays_at_rest(integrator):
     """Sec. 12.4.3, Fig. 12.4.6: from 30 rad/s the motion stops before one cycle.  The six
     valve laws reach v = 0 together (v_k = c_k(theta) omega); they hold as one group (one
-    row, piston 1's) and the run goes on to the scene's end at rest: the rotor's angular
-    velocity exactly 0 and the pistons still (the hold rows' projection gives qd = 0 in a
-    mechanism with no motion left)."""
+    row) and the run goes on to the scene's end at rest: the rotor's angular velocity 0 (the
+    hold rows' projection gives qd = 0 exactly in the families that project; the others
+    hold it to their tolerance) and the pistons still.  All six change mode at one event
+    (those whose own switch the dense output placed a round-off later join it).  The stop
+    time at rtol 1e-6: the deck's gcp-rk45 within 1e-6 s of the stall the old run ended
+    at; the others within 1e-4 s (e_omega / |omega'| ~ 0.05 rad/s / 1700 rad/s^2)."""
     _, model = load_model(DECKS / "compressor.yaml", scene="dynamic30")
-    res = run_model(model, "dynamic", {"error_estimate": False})
+    res = run_model(model, "dynamic", {"error_estimate": False, "integrator": integrator})
     assert res.complete, res.message
     assert res.t[-1] == pytest.approx(0.3, abs=1e-12)
     stop = [e for e in res.summary["events"] if "hold" in e["mode"].split("->")[-1]]
     assert {e["element"] for e in stop} == {f"air{k}" for k in range(1, 7)}
     t_stop = stop[0]["t"]
-    assert t_stop == pytest.approx(0.0772465, abs=1e-6)  # the stall the old run ended at
+    assert all(e["t"] == t_stop for e in stop)
+    assert t_stop == pytest.approx(0.0772465, abs=1e-6 if integrator == "gcp-rk45" else 1e-4)
+    projected = integrator not in ("baumgarte", "genalpha")
     after = res.t > t_stop
     w = res.channel("bodies/rotor/omega").data
-    assert np.all(w[after] == 0.0)
+    assert np.abs(w[after]).max() <= (1e-15 if projected else 1e-8)  # measured 4.5e-10
     y = res.channel("bodies/piston1/r").data[:, 1]
     assert np.ptp(y[after]) <= 1e-12
     assert np.all(w[res.t < t_stop - 0.002, 1] > 0)
