@@ -415,8 +415,9 @@ class Stepper:
         modes = self.modes if modes is None else modes
         holds = self.holds if holds is None else holds
         model = extend_model(self.model, holds)
-        if holds:
-            rows = np.concatenate([rows, np.arange(self.model.m, model.m)])
+        if holds:  # rows None: all of the model's
+            rows = np.concatenate([np.arange(self.model.m) if rows is None else rows,
+                                   np.arange(self.model.m, model.m)])
         system = (make_system(model, rows, self.opt.get("sparse"), modes) if modes
                   else make_system(model, rows, self.opt.get("sparse")))
         system.family = self
@@ -449,8 +450,11 @@ class Stepper:
 
     def on_event(self, ev):
         """Act on the located event ``ev`` (:class:`mbsim.events.Event`): note it, change
-        the modes of the hybrid elements whose switches fired and restart the integration
-        at the event with them.  Returns the switch of a ``stop`` action, else None."""
+        the modes of the hybrid elements whose switches fired (and of those whose optional
+        ``joins(mode, ctx)`` gives a new mode: elements on the same switching surface whose
+        own switch was located a round-off later, mbsim.forces.switching) and restart the
+        integration at the event with them.  Returns the switch of a ``stop`` action, else
+        None."""
         s = self.solver
         ctx = Context(self.system, ev.t, ev.q, ev.qd)
         modes, stop = dict(self.modes), None
@@ -467,6 +471,15 @@ class Stepper:
             elif sw.action == "stop" and stop is None:
                 stop = sw
             self.events.append(rec)
+        fired = {sw.owner for sw in ev.fired}
+        for el in self.hybrid:  # elements that change with the fired ones (``joins``)
+            join = getattr(el, "joins", None)
+            new = None if join is None or el.name in fired else join(modes.get(el.name), ctx)
+            if new is not None:
+                self.events.append({"t": ev.t, "name": "joins", "owner": el.name,
+                                    "action": "switch", "q": ev.q, "qd": ev.qd,
+                                    "from": str(modes.get(el.name)), "to": str(new)})
+                modes[el.name] = new
         if len(self.events) > MAX_EVENTS:
             raise SolveError(f"more than {MAX_EVENTS} events (last: {ev.fired[0].name} at "
                              f"t = {ev.t:.6g} s): a law that chatters")

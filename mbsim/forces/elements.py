@@ -108,6 +108,14 @@ def _vector_law(spec, measures: dict, unit: str):
     return None, None, (compile_law(law, where.child("law"), measures), u)
 
 
+def switching_or_plain(el, spec):
+    """The element, or its hybrid form when its law switches on the sign of a velocity
+    measure (:mod:`mbsim.forces.switching`)."""
+    from mbsim.forces.switching import make_switching
+
+    return make_switching(el, spec.where.child("law"))
+
+
 class _Element(ForceElement):
     def __repr__(self) -> str:
         return f"<{self.type} {self.name}>"
@@ -152,10 +160,14 @@ class PointForce(_VectorLoad):
         el.s = _local_point(spec, spec.bodies[0])
         el.S = _skew(el.s)  # s' x (np.cross costs ~40 us on 3-vectors, a matvec ~1 us)
         el._setup_vector(spec, body_index, "N")
-        return el
+        return switching_or_plain(el, spec)
 
     def apply(self, st, t, F, n_local):
-        v, A = self.vector(st, t), st.A[self.b]
+        self.add_vector(st, self.vector(st, t), F, n_local)
+
+    def add_vector(self, st, v, F, n_local):
+        """Add the force ``v`` (in the frame it is given in) at the body point."""
+        A = st.A[self.b]
         if self.local:  # follower force: body-fixed direction
             F[self.b] += A @ v
             n_local[self.b] += self.S @ v
@@ -196,17 +208,22 @@ class Torque(_VectorLoad):
         idx = _body_indices(spec, body_index, n)
         el.bi, el.bj = (idx[0], idx[1]) if n == 2 else (-1, idx[0])
         el._setup_vector(spec, body_index, "N m")
-        return el
+        return switching_or_plain(el, spec)
 
-    def torque_global(self, st, t) -> np.ndarray:
-        """(3,) torque on body j (the body, for one body), global frame."""
-        v = self.vector(st, t)
+    def torque_global(self, st, t, v=None) -> np.ndarray:
+        """(3,) torque on body j (the body, for one body), global frame; ``v``: the vector
+        in the frame it is given in (default: the law's at (st, t))."""
+        v = self.vector(st, t) if v is None else v
         if not self.local:
             return v
         return st.A[self.bi if self.bi >= 0 else self.bj] @ v
 
     def apply(self, st, t, F, n_local):
-        T = self.torque_global(st, t)
+        self.add_vector(st, self.vector(st, t), F, n_local)
+
+    def add_vector(self, st, v, F, n_local):
+        """Add the torque ``v`` (in the frame it is given in)."""
+        T = self.torque_global(st, None, v)
         n_local[self.bj] += st.A[self.bj].T @ T
         if self.bi >= 0:
             n_local[self.bi] -= st.A[self.bi].T @ T

@@ -188,15 +188,20 @@ def test_settings_are_checked_before_the_run():
 
 
 def test_a_sliding_mode_names_the_switching_forces(tmp_path):
-    """The compressor's base deck (motor off, rotor at rest, 500 psi): the valve law pushes
-    a piston only while it compresses (v < 0), so the pistons the rotor's start would drive
+    """The compressor's base deck (motor off, rotor at rest, 500 psi) with its valve law
+    written as ``where(-v > 0, ...)``, a condition that is not a sign test of a velocity
+    measure, so the law stays a plain formula (``v < 0`` makes it a switching law that
+    holds the pistons: mbsim.forces.switching): the pistons the rotor's start would drive
     into compression stall at v = 0, and no step can pass (h_min).  The message named the
     constraints "nearest to singular" at Phi_q condition 48, which they are not; now it
     says that Phi_q is not near singular and names the air forces whose load jumps across
     the stall."""
     out = tmp_path / "c.h5"
-    r = cli("run", MODELS / "compressor.yaml", "--mode", "dynamic", "--t-end", "0.02",
-            "-o", out)
+    text = (MODELS / "compressor.yaml").read_text()
+    assert text.count("where(v < 0,") == 1
+    deck = tmp_path / "compressor.yaml"
+    deck.write_text(text.replace("where(v < 0,", "where(-v > 0,"))
+    r = cli("run", deck, "--mode", "dynamic", "--t-end", "0.02", "-o", out)
     assert_clean(r, (1,))
     line = error_lines(r.output)[0]
     assert "force elements whose load jumps there: air" in line, line
