@@ -149,3 +149,10 @@ def omega_to_pd(p: np.ndarray, omega: np.ndarray) -> np.ndarray:
 def omega_local_to_pd(p: np.ndarray, omega_local: np.ndarray) -> np.ndarray:
     """pd from body-frame angular velocity: pd = 1/2 G(p)^T omega' (|p| = 1)."""
     return 0.5 * np.einsum("...ji,...j->...i", G(p), omega_local)
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(3,) a x b for two 3-vectors (np.cross costs ~20 us on 3-vectors, this ~2 us)."""
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )

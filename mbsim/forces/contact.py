@@ -59,8 +59,9 @@ from mbsim.errors import DeckError
 from mbsim.events import Hybrid, Switch
 from mbsim.forces import register
 from mbsim.forces.base import ForceElement
-from mbsim.forces.bushing import cross
 from mbsim.forces.elements import _body_indices
+from mbsim.forces.measures import axis_travel
+from mbsim.rotations import cross
 
 RESTITUTION_ALPHA = {  # alpha (s/m) from the coefficient of restitution e and the speed v
     "hunt-crossley": lambda e, v: 3.0 * (1.0 - e) / (2.0 * v),
@@ -476,17 +477,7 @@ class JointStop(Impacts, ForceElement):
         if self.angular:
             s, a = self.angle.terms(st)
             return s, a, None, None if st.rd is None else self.angle.rate(st, a)
-        bi, bj = self.bi, self.bj
-        Ai, Aj = st.A[bi], st.A[bj]
-        Pi, Pj = st.r[bi] + Ai @ self.si, st.r[bj] + Aj @ self.sj
-        f = Ai @ self.f
-        s = float(f @ (Pj - Pi))
-        if st.rd is None:
-            return s, f, Pj, None
-        wi, wj = Ai @ st.omega_local[bi], Aj @ st.omega_local[bj]
-        vi = st.rd[bi] + cross(wi, Pi - st.r[bi])
-        vj = st.rd[bj] + cross(wj, Pj - st.r[bj])
-        sd = float(cross(wi, f) @ (Pj - Pi) + f @ (vj - vi))
+        s, sd, f, Pj = axis_travel(st, self.bi, self.bj, self.si, self.sj, self.f)
         return s, f, Pj, sd
 
     def penetration(self, st):

@@ -67,8 +67,9 @@ from mbsim.errors import DeckError
 from mbsim.events import HoldRow, Switch
 from mbsim.forces import register
 from mbsim.forces.base import ForceElement
-from mbsim.forces.bushing import cross
 from mbsim.forces.elements import _body_indices
+from mbsim.forces.measures import axis_travel
+from mbsim.rotations import cross
 
 REST_VELOCITY = 1e-9
 """m/s or rad/s: at t_start an axis slower than this is at rest (its stick is tried): far
@@ -126,17 +127,7 @@ class _Axis:
         if self.name == "rotation":
             s, a = self.angle.terms(st)
             return s, None if st.rd is None else self.angle.rate(st, a), a, None
-        bi, bj = self.bi, self.bj
-        Ai, Aj = st.A[bi], st.A[bj]
-        Pi, Pj = st.r[bi] + Ai @ self.si, st.r[bj] + Aj @ self.sj
-        f = Ai @ self.f
-        s = float(f @ (Pj - Pi))
-        if st.rd is None:
-            return s, None, f, Pj
-        wi, wj = Ai @ st.omega_local[bi], Aj @ st.omega_local[bj]
-        vi = st.rd[bi] + cross(wi, Pi - st.r[bi])
-        vj = st.rd[bj] + cross(wj, Pj - st.r[bj])
-        return s, float(cross(wi, f) @ (Pj - Pi) + f @ (vj - vi)), f, Pj
+        return axis_travel(st, self.bi, self.bj, self.si, self.sj, self.f)
 
     @staticmethod
     def add(Fs, a, Pj, st, bi, bj, F, n_local):

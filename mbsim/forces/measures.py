@@ -32,9 +32,26 @@ import numpy as np
 from mbsim.deck.spec import PointSet
 from mbsim.errors import DeckError, Where
 from mbsim.model import joint_frame  # the same f, g, h as the joints and drivers
-from mbsim.rotations import skew
+from mbsim.rotations import cross, skew
 
 TWO_PI = 2.0 * np.pi
+
+
+def axis_travel(st, bi, bj, si, sj, f):
+    """(s, sd, f (3,) global, P_j (3,) global) of a joint axis: s = f_i . (P_j - P_i), f = A_i
+    f' fixed in body i, P_i = r_i + A_i s_i', P_j = r_j + A_j s_j' (the translation driver's
+    measure), and its rate sd = (w_i x f_i) . (P_j - P_i) + f_i . (v_Pj - v_Pi) (None
+    without velocities)."""
+    Ai, Aj = st.A[bi], st.A[bj]
+    Pi, Pj = st.r[bi] + Ai @ si, st.r[bj] + Aj @ sj
+    fg = Ai @ f
+    s = float(fg @ (Pj - Pi))
+    if st.rd is None:
+        return s, None, fg, Pj
+    wi, wj = Ai @ st.omega_local[bi], Aj @ st.omega_local[bj]
+    vi = st.rd[bi] + cross(wi, Pi - st.r[bi])
+    vj = st.rd[bj] + cross(wj, Pj - st.r[bj])
+    return s, float(cross(wi, fg) @ (Pj - Pi) + fg @ (vj - vi)), fg, Pj
 
 
 @dataclass

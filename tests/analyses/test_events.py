@@ -23,6 +23,7 @@ import pytest
 
 from mbsim.api import load_model, run_model
 from mbsim.events import EVENT_TIME_TOL, crossed, locate
+from tests.helpers import INTEGRATOR_FAMILIES
 
 M, K, X0 = 2.0, 50.0, 0.1
 W = math.sqrt(K / M)
@@ -87,17 +88,7 @@ def true_errors(model, res):
     return float(np.max(np.abs(x - xe))), float(np.max(np.abs(v - ve))), b
 
 
-FAMILIES = [
-    ("projection-dop853", {"rtol": 1e-9, "atol": 1e-11}),
-    ("projection", {"rtol": 1e-9, "atol": 1e-11}),
-    ("baumgarte", {"rtol": 1e-9, "atol": 1e-11}),
-    ("rk4", {"h": 2e-3}),
-    ("gcp-rk45", {"rtol": 1e-9, "atol": 1e-11}),
-    ("gcp-dop853", {"rtol": 1e-9, "atol": 1e-11}),
-    ("gcp-rk4", {"h": 2e-3}),
-    ("genalpha", {"rtol": 1e-8, "atol": 1e-10}),
-    ("hht", {"rtol": 1e-8, "atol": 1e-10}),
-]
+FAMILIES = INTEGRATOR_FAMILIES
 
 
 @pytest.mark.parametrize("integrator, tols", FAMILIES, ids=[f[0] for f in FAMILIES])

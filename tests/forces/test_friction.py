@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from mbsim.api import load_model, run_model
+from tests.helpers import INTEGRATOR_FAMILIES
 
 G = 9.81
 
@@ -157,17 +158,7 @@ def belt_v(t):
     return out
 
 
-FAMILIES = [
-    ("projection-dop853", {"rtol": 1e-9, "atol": 1e-11}),
-    ("projection", {"rtol": 1e-9, "atol": 1e-11}),
-    ("baumgarte", {"rtol": 1e-9, "atol": 1e-11}),
-    ("rk4", {"h": 2e-3}),
-    ("gcp-rk45", {"rtol": 1e-9, "atol": 1e-11}),
-    ("gcp-dop853", {"rtol": 1e-9, "atol": 1e-11}),
-    ("gcp-rk4", {"h": 2e-3}),
-    ("genalpha", {"rtol": 1e-8, "atol": 1e-10}),
-    ("hht", {"rtol": 1e-8, "atol": 1e-10}),
-]
+FAMILIES = INTEGRATOR_FAMILIES
 
 
 @pytest.mark.parametrize("integrator, tols", FAMILIES, ids=[f[0] for f in FAMILIES])
