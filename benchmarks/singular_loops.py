@@ -50,7 +50,8 @@ def main(argv=None):
             c0 = time.process_time()
             res, err = run(name, r, pb)
             cpu = time.process_time() - c0
-            est = res.summary.get("error_estimate", {}).get("position", float("nan"))
+            est = res.summary.get("error_estimate", {}).get("position")
+            est = float("nan") if est is None else est  # no estimate (run interrupted)
             first = first or cpu
             print(f"{name:18s} {r:7.0e} {res.status:10s} {err:9.3g} {10 * r + 1e-9:8.2g} "
                   f"{est:9.3g} {est / err if err else float('nan'):7.3g} {cpu:7.2f} "

@@ -94,8 +94,8 @@ def accuracy_run(model, opt, progress, explicit):
         new = dict(opt)
         if fixed:
             new["h"] = float(opt["h"]) * ratio ** (1.0 / max(cls.order, 1))
-        else:  # error ~ rtol^kappa (Integrator.tolerance_exponent)
-            ratio = ratio ** (1.0 / cls.tolerance_exponent)
+        else:  # error ~ rtol^kappa (Integrator.error_ratio)
+            ratio = cls.rtol_for_error_ratio(float(opt["rtol"]), ratio) / float(opt["rtol"])
             new["rtol"] = max(float(opt["rtol"]) * ratio, 1e-13)
             new["atol"] = max(float(opt["atol"]) * ratio, 1e-15)
         copt, comp = est["_copt"], est["_companion"]
