@@ -33,11 +33,18 @@ held to f x (atol + rtol |q|) with f = (rtol / REFERENCE_RTOL)^(1/2) (:meth:`tol
 the local tolerance ~ rtol^(3/2), h ~ rtol^(1/2), the global error ~ rtol, at about
 (REFERENCE_RTOL / rtol)^(1/6) the steps of per-step control (4.6x at rtol 1e-10).  At and
 above REFERENCE_RTOL (the default rtol) nothing changes, so runs at the usual tolerances
-keep their cost and results; the Newton test uses the same internal tolerance.  Its limit is
-round-off: the internal relative tolerance rtol f is 2.5e-14 (~110 ulp of |q| = 1) at
-rtol = 8.5e-12 and 1e-15 (4.5 ulp) at rtol = 1e-12, where the estimate measures the
-constraint solve's round-off (:meth:`_noise_floor`, ``noise_limited_steps``) and the error
-stops falling with rtol.
+keep their cost and results.  The limit is round-off: the tightened tolerance stops at
+NOISE_MARGIN x the round-off of q (atol, :meth:`__init__`) and, where a step's estimate
+exceeds it, at NOISE_MARGIN x that step's round-off floor (:meth:`_noise_floor`: large
+near a singular position); below that the estimate measures noise, and with atol at
+rtol f = 3e-16 m Andrews' squeezer at rtol 1e-11 rejected 6359 steps and ended 4.8e-9 m
+off.  Measured on Andrews' squeezer (benchmarks/andrews.py): error 5.1e-11 m at rtol 1e-10
+(before 5.6e-10), 3.7e-11 m at rtol = atol = 3e-11 (before 9.0e-10), at 4.6x and 5.7x the
+steps; at rtol 1e-11 the clamp holds the positions' tolerance near 9e-15 m and the error
+stays where it was (6.8e-11 m genalpha, 2.3e-10 m HHT, 3.9x the steps): there the error of
+the adaptive runs no longer falls with the tolerance (per-step control at rtol 3e-12 and
+1e-12 ended 9.7e-11 and 1.6e-10 m off), although fixed steps converge as h^2 (HHT at
+h = 4.7e-7 and 2.3e-7 s: 1.68e-9 and 4.21e-10 m).
 """
 
 from __future__ import annotations
@@ -51,6 +58,7 @@ from mbsim.integrators.base import MAX_REJECTS, ROUNDOFF_ULPS, Integrator, hermi
 
 KKT_REG = 1e-10  # relative regularisation of the Newton matrix's zero block (see below)
 REFERENCE_RTOL = 1e-6  # below it the local tolerance shrinks as rtol^(3/2) (module doc)
+NOISE_MARGIN = 10.0  # ... but not below this x the step's round-off floor (module doc)
 
 
 class GeneralizedAlpha(Integrator):
@@ -109,8 +117,15 @@ class GeneralizedAlpha(Integrator):
         self._bi, self._bj = (7 * b + i).reshape(-1), (7 * b + j).reshape(-1)  # block scatter
         self.newton_tol = float(self.options.get("newton_tol", 1e-3))
         # the tolerances a step is held to: f (atol, rtol) (module doc)
-        f = self.tolerance_factor(self.rtol)
-        self.atol_step, self.rtol_step = f * self.atol, f * self.rtol
+        self.tol_factor = f = self.tolerance_factor(self.rtol)
+        # the tightened atol stops at NOISE_MARGIN x the round-off of q (ROUNDOFF_ULPS ulp of
+        # max(1, |q|), the Newton test's): coordinates that stay at zero (a planar
+        # mechanism's z, p1, p2) carry only that noise, and a smaller atol made it decide
+        # the steps (Andrews at rtol 1e-11: 6359 rejected steps, error 4.8e-9 m)
+        noise = NOISE_MARGIN * ROUNDOFF_ULPS * np.finfo(float).eps * max(
+            1.0, np.abs(self.q).max(initial=0.0))
+        self.atol_step = min(self.atol, max(f * self.atol, noise))
+        self.rtol_step = f * self.rtol
         if self.h_fixed is not None:
             self.h_abs = self.h_fixed
         elif self.h0 is not None:
@@ -228,7 +243,7 @@ class GeneralizedAlpha(Integrator):
             qdd += bp * dq
             lam += bp * dx[n:]
             s.counters["newton_iterations"] += 1
-            err = rms_norm(dq, self.atol_step + self.rtol_step * np.abs(q))
+            err = rms_norm(dq, self.atol + self.rtol * np.abs(q))
             if err <= self.newton_tol:
                 break
             # corrections at round-off of q (tight tolerances near a singular position):
@@ -290,7 +305,9 @@ class GeneralizedAlpha(Integrator):
                 h_next = self.h_fixed
                 break
             est = q - self._predict(self.t + h)
-            scale = self.atol_step + self.rtol_step * np.maximum(np.abs(q), np.abs(self.q))
+            qmax = np.maximum(np.abs(q), np.abs(self.q))
+            given = self.atol + self.rtol * qmax
+            scale = self.atol_step + self.rtol_step * qmax
             err = rms_norm(est, scale)
             if not np.isfinite(err):
                 err = 1e10  # NaN/inf in the step: reject hard
@@ -298,7 +315,12 @@ class GeneralizedAlpha(Integrator):
                 # a tolerance below what the constraint solve can attain here (near a singular
                 # position) is met at that attainable level instead of cutting h to h_min
                 floor = self._noise_floor(q, h)
-                if floor is not None:
+                if floor is not None and self.tol_factor < 1.0:
+                    # the tightened tolerance stops at NOISE_MARGIN x the round-off floor
+                    # (and at the given tolerances): below it the estimate measures noise
+                    scale = np.minimum(given, np.maximum(scale, NOISE_MARGIN * floor))
+                    err = rms_norm(est, scale)
+                if floor is not None and err > 1:
                     e2 = rms_norm(np.maximum(np.abs(est) - floor, 0.0), scale)
                     if e2 <= 1:
                         err = e2
