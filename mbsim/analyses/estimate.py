@@ -99,7 +99,8 @@ scales as its step to the power p.  The others keep the companion at rtol / rho:
 generalized-alpha and HHT (error ~ rtol^(2/3) above rtol 1e-6), Baumgarte (its drift term
 does not scale with the step), and the coordinate-partitioning pairs, whose
 dependent-coordinate Newton iteration fails on doubled steps (heavy top, gcp-dop853 at
-rtol 1e-5: |Phi| 0.24 at t = 0.09 s), so that the companion at rtol / rho would follow a wasted coarse run."""
+rtol 1e-5: |Phi| 0.24 at t = 0.09 s), so that the companion at rtol / rho would follow a
+wasted coarse run."""
 
 
 COARSE_MIN_STEPS = 4  # fewer accepted steps: the companion at rtol / rho instead
