@@ -242,3 +242,17 @@ def test_second_order_companion_factor_follows_the_tolerance_regime(rtol, factor
     whose error ratio is (1/5)^(3/2 x 2/3) = 1/5), and the difference is taken as it is."""
     _, f, method = companion_options(INTEGRATORS["genalpha"], {"rtol": rtol, "atol": rtol})
     assert f == pytest.approx(factor, rel=1e-9), method
+
+
+@pytest.mark.parametrize("name", ["genalpha", "projection-dop853"])
+@pytest.mark.parametrize("rtol", [1e-3, 3e-6, 3.3e-7, 1e-10])
+def test_refined_tolerance_inverts_the_error_ratio(name, rtol):
+    """--accuracy's refinement (Integrator.rtol_for_error_ratio) is the inverse of the error
+    model (error_ratio): the rtol it picks for a wanted ratio r gives back r, to the
+    bisection's resolution, across genalpha's reference rtol 1e-6; for a method with one
+    kappa it is rtol r^(1/kappa)."""
+    cls = INTEGRATORS[name]
+    for ratio in (0.5, 0.1, 1e-3):
+        new = cls.rtol_for_error_ratio(rtol, ratio)
+        assert new < rtol
+        assert cls.error_ratio(rtol, new) == pytest.approx(ratio, rel=1e-9)
