@@ -9,7 +9,7 @@ error estimate and estimate / true error, CPU s (whole analysis with its estimat
 ratio to the method's first rtol (issue 11's budget: at most 10x from rtol 1e-6 to 1e-10;
 the unit tests assert no timings).  --cranks N: N parallel cranks (N - 1 loops, 4 (N - 2)
 + 3 redundant rows; 41 is the 40-loop linkage) instead of four.  A run still going after
-120 s wall is interrupted (a failure).
+300 s wall is interrupted (a failure).
 """
 
 from __future__ import annotations
