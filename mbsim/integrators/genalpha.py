@@ -33,18 +33,18 @@ held to f x (atol + rtol |q|) with f = (rtol / REFERENCE_RTOL)^(1/2) (:meth:`tol
 the local tolerance ~ rtol^(3/2), h ~ rtol^(1/2), the global error ~ rtol, at about
 (REFERENCE_RTOL / rtol)^(1/6) the steps of per-step control (4.6x at rtol 1e-10).  At and
 above REFERENCE_RTOL (the default rtol) nothing changes, so runs at the usual tolerances
-keep their cost and results.  The limit is round-off: the tightened tolerance stops at
-NOISE_MARGIN x the round-off of q (atol, :meth:`__init__`) and, where a step's estimate
-exceeds it, at NOISE_MARGIN x that step's round-off floor (:meth:`_noise_floor`: large
-near a singular position); below that the estimate measures noise, and with atol at
-rtol f = 3e-16 m Andrews' squeezer at rtol 1e-11 rejected 6359 steps and ended 4.8e-9 m
-off.  Measured on Andrews' squeezer (benchmarks/andrews.py): error 5.1e-11 m at rtol 1e-10
-(before 5.6e-10), 3.7e-11 m at rtol = atol = 3e-11 (before 9.0e-10), at 4.6x and 5.7x the
-steps; at rtol 1e-11 the clamp holds the positions' tolerance near 9e-15 m and the error
-stays where it was (6.8e-11 m genalpha, 2.3e-10 m HHT, 3.9x the steps): there the error of
-the adaptive runs no longer falls with the tolerance (per-step control at rtol 3e-12 and
-1e-12 ended 9.7e-11 and 1.6e-10 m off), although fixed steps converge as h^2 (HHT at
-h = 4.7e-7 and 2.3e-7 s: 1.68e-9 and 4.21e-10 m).
+keep their cost and results.  The limit is round-off: the tightened atol stops at
+NOISE_MARGIN x the round-off of q (:meth:`__init__`) and, where a step's estimate exceeds
+the tolerance, the tightened tolerance stops at that step's round-off floor
+(:meth:`_noise_floor`: large near a singular position); below that the estimate measures
+noise, and with atol at 1e-13 f = 3e-16 m Andrews' squeezer at rtol 1e-11 rejected 6359
+steps and ended 4.8e-9 m off.  Measured on Andrews' squeezer (benchmarks/andrews.py):
+error 3.5e-11 m at rtol 1e-10 (before 5.6e-10), 3.7e-11 m at rtol = atol = 3e-11 (before
+9.0e-10), at 4.6x and 5.7x the steps; at rtol 1e-11 the atol clamp holds the positions'
+tolerance near 9e-15 m and the error stays where it was (6.8e-11 m genalpha, 3.9x the
+steps): there the error of the adaptive runs no longer falls with the tolerance (per-step
+control at rtol 3e-12 and 1e-12 ended 9.7e-11 and 1.6e-10 m off), although fixed steps
+converge as h^2 (HHT at h = 4.7e-7 and 2.3e-7 s: 1.68e-9 and 4.21e-10 m).
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ from mbsim.integrators.base import MAX_REJECTS, ROUNDOFF_ULPS, Integrator, hermi
 
 KKT_REG = 1e-10  # relative regularisation of the Newton matrix's zero block (see below)
 REFERENCE_RTOL = 1e-6  # below it the local tolerance shrinks as rtol^(3/2) (module doc)
-NOISE_MARGIN = 10.0  # ... but not below this x the step's round-off floor (module doc)
+NOISE_MARGIN = 10.0  # the tightened atol: not below this x the round-off of q (module doc)
 
 
 class GeneralizedAlpha(Integrator):
@@ -316,9 +316,10 @@ class GeneralizedAlpha(Integrator):
                 # position) is met at that attainable level instead of cutting h to h_min
                 floor = self._noise_floor(q, h)
                 if floor is not None and self.tol_factor < 1.0:
-                    # the tightened tolerance stops at NOISE_MARGIN x the round-off floor
-                    # (and at the given tolerances): below it the estimate measures noise
-                    scale = np.minimum(given, np.maximum(scale, NOISE_MARGIN * floor))
+                    # the tightened tolerance stops at the step's round-off floor (and at the
+                    # given tolerances): below it the estimate measures noise.  (10 x the
+                    # floor here took Andrews at rtol 1e-10 from 5.1e-11 to 6.4e-10 m)
+                    scale = np.minimum(given, np.maximum(scale, floor))
                     err = rms_norm(est, scale)
                 if floor is not None and err > 1:
                     e2 = rms_norm(np.maximum(np.abs(est) - floor, 0.0), scale)
