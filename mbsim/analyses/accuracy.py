@@ -66,7 +66,8 @@ def accuracy_run(model, opt, progress, explicit, context=NO_DECK):
     rtol = atol = ACCURACY_START x TOL, a fixed-step one at its step; the error estimate of
     that run (its companion at rtol/rho, or h/2) decides.  If it missed, the tolerance (or
     step) is refined once by the measured ratio, assuming the error proportional to
-    rtol^kappa (the method's tolerance_exponent; h^p for a fixed step) and aiming at
+    rtol^kappa (the method's error model, Integrator.error_ratio: kappa = 1 for the
+    Runge-Kutta pairs, 2/3 for genalpha/hht above rtol 1e-6; h^p for a fixed step) and aiming at
     ACCURACY_MARGIN x TOL; when that refinement is no tighter than the companion's own
     setting, the companion (already computed, and about rho^kappa times more accurate)
     becomes the run and only a new companion is integrated.  Only the kept run's channels
@@ -96,8 +97,8 @@ def accuracy_run(model, opt, progress, explicit, context=NO_DECK):
         new = dict(opt)
         if fixed:
             new["h"] = float(opt["h"]) * ratio ** (1.0 / max(cls.order, 1))
-        else:  # error ~ rtol^kappa (Integrator.tolerance_exponent)
-            ratio = ratio ** (1.0 / cls.tolerance_exponent)
+        else:  # error ~ rtol^kappa (Integrator.error_ratio)
+            ratio = cls.rtol_for_error_ratio(float(opt["rtol"]), ratio) / float(opt["rtol"])
             new["rtol"] = max(float(opt["rtol"]) * ratio, 1e-13)
             new["atol"] = max(float(opt["atol"]) * ratio, 1e-15)
         copt, comp = est["_copt"], est["_companion"]

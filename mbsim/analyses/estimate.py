@@ -24,7 +24,8 @@ reintegration"; Hairer, Norsett & Wanner I, Sec. II.4 and II.12).  Which compani
 
   - adaptive: err ~ |y - y_c|; the companion's own error is about rho^-0.9 of the run's
     (tolerance proportionality), so the estimate is low by at most that fraction; a method
-    whose error grows as rtol^kappa with kappa < 1 (generalized-alpha, HHT: 2/3) has a
+    whose error grows as rtol^kappa with kappa < 1 (generalized-alpha, HHT: 2/3 at and
+    above rtol 1e-6, :meth:`~mbsim.integrators.base.Integrator.error_ratio`) has a
     companion only rho^kappa more accurate: err ~ |y - y_c| / (1 - rho^-kappa);
   - fixed step h, method of order p: err ~ |y - y_c| 2^p / (2^p - 1) (Richardson).
 
@@ -80,11 +81,12 @@ def companion_options(cls, opt):
     else:
         copt["rtol"] = max(float(opt["rtol"]) / rho, 2.5e-14)
         copt["atol"] = max(float(opt["atol"]) / rho, 1e-300)
-        kappa = cls.tolerance_exponent
         # error ~ rtol^kappa: the companion's own error is rho^-kappa of the run's, and
         # |y - y_c| ~ (1 - rho^-kappa) err.  For tolerance-proportional methods (kappa = 1)
         # the difference is taken as it is: measured est/err 0.8-2.7 (benchmarks/accuracy.py)
-        factor = 1.0 if kappa >= 1.0 else 1.0 / (1.0 - rho ** -kappa)
+        ratio = cls.error_ratio(float(opt["rtol"]), copt["rtol"])  # rho^-kappa
+        kappa = math.log(ratio) / -math.log(rho) if 0.0 < ratio < 1.0 else 0.0
+        factor = 1.0 if ratio <= 1.0 / rho * (1.0 + 1e-9) else 1.0 / (1.0 - ratio)
         method = (f"companion run at rtol/{rho:g} = {copt['rtol']:.3g}, "
                   f"atol/{rho:g} = {copt['atol']:.3g}")
         if factor != 1.0:
@@ -99,7 +101,7 @@ COARSE_FAMILIES = ("projection-dop853", "projection", "genalpha", "hht")
 its step to the power p: the projected Runge-Kutta pairs and the index-3
 generalized-alpha family (p = 2 for positions and velocities, Arnold & Bruls 2007; the
 second only without redundant constraints, :data:`COARSE_NEEDS_INDEPENDENT_ROWS`).  Their
-error as a function of the *tolerance* (generalized-alpha: rtol^(2/3)) does not enter: the
+error as a function of the *tolerance* (generalized-alpha: rtol^(2/3) above rtol 1e-6) does not enter: the
 companion takes the run's own mesh.  The others keep the companion at rtol / rho:
 Baumgarte (its drift term does not scale with the step), and the coordinate-partitioning
 pairs, whose dependent-coordinate Newton iteration fails on doubled steps (heavy top,
@@ -340,10 +342,10 @@ def fallback_companion(model, prep, opt, tr):
     if opt.get("h") is not None or not prep.cls.adaptive:
         return None
     copt, _, _ = companion_options(prep.cls, opt)
-    kappa = prep.cls.tolerance_exponent
+    ratio = prep.cls.error_ratio(float(opt["rtol"]), float(opt["rtol"]) / FALLBACK_RATIO)
     tries = [(prep.cls, dict(copt, rtol=float(opt["rtol"]) / FALLBACK_RATIO,
                              atol=float(opt["atol"]) / FALLBACK_RATIO),
-              1.0 / (1.0 - FALLBACK_RATIO ** -kappa))]
+              1.0 / (1.0 - ratio))]
     tighter = dict(copt, rtol=max(copt["rtol"] * FALLBACK_TIGHTER, 2.5e-14),
                    atol=max(copt["atol"] * FALLBACK_TIGHTER, 1e-300))
     tries += [(INTEGRATORS[n], tighter, 1.0) for n in FALLBACK_COMPANIONS

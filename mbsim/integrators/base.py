@@ -51,7 +51,9 @@ class Integrator(ABC):
        line for ``mbsim list integrators``), ``order`` (global order of q in h),
        ``tolerance_exponent`` (kappa: the global error of an adaptive run grows as
        rtol^kappa; 1 for the Runge-Kutta pairs, whose local extrapolation and error-per-step
-       control make the error proportional to the tolerance),
+       control make the error proportional to the tolerance, and for generalized-alpha
+       below its reference rtol; :meth:`error_ratio` gives the ratio between two
+       tolerances, for a family whose kappa depends on rtol),
        ``adaptive`` (True: has an error estimate and controls its step from rtol/atol;
        every integrator also takes a fixed step ``h``), ``formulation`` ('gcp' | 'index-1' |
        'index-3').  Family facts (tableaus, alpha parameters) are class data too.
@@ -114,6 +116,28 @@ class Integrator(ABC):
         # the end time of every accepted step, when the caller sets a list here (the run's
         # mesh, for the coarse error estimate); None: not recorded
         self.step_ends = None
+
+    @classmethod
+    def error_ratio(cls, rtol, rtol_other):
+        """err(rtol_other) / err(rtol) of two adaptive runs (same model, atol / rtol alike):
+        (rtol_other / rtol)^kappa.  A family whose exponent depends on rtol overrides it."""
+        return (float(rtol_other) / float(rtol)) ** cls.tolerance_exponent
+
+    @classmethod
+    def rtol_for_error_ratio(cls, rtol, ratio):
+        """The rtol whose error is ``ratio`` (< 1) times the error at ``rtol``: the inverse
+        of :meth:`error_ratio` (closed form for a constant kappa, else bisection in log
+        rtol: error_ratio increases with rtol_other)."""
+        if cls.error_ratio.__func__ is Integrator.error_ratio.__func__:
+            return float(rtol) * ratio ** (1.0 / cls.tolerance_exponent)
+        lo, hi = np.log(float(rtol)) - 60.0, np.log(float(rtol))
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            if cls.error_ratio(rtol, np.exp(mid)) > ratio:
+                hi = mid
+            else:
+                lo = mid
+        return float(np.exp(0.5 * (lo + hi)))
 
     # -- what the driver calls ------------------------------------------------------------
     def step(self):

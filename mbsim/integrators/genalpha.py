@@ -24,6 +24,27 @@ states (a predictor of order 3, so the difference is the O(h^3) local error of t
 corrector), controlled with the exponent -1/3.  q and qd are smooth where the accelerations
 of an index-3 scheme oscillate along the constraint normals, which makes qdd-based
 estimates (Zienkiewicz & Xie 1991) unusable here.  HHT-alpha is the member am = 0, af = alpha.
+
+Tolerance proportionality.  Held to the tolerances per step (local error h^3 ~ tol), an
+order-2 method takes steps h ~ tol^(1/3) and ends with a global error ~ h^2 ~ tol^(2/3)
+(measured on Andrews' squeezer, rtol = atol 3e-11 -> 3e-12: the largest error over the run
+falls 4.4-4.5x, 10^(2/3) = 4.6).  Below ``REFERENCE_RTOL`` the local error is therefore
+held to f x (atol + rtol |q|) with f = (rtol / REFERENCE_RTOL)^(1/2) (:meth:`tolerance_factor`):
+the local tolerance ~ rtol^(3/2), h ~ rtol^(1/2), the global error ~ rtol, at about
+(REFERENCE_RTOL / rtol)^(1/6) the steps of per-step control (4.6x at rtol 1e-10).  At and
+above REFERENCE_RTOL (the default rtol) nothing changes, so runs at the usual tolerances
+keep their cost and results.  The limit is round-off: the tightened atol stops at
+NOISE_MARGIN x the round-off of q (:meth:`__init__`) and, where a step's estimate exceeds
+the tolerance, the tightened tolerance stops at that step's round-off floor
+(:meth:`_noise_floor`: large near a singular position); below that the estimate measures
+noise, and with atol at 1e-13 f = 3e-16 m Andrews' squeezer at rtol 1e-11 rejected 6359
+steps and ended 4.8e-9 m off.  Measured on Andrews' squeezer (benchmarks/andrews.py):
+error 3.5e-11 m at rtol 1e-10 (before 5.6e-10), 3.7e-11 m at rtol = atol = 3e-11 (before
+9.0e-10), at 4.6x and 5.7x the steps; at rtol 1e-11 the atol clamp holds the positions'
+tolerance near 9e-15 m and the error stays where it was (6.8e-11 m genalpha, 3.9x the
+steps): there the error of the adaptive runs no longer falls with the tolerance (per-step
+control at rtol 3e-12 and 1e-12 ended 9.7e-11 and 1.6e-10 m off), although fixed steps
+converge as h^2 (HHT at h = 4.7e-7 and 2.3e-7 s: 1.68e-9 and 4.21e-10 m).
 """
 
 from __future__ import annotations
@@ -36,6 +57,8 @@ import scipy.sparse.linalg as spla
 from mbsim.integrators.base import MAX_REJECTS, ROUNDOFF_ULPS, Integrator, hermite, rms_norm
 
 KKT_REG = 1e-10  # relative regularisation of the Newton matrix's zero block (see below)
+REFERENCE_RTOL = 1e-6  # below it the local tolerance shrinks as rtol^(3/2) (module doc)
+NOISE_MARGIN = 10.0  # the tightened atol: not below this x the round-off of q (module doc)
 
 
 class GeneralizedAlpha(Integrator):
@@ -43,15 +66,33 @@ class GeneralizedAlpha(Integrator):
     description = ("implicit index-3 generalized-alpha (Arnold-Bruls), rho_inf = 0.8, "
                    "Newton on (q, lam), error-controlled step")
     order = 2
-    # error per step of an order-2 method: local error ~ h^3 = tol, so h ~ tol^(1/3) and the
-    # global error ~ h^2 ~ tol^(2/3) (measured error / rtol 44 -> 536 from rtol 1e-6 to 1e-10
-    # on the slider-crank, 49 -> 560 on the four parallel cranks: x11 for x21.5 predicted)
-    tolerance_exponent = 2.0 / 3.0
+    # below REFERENCE_RTOL the local tolerance is rtol^(3/2) / REFERENCE_RTOL^(1/2) and the
+    # global error ~ rtol (module doc); at and above it the error per step is held to the
+    # tolerances and the global error grows as rtol^(2/3) (PER_STEP_EXPONENT; error / rtol
+    # 44 -> 536 from rtol 1e-6 to 1e-10 on the slider-crank before the change)
+    tolerance_exponent = 1.0
+    PER_STEP_EXPONENT = 2.0 / 3.0
     formulation = "index-3"
     rho_inf = 0.8
     max_newton = 10
     pi_beta = 0.1
     FD_MAX_NQ = 200  # finite-difference tangent up to this many coordinates (2 nq residuals)
+
+    @classmethod
+    def tolerance_factor(cls, rtol):
+        """f: a step's local error is held to f (atol + rtol |q|) (module doc):
+        (rtol / REFERENCE_RTOL)^(1/2) below REFERENCE_RTOL, 1 at and above it."""
+        return float(np.sqrt(min(1.0, max(float(rtol), 0.0) / REFERENCE_RTOL)))
+
+    @classmethod
+    def error_ratio(cls, rtol, rtol_other):
+        """err(rtol_other) / err(rtol): the global error ~ (rtol f(rtol))^(2/3), the
+        internal tolerance to the power PER_STEP_EXPONENT (so ~ rtol below
+        REFERENCE_RTOL, ~ rtol^(2/3) above it)."""
+        def internal(r):
+            return float(r) * cls.tolerance_factor(r)
+
+        return (internal(rtol_other) / internal(rtol)) ** cls.PER_STEP_EXPONENT
 
     @classmethod
     def coefficients(cls, rho):
@@ -75,12 +116,22 @@ class GeneralizedAlpha(Integrator):
         b, i, j = np.meshgrid(np.arange(s.nb), np.arange(7), np.arange(7), indexing="ij")
         self._bi, self._bj = (7 * b + i).reshape(-1), (7 * b + j).reshape(-1)  # block scatter
         self.newton_tol = float(self.options.get("newton_tol", 1e-3))
+        # the tolerances a step is held to: f (atol, rtol) (module doc)
+        self.tol_factor = f = self.tolerance_factor(self.rtol)
+        # the tightened atol stops at NOISE_MARGIN x the round-off of q (ROUNDOFF_ULPS ulp of
+        # max(1, |q|), the Newton test's): coordinates that stay at zero (a planar
+        # mechanism's z, p1, p2) carry only that noise, and a smaller atol made it decide
+        # the steps (Andrews at rtol 1e-11: 6359 rejected steps, error 4.8e-9 m)
+        noise = NOISE_MARGIN * ROUNDOFF_ULPS * np.finfo(float).eps * max(
+            1.0, np.abs(self.q).max(initial=0.0))
+        self.atol_step = min(self.atol, max(f * self.atol, noise))
+        self.rtol_step = f * self.rtol
         if self.h_fixed is not None:
             self.h_abs = self.h_fixed
         elif self.h0 is not None:
             self.h_abs = float(self.h0)
         else:  # second-order start: h^2 |qdd| ~ tolerance
-            scale = self.atol + self.rtol * np.abs(self.q)
+            scale = self.atol_step + self.rtol_step * np.abs(self.q)
             d = rms_norm(self.qdd, scale)
             self.h_abs = min(self.h_max, 0.1 * (t_bound - t0), np.sqrt(1.0 / max(d, 1e-12)))
         self._dense = None
@@ -254,7 +305,9 @@ class GeneralizedAlpha(Integrator):
                 h_next = self.h_fixed
                 break
             est = q - self._predict(self.t + h)
-            scale = self.atol + self.rtol * np.maximum(np.abs(q), np.abs(self.q))
+            qmax = np.maximum(np.abs(q), np.abs(self.q))
+            given = self.atol + self.rtol * qmax
+            scale = self.atol_step + self.rtol_step * qmax
             err = rms_norm(est, scale)
             if not np.isfinite(err):
                 err = 1e10  # NaN/inf in the step: reject hard
@@ -262,7 +315,13 @@ class GeneralizedAlpha(Integrator):
                 # a tolerance below what the constraint solve can attain here (near a singular
                 # position) is met at that attainable level instead of cutting h to h_min
                 floor = self._noise_floor(q, h)
-                if floor is not None:
+                if floor is not None and self.tol_factor < 1.0:
+                    # the tightened tolerance stops at the step's round-off floor (and at the
+                    # given tolerances): below it the estimate measures noise.  (10 x the
+                    # floor here took Andrews at rtol 1e-10 from 5.1e-11 to 6.4e-10 m)
+                    scale = np.minimum(given, np.maximum(scale, floor))
+                    err = rms_norm(est, scale)
+                if floor is not None and err > 1:
                     e2 = rms_norm(np.maximum(np.abs(est) - floor, 0.0), scale)
                     if e2 <= 1:
                         err = e2

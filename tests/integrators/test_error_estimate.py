@@ -19,6 +19,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from mbsim.analyses.dynamic import dynamic
+from mbsim.analyses.estimate import companion_options
+from mbsim.integrators import INTEGRATORS
 from tests.integrators import models as M
 from tests.integrators import references as R
 
@@ -214,15 +216,11 @@ def test_accuracy_meets_request(name, tol):
 
 
 def test_accuracy_with_a_second_order_method():
-    """accuracy with generalized-alpha, whose error grows as rtol^(2/3) (error-per-step
-    control of an order-2 method, GeneralizedAlpha.tolerance_exponent), on the four cranks
-    at 1e-4: the refinement scales rtol by (ratio)^(3/2) and the estimate scales the
-    companion difference by 1/(1 - 5^(-2/3)) = 1.52.  Before both (estimate 0.54 x the true
-    error, refinement by the ratio itself) the request was missed: error 2.6e-4 m, estimate
-    1.4e-4 m, "not reached" after two runs.  est/err in [0.5, 2.5]: with the companion's
-    error 5^(-2/3) = 0.34 of the run's, the scaled difference lies between 1.52 (1 - 0.34)
-    = 1.0 and 1.52 (1 + 0.34) = 2.0 times the run's error, widened by a quarter each way
-    for the model's own error (measured 0.64-1.0 on three problems at 1e-4 and 1e-6)."""
+    """accuracy with generalized-alpha on the four cranks at 1e-4: the runs start at
+    rtol = TOL/300, below the method's reference rtol (1e-6), where its error is
+    proportional to rtol (GeneralizedAlpha.tolerance_factor), so the estimate takes the
+    companion difference as it is, like the Runge-Kutta pairs'.  est/err in [0.5, 2.5]
+    (the companion's own error a fifth of the run's, widened for the model's own error)."""
     pb = M.reference_problem("parallel_fourbar")
     tol = 1e-4
     res = run(pb, accuracy=tol, integrator="genalpha")
@@ -231,4 +229,30 @@ def test_accuracy_with_a_second_order_method():
     assert acc["met"] and acc["estimate"] <= tol, acc
     assert pos <= 3 * tol, f"position error {pos:.3g} > 3 x {tol:g} ({acc})"
     assert 0.5 <= res.summary["error_estimate"]["position"] / pos <= 2.5
-    assert "kappa = 0.667" in res.summary["error_estimate"]["method"]
+    assert "kappa" not in res.summary["error_estimate"]["method"]
+
+
+@pytest.mark.parametrize("rtol,factor", [(1e-3, 1.0 / (1.0 - 5.0 ** (-2.0 / 3.0))),
+                                         (1e-6, 1.0), (1e-9, 1.0)])
+def test_second_order_companion_factor_follows_the_tolerance_regime(rtol, factor):
+    """generalized-alpha's companion at rtol/5: at and above its reference rtol 1e-6 the
+    companion's error is 5^(-2/3) of the run's when it also lies there (error ~ rtol^(2/3),
+    factor 1/(1 - 5^(-2/3)) = 1.52); at and below it 1/5 of it (error ~ rtol: the
+    companion at 2e-7 of a run at 1e-6 has an internal tolerance (1/5)^(3/2) of the run's,
+    whose error ratio is (1/5)^(3/2 x 2/3) = 1/5), and the difference is taken as it is."""
+    _, f, method = companion_options(INTEGRATORS["genalpha"], {"rtol": rtol, "atol": rtol})
+    assert f == pytest.approx(factor, rel=1e-9), method
+
+
+@pytest.mark.parametrize("name", ["genalpha", "projection-dop853"])
+@pytest.mark.parametrize("rtol", [1e-3, 3e-6, 3.3e-7, 1e-10])
+def test_refined_tolerance_inverts_the_error_ratio(name, rtol):
+    """--accuracy's refinement (Integrator.rtol_for_error_ratio) is the inverse of the error
+    model (error_ratio): the rtol it picks for a wanted ratio r gives back r, to the
+    bisection's resolution, across genalpha's reference rtol 1e-6; for a method with one
+    kappa it is rtol r^(1/kappa)."""
+    cls = INTEGRATORS[name]
+    for ratio in (0.5, 0.1, 1e-3):
+        new = cls.rtol_for_error_ratio(rtol, ratio)
+        assert new < rtol
+        assert cls.error_ratio(rtol, new) == pytest.approx(ratio, rel=1e-9)
