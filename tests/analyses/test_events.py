@@ -215,19 +215,18 @@ def test_locate_and_crossed():
     assert crossed(1, -1.0, 0.0) and not crossed(1, 0.0, 1.0)
 
 
-@pytest.mark.parametrize("integrator", ["projection-dop853", "gcp-dop853", "genalpha"])
-def test_work_monitor_carries_over_the_restarts(tmp_path, integrator):
+@pytest.mark.parametrize("integrator, bound", [("projection-dop853", 1e-6), ("gcp-dop853", 1e-6),
+                                               ("genalpha", 1e-3)])
+def test_work_monitor_carries_over_the_restarts(tmp_path, integrator, bound):
     """The oscillator is conservative: the work of the non-conservative forces stays 0
     although the integration restarts at every event (the integrated power carries over;
-    it restarted at 0 before, off by up to the spring's stored energy E0).  Bound: the
-    run's own energy error, 100 rtol^kappa E0 with kappa the method's tolerance exponent
-    (1; generalized-alpha 2/3, whose trapezoidal power integral measured 7e-5 E0 at
-    rtol 1e-8)."""
-    from mbsim.analyses.trajectory import integrator_class
-
+    it restarted at 0 before, off by up to the spring's stored energy E0).  Bounds, in E0:
+    the Runge-Kutta families integrate the power as a component of their state, to 100 x
+    rtol (1e-8); generalized-alpha by the trapezoidal rule on its steps, second order in h
+    and not error-controlled (measured 1.9e-5 E0 at rtol 1e-8): 1e-3, still far below a
+    lost restart."""
     _, res = run(deck(tmp_path), integrator=integrator, rtol=1e-8, atol=1e-10)
     E0 = 0.5 * K * X0 ** 2
     W = res.channel("monitors/work_nonconservative").data
     assert len(res.names["events"]) == 4
-    kappa = integrator_class(integrator).tolerance_exponent
-    assert np.abs(W).max() <= 100 * 1e-8 ** kappa * E0
+    assert np.abs(W).max() <= bound * E0
