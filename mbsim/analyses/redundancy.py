@@ -70,7 +70,9 @@ def dependency(J: np.ndarray, red: np.ndarray, act: np.ndarray) -> np.ndarray:
 def conflict_items(model, C, red, act, k) -> list[str]:
     """The items whose rows make up dropped row red[k]'s dependency, drivers first."""
     c = np.abs(C[k])
-    rows = [red[k]] + [act[i] for i in np.flatnonzero(c > DEPENDENCY_CUT * max(c.max(), 1e-300))]
+    # no active row (every row dropped): the row conflicts with nothing else
+    top = c.max(initial=0.0)
+    rows = [red[k]] + [act[i] for i in np.flatnonzero(c > DEPENDENCY_CUT * max(top, 1e-300))]
     names = model.items_of_rows(np.asarray(rows, int))
     user = [n for n in names if not n.startswith(("norm:", "ground:"))] or names
     kind = {it.name: it.kind for it in model.items}

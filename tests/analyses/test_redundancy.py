@@ -155,3 +155,13 @@ def test_check_names_the_dependent_items_and_passes_consistent_rows():
     with pytest.raises(ModelError, match="velocity level") as info:
         redundancy.check(model, T.jac, red, act, 0.0, qd=qd, nu=nu)
     assert set(info.value.items) >= {model.items[model.row_item[red[0]]].name}
+
+
+def test_a_row_dropped_with_no_row_left_names_its_own_item():
+    """Phi_q of rank 0 (a deck whose estimates overflow, found by the fuzzer): every row is
+    dropped and the dependency of each on the active rows is empty; the conflict names the
+    row's own item instead of failing on the empty reduction."""
+    _, model = load_model(str(Path(__file__).resolve().parents[2] / "models" / "four_bar.yaml"))
+    red, act = np.arange(model.m), np.zeros(0, int)
+    C = np.zeros((model.m, 0))
+    assert redundancy.conflict_items(model, C, red, act, 0) == model.items_of_rows([0])
