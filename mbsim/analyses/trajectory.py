@@ -3,7 +3,8 @@
 - :class:`Prepared`: what every integration of one analysis shares (the method, the output
   times, the consistent initial state, the independent rows at t_start);
 - :class:`Stepper`: the integrator on the independent rows, chosen again when a step fails
-  where that choice no longer holds;
+  where that choice no longer holds, with the modes of the hybrid force elements and the
+  rows those modes hold; it restarts at every event (:mod:`mbsim.events`);
 - :func:`integrate` / :func:`trajectory`: step to t_end and record the state at the output
   times from the dense output (:class:`Trajectory`), so output sampling never constrains
   the step size;
@@ -376,7 +377,11 @@ class Stepper:
     longer holds (the rank of Phi_q changed, or another set of rows is now the independent
     one), the rows are chosen again at the last accepted state and the integrator restarts
     there with its last step size: ``changes`` lists when and which rows became redundant.
-    A failure with the same rows still independent is final."""
+    A failure with the same rows still independent is final.
+
+    With events (the deck's, or hybrid force elements: ``watch``), :meth:`on_event` notes
+    each located event, sets the modes it changes, appends the rows those modes hold
+    (:func:`mbsim.events.extend_model`) and restarts the integration at the event."""
 
     def __init__(self, model, cls, opt, t0, q, qd, t1, rows):
         self.model, self.cls, self.opt, self.t1 = model, cls, opt, t1
