@@ -118,26 +118,30 @@ class Context:
 
 def locate(g, ta, tb, ga, gb, tol):
     """The root of g on [ta, tb] with g(ta) ga, g(tb) gb of opposite signs (gb may be 0):
-    Illinois' modified regula falsi, which keeps a bracket and converges superlinearly.
-    Returns t with |t - root| <= tol (the bracket's width) or the exact zero."""
+    the Illinois method (regula falsi that halves the value kept at an end which stays
+    twice in a row), which keeps a bracket and converges superlinearly.  Returns t with
+    |t - root| <= tol (the bracket's width) or an exact zero."""
     if gb == 0.0:
         return tb
+    side = 0  # which end moved last: -1 the right one, +1 the left one
     for _ in range(200):
         if tb - ta <= tol:
             break
-        t = tb - gb * (tb - ta) / (gb - ga)
+        t = (ta * gb - tb * ga) / (gb - ga)
         t = min(max(t, ta + 0.25 * tol), tb - 0.25 * tol)
         gt = g(t)
         if gt == 0.0:
             return t
         if (gt > 0) == (gb > 0):  # the root lies in [ta, t]
             tb, gb = t, gt
-            ga *= 0.5  # Illinois: halve the retained end's value
-        else:
-            ta, ga = tb, gb
-            tb, gb = t, gt
-        if ta > tb:
-            ta, tb, ga, gb = tb, ta, gb, ga
+            if side == -1:
+                ga *= 0.5
+            side = -1
+        else:  # in [t, tb]
+            ta, ga = t, gt
+            if side == 1:
+                gb *= 0.5
+            side = 1
     return tb
 
 
