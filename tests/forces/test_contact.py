@@ -162,12 +162,12 @@ def test_restitution_from_the_deck_and_the_rebound_height():
     is close to e^2 h (the law's e within its accuracy).
 
     Why 1e-4 and not the rtol-scaled bound of a smooth motion: the contact force k g^(3/2)
-    has an unbounded second derivative at the first touch, and the integrator steps across
-    that instant without knowing it (locating it is an event, issue 25's item 4).  The
-    embedded error estimate then misjudges the step over the touch: measured apex errors
-    -2.6e-5 (C step), +9.1e-6 (Python step) with free steps, -5.2e-5 with h_max = tc/10 and
-    -2.5e-7 with h_max = tc/100 (the error falls with the step across the touch, not with
-    rtol); 1e-4 holds them with a margin of 2."""
+    has an unbounded second derivative at the first touch (d2F/dg2 ~ g^(-1/2)).  The touch
+    is located as an event and the integration restarts there, but the first steps after
+    it still carry that singularity, and the embedded error estimate misjudges them:
+    measured apex errors 1.7e-5 and 2.1e-5 at rtol 1e-8 (two step sequences), 7e-11 at rtol
+    1e-10 (before the touch was an event: -2.6e-5 C step, +9.1e-6 Python step; -2.5e-7 with
+    h_max = tc/100); 1e-4 holds them with a margin of 5."""
     h, g = 0.05, 9.81
     v = np.sqrt(2 * g * h)
     text = DECK.read_text().replace(
