@@ -66,7 +66,8 @@ def slider_with(tmp_path, old: str, new: str, name: str = "deck.yaml") -> Path:
 def test_non_numeric_yaml_types_in_a_numeric_field_are_deck_errors(tmp_path, value, says):
     deck = slider_with(tmp_path, "    mass: 0.12", f"    mass: {value}")
     res = cli("check", deck)
-    one_error(res, 2, str(deck), ":32", "bodies.crank.mass", says)
+    line = SLIDER.read_text().splitlines().index("    mass: 0.12") + 1  # the crank's mass
+    one_error(res, 2, str(deck), f":{line}:", "bodies.crank.mass", says)
 
 
 def test_a_date_given_with_set_is_a_deck_error():
