@@ -209,14 +209,13 @@ def extend_model(model, holds):
     rows.m = model.m
     items = list(model.items)
     owners: dict[str, list] = {}
+    item_no = {o: len(items) + k for k, o in enumerate(dict.fromkeys(h.owner for h in holds))}
     for h in holds:
-        frames = dict(h.frames)
         args = dict(h.args)
         if h.kernel == "absolute":
             args["axis"] = "axis"
-        r = rows.add(h.kernel, args, frames, h.bi, h.bj, h.target, None, False,
-                     len(items) + list(dict.fromkeys([x.owner for x in holds])).index(h.owner),
-                     h.label)
+        r = rows.add(h.kernel, args, dict(h.frames), h.bi, h.bj, h.target, None, False,
+                     item_no[h.owner], h.label)
         owners.setdefault(h.owner, []).append((r, h))
     for name, rs in owners.items():
         r = np.concatenate([x[0] for x in rs])

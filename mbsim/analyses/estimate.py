@@ -101,8 +101,8 @@ COARSE_FAMILIES = ("projection-dop853", "projection", "genalpha", "hht")
 its step to the power p: the projected Runge-Kutta pairs and the index-3
 generalized-alpha family (p = 2 for positions and velocities, Arnold & Bruls 2007; the
 second only without redundant constraints, :data:`COARSE_NEEDS_INDEPENDENT_ROWS`).  Their
-error as a function of the *tolerance* (generalized-alpha: rtol^(2/3) above rtol 1e-6) does not enter: the
-companion takes the run's own mesh.  The others keep the companion at rtol / rho:
+error as a function of the *tolerance* (generalized-alpha: rtol^(2/3) above rtol 1e-6) does
+not enter: the companion takes the run's own mesh.  The others keep the companion at rtol / rho:
 Baumgarte (its drift term does not scale with the step), and the coordinate-partitioning
 pairs, whose dependent-coordinate Newton iteration fails on doubled steps (heavy top,
 gcp-dop853 at rtol 1e-5: |Phi| 0.24 at t = 0.09 s), so that the companion at rtol / rho

@@ -192,19 +192,16 @@ def output_loads(model, forces, t, q, qd):
 
 
 def output_row(model, system, t, q, qd, loads=None):
-    """(qdd, lam over all rows, Phi (m,), Phi_q qd - nu (m,)) at one output; loads: (2, nb,
-    3) the Python force elements' loads there (:func:`output_loads`), None: computed here.
-    Rows that hybrid elements hold (after the model's m rows) are left out; their
-    multipliers reach the elements' channels (:func:`held_multipliers`)."""
+    """(qdd, lam, Phi, Phi_q qd - nu) at one output, the last three on every row of the
+    system's model: the model's m rows, then the rows its hybrid modes hold (their
+    multipliers are the elements' holding forces, for their channels); loads: (2, nb, 3)
+    the Python force elements' loads there (:func:`output_loads`), None: computed here."""
     try:
         qdd, lam, _ = system.accelerations(q, qd, t, loads=loads)
     except NUMERICAL_ERRORS:  # exactly at a singular position: least squares
         qdd, lam = accelerations_lstsq(model, system, q, qd, t)
     ph, v = system.residuals(q, qd, t)
-    full = system.full_lam(lam)
-    if system.model.m > model.m:
-        system.lam_all = full
-    return qdd, full[:model.m], ph[:model.m], v[:model.m]
+    return qdd, system.full_lam(lam), ph, v
 
 
 def build_result(model, prep, opt, tr, span):
@@ -239,9 +236,10 @@ def build_result(model, prep, opt, tr, span):
                 break
             if np.abs(ph).max(initial=0.0) > drift_limit:  # drift the method did not hold
                 row = int(np.argmax(np.abs(ph)))
+                label = tr.systems[k].model.row_label[row]  # a held row too
                 status, message = STATUS_INCOMPLETE, (
                     f"t = {tr.t[k]:.6g} s: constraint drift: |Phi| = {abs(ph[row]):.3g} "
-                    f"({model.row_label[row]}) is over {DRIFT_FACTOR:g} x the tolerance "
+                    f"({label}) is over {DRIFT_FACTOR:g} x the tolerance "
                     f"({drift_limit:.3g}): {cls.name} did not hold the constraints, the motion "
                     f"has left the mechanism (baumgarte: keep its drift bound; or tighten rtol)")
                 stopped = message
@@ -251,14 +249,11 @@ def build_result(model, prep, opt, tr, span):
             if stopped is not None:  # the outputs before it are right; this one is not
                 status, message = STATUS_INCOMPLETE, stopped
                 break
-            lam.append(la)
+            lam.append(la[:model.m])
             pos.append(float(np.abs(ph).max(initial=0.0)))
             vel.append(float(np.abs(v).max(initial=0.0)))
             if hybrid:  # each output's modes and multipliers (held rows too): their channels
-                sysk = tr.systems[k]
-                rec.add(tr.t[k], tr.q[k], tr.qd[k], qdd, modes=sysk.modes,
-                        lam_all=getattr(sysk, "lam_all", None) if sysk.model.m > model.m
-                        else la)
+                rec.add(tr.t[k], tr.q[k], tr.qd[k], qdd, modes=tr.systems[k].modes, lam_all=la)
             else:
                 rec.add(tr.t[k], tr.q[k], tr.qd[k], qdd)
     except KeyboardInterrupt:  # Ctrl-C while the outputs are evaluated: keep those done
@@ -313,7 +308,8 @@ def build_result(model, prep, opt, tr, span):
 
 
 def _kept_events(events, t_last):
-    return [e for e in events if e["t"] <= t_last * (1 + 1e-12) + 1e-300]
+    """The events up to the last output (the run's outputs may stop short of its end)."""
+    return [e for e in events if e["t"] <= t_last + 1e-12 * max(1.0, abs(t_last))]
 
 
 def add_events(res, model, events, t_last):
@@ -411,6 +407,7 @@ class Stepper:
         self.step_ends: list[float] = []
         self.solver.step_ends = self.step_ends
         self._same_time = 0  # events in a row without time moving on
+        self._last_event_t = None
         if self.watch is not None:
             self.watch.reset(self, t0, q, qd)
 
@@ -490,8 +487,9 @@ class Stepper:
                              f"t = {ev.t:.6g} s): a law that chatters")
         if stop is not None:
             return stop
-        self._same_time = self._same_time + 1 if ev.t <= (self.watch_t or -np.inf) else 0
-        self.watch_t = ev.t
+        same = self._last_event_t is not None and ev.t <= self._last_event_t
+        self._same_time = self._same_time + 1 if same else 0
+        self._last_event_t = ev.t
         if self._same_time > MAX_EVENTS_AT_ONE_TIME:
             raise SolveError(f"{MAX_EVENTS_AT_ONE_TIME} mode changes at t = {ev.t:.6g} s "
                              f"without the time moving on ({ev.fired[0].name}): no mode is "
@@ -514,8 +512,6 @@ class Stepper:
         self.system, self.solver = system, solver
         self.watch.reset(self, ev.t, q, qd)
         return None
-
-    watch_t = None
 
     def step(self):
         ok, msg = self.solver.step()

@@ -89,3 +89,18 @@ def rotations(model, q, dq):
 def Q_of(model, q, qd=None, t=0.0):
     qd = np.zeros(model.nq) if qd is None else qd
     return eq.applied_forces(model, q, qd, t)[0]
+
+
+def assert_bad_edit(deck, old, new, message, path):
+    """The deck file ``deck`` with ``old`` replaced by ``new`` (once) is a DeckError whose
+    text holds ``message`` and the key ``path``."""
+    import pytest
+
+    from mbsim.deck import load_deck_text
+    from mbsim.errors import DeckError
+
+    text = deck.read_text()
+    assert old in text
+    with pytest.raises(DeckError) as exc:
+        compile_model(load_deck_text(text.replace(old, new, 1)))
+    assert message in str(exc.value) and path in str(exc.value)
