@@ -15,7 +15,8 @@ from pathlib import Path
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
-SOURCES = [Path("mbsim") / "fast" / "kernels.c", Path("mbsim") / "fast" / "step.c"]
+SOURCES = [Path("mbsim") / "fast" / "kernels.c", Path("mbsim") / "fast" / "step.c",
+           Path("mbsim") / "fast" / "outputs.c"]
 
 
 class BuildKernels(build_ext):

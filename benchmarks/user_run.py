@@ -39,7 +39,7 @@ import numpy as np
 # else this tree), put first on sys.path by common
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import ROOT, figure  # noqa: E402
+from common import ROOT, figure, run_with_deck  # noqa: E402
 
 DECKS = "governor,slider_crank:free,vehicle"
 PHASES = ("set-up", "trajectory", "estimate", "outputs", "shapes", "write")
@@ -65,7 +65,7 @@ def measure(deck, scene, repeats, tmp):
     """{phase: [ms per run]} of the user run of one deck, and the bare runs' ms."""
     import mbsim.analyses.dynamic as dyn
     import mbsim.view.geometry as geometry
-    from mbsim.api import load_model, run_model
+    from mbsim.api import load_model
     from mbsim.output import hdf5
 
     spec, model = load_model(ROOT / "models" / f"{deck}.yaml", scene=scene)
@@ -73,7 +73,7 @@ def measure(deck, scene, repeats, tmp):
     bare = dict(opts, error_estimate=False,
                 step=float(opts.get("t_end", 1.0)) - float(opts.get("t_start", 0.0)))
     out = Path(tmp) / f"{deck}.h5"
-    hdf5.write_result(run_model(model, "dynamic", dict(opts)), out)  # warm-up
+    hdf5.write_result(run_with_deck(model, "dynamic", dict(opts), spec), out)  # warm-up
     spent = dict.fromkeys(PHASES, 0.0)
     wrapped = [(dyn, "Prepared", "set-up"), (dyn, "main_trajectory", "trajectory"),
                (dyn, "estimate", "estimate"), (dyn, "build_result", "outputs"),
@@ -85,14 +85,14 @@ def measure(deck, scene, repeats, tmp):
             for k in spent:
                 spent[k] = 0.0
             c0 = time.process_time()
-            res = run_model(model, "dynamic", dict(opts))
+            res = run_with_deck(model, "dynamic", dict(opts), spec)
             c1 = time.process_time()
             hdf5.write_result(res, out)
             c2 = time.process_time()
             spent["write"] = c2 - c1
             for k in PHASES:  # (before the bare run, which calls the same functions)
                 got[k].append(1e3 * spent[k])
-            run_model(model, "dynamic", dict(bare))
+            run_with_deck(model, "dynamic", dict(bare), spec)
             c3 = time.process_time()
             got["user run"].append(1e3 * (c2 - c0))
             got["rest"].append(1e3 * (c2 - c0) - sum(got[k][-1] for k in PHASES))

@@ -51,6 +51,7 @@ import time as _time
 import numpy as np
 
 from mbsim.analyses.trajectory import Stepper, Trajectory, trajectory
+from mbsim.fast import stepper
 from mbsim.integrators import INTEGRATORS
 from mbsim.integrators.base import NUMERICAL_ERRORS
 from mbsim.integrators.rk import RungeKuttaIntegrator
@@ -142,10 +143,10 @@ class CoarseStepper(Stepper):
     """The run's method without error control on the run's own mesh coarsened by two
     (``mesh``: every other step end of the run, t0 first, the run's last step end last)."""
 
-    def __init__(self, model, cls, opt, t0, q, qd, t1, rows, mesh):
+    def __init__(self, model, cls, opt, t0, q, qd, t1, rows, mesh, system=None):
         self.mesh = np.asarray(mesh, float)
         opt = dict(opt, h=float(self.mesh[1] - self.mesh[0]), h0=None)
-        super().__init__(model, cls, opt, t0, q, qd, t1, rows)
+        super().__init__(model, cls, opt, t0, q, qd, t1, rows, system)
 
     def step(self):
         s = self.solver
@@ -164,6 +165,28 @@ def interpolant(solver):
     if isinstance(solver, RungeKuttaIntegrator):
         return RungeKuttaIntegrator._dense_output_impl(solver)
     return solver.dense_output()
+
+
+def interpolant_many(solver, times):
+    """(Q (k, nq), QD (k, nq)): :func:`interpolant` of the last step of ``solver`` at all
+    of ``times`` (inside the step) at once; in one C call (mbsim/fast/step.c:
+    mb_rk_dense with the projection switched off: the same interpolant, the projection's
+    correction at the step's end blended in linearly) when the step was taken there."""
+    c = getattr(solver, "_compiled", None)
+    if c is not None and getattr(solver, "_c_last", False) and not solver._step_tangent:
+        t0, h = solver._dense_args[:2]
+        project, c.r.project = c.r.project, 0
+        try:
+            status, Q, QD, _, _ = c.dense(t0, h, times)
+        finally:
+            c.r.project = project
+        if status == stepper.ST_ACCEPTED:
+            return Q, QD
+    dense = interpolant(solver)
+    Q, QD = np.empty((len(times), solver.q.size)), np.empty((len(times), solver.q.size))
+    for i, t in enumerate(times):
+        Q[i], QD[i] = dense(t)[:2]
+    return Q, QD
 
 
 def coarse_estimate(model, prep, opt, tr):
@@ -201,9 +224,13 @@ def coarse_estimate(model, prep, opt, tr):
     Qc, QDc = np.empty((n, model.nq)), np.empty((n, model.nq))
     Qc[0], QDc[0] = prep.q0, prep.qd0
     k, steps = 1, 0
+    # the run's equations of motion (its rows: no change point, so no row change), shared;
+    # their counters are the run's, so the companion's work is taken off them again
+    system = run.system if np.array_equal(run.system.rows, prep.rows) else None
+    counted = dict(system.counters) if system is not None else None
     try:
         comp = CoarseStepper(model, cls, opt, t0, prep.q0.copy(), prep.qd0.copy(),
-                             float(mesh[-1]), prep.rows, mesh)
+                             float(mesh[-1]), prep.rows, mesh, system)
         while k < n:
             if steps > 2 * mesh.size + 100:
                 return None, "the coarse companion took more steps than its mesh has"
@@ -215,15 +242,21 @@ def coarse_estimate(model, prep, opt, tr):
                 return None, f"the coarse companion stopped: {msg}"
             s = comp.solver
             eps = 1e-12 * max(1.0, abs(s.t))
-            if times[k] <= s.t + eps:
-                dense = interpolant(s)
-                while k < n and times[k] <= s.t + eps:
-                    Qc[k], QDc[k] = (s.q, s.qd) if times[k] >= s.t else dense(times[k])[:2]
-                    k += 1
+            j = int(np.searchsorted(times, s.t + eps, side="right"))
+            if j > k:  # the outputs in this step: the interpolant, at t itself the state
+                inside = times[k:j] < s.t
+                i = k + int(np.count_nonzero(inside))
+                if i > k:
+                    Qc[k:i], QDc[k:i] = interpolant_many(s, times[k:i])
+                Qc[i:j], QDc[i:j] = s.q, s.qd
+                k = j
     except NUMERICAL_ERRORS as exc:
         return None, f"the coarse companion failed: {exc}"
     except KeyboardInterrupt:  # Ctrl-C: no estimate, and no other companion either
         return INTERRUPTED, "the companion run was interrupted (Ctrl-C) before it finished"
+    finally:
+        if counted is not None:
+            system.counters.update(counted)
     factor = 1.0 / (2.0 ** cls.order - 1.0)
     diff = state_differences(model, np.array(tr.q), np.array(tr.qd), Qc, QDc)
     channels = {key: factor * diff[key] for key in ERROR_UNITS}

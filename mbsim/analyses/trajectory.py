@@ -204,6 +204,73 @@ def output_row(model, system, t, q, qd, loads=None):
     return qdd, system.full_lam(lam), ph, v
 
 
+def output_targets(fc, t):
+    """(nt, nf, 3): the time targets of the driven rows (FastConstraints.targets) at every
+    output time ``t`` (nt,), each function once for all outputs where it takes an array,
+    else output by output; None without driven rows."""
+    if not fc.funcs:
+        return None
+    nt = len(t)
+    tv = np.empty((nt, len(fc.funcs), 3))
+    for n, (f, sq) in enumerate(fc.funcs):
+        try:
+            v, d1, d2 = (np.broadcast_to(np.asarray(g(t), dtype=float), (nt,))
+                         for g in (f, f.d1, f.d2))
+        except Exception:  # noqa: BLE001 - a scalar-only function: one output at a time
+            v, d1, d2 = (np.array([float(g(x)) for x in t]) for g in (f, f.d1, f.d2))
+        if sq:  # (f^2)' = 2 f f', (f^2)'' = 2 (f'^2 + f f'') (FastConstraints.targets)
+            d1, d2 = 2.0 * v * d1, 2.0 * (d1 * d1 + v * d2)
+        tv[:, n, 0] = v * v if sq else v
+        tv[:, n, 1], tv[:, n, 2] = d1, d2
+    return tv
+
+
+def output_rows(system, t, q, qd, loads=None):
+    """:func:`output_row` at every output in one C call (mbsim/fast/outputs.c), for a run
+    whose outputs share one system without hybrid elements or multiplier-dependent loads:
+    (done, qdd (nt, nq), lam (nt, m), Phi (nt, m), Phi_q qd - nu (nt, m)); ``done`` < nt:
+    the output where a factorisation failed (the arrays hold the ones before it; the caller
+    evaluates it again with :func:`output_row`).  t (nt,), q, qd (nt, nq); loads (nt, 2, nb,
+    3) the Python force elements' loads (:func:`output_loads`)."""
+    from mbsim.fast import _lib
+
+    nt, nq, m, ma = len(t), system.nq, system.model.m, system.m
+    Q = np.ascontiguousarray(q, dtype=np.float64)
+    QD = np.ascontiguousarray(qd, dtype=np.float64)
+    tv = output_targets(system.fc, np.asarray(t, dtype=float))
+    if loads is not None:
+        loads = np.ascontiguousarray(loads, dtype=np.float64)
+    qdd, lam = np.empty((nt, nq)), np.empty((nt, ma))
+    ph, v = np.empty((nt, m)), np.empty((nt, m))
+    status = np.zeros(1, dtype=np.int64)
+    done = int(_lib.library().mb_outputs(
+        system.c.ptr, int(system.kkt), nt, len(system.fc.funcs), Q.ctypes.data,
+        QD.ctypes.data, None if tv is None else tv.ctypes.data,
+        None if loads is None else loads.ctypes.data, qdd.ctypes.data, lam.ctypes.data,
+        ph.ctypes.data, v.ctypes.data, status.ctypes.data))
+    c = system.counters  # as output_row's two calls count them
+    c["function_evaluations"] += done
+    c["constraint_evaluations"] += 2 * done
+    c["factorizations"] += done
+    if not system.all_rows:
+        full = np.zeros((nt, m))
+        full[:, system.rows] = lam
+        lam = full
+    return done, qdd, lam, ph, v
+
+
+def bulk_outputs(tr, n, loads):
+    """:func:`output_rows` of the first n outputs of ``tr`` when they allow it (one system,
+    no hybrid elements, no multiplier-dependent loads, the Python loads known), else None."""
+    if n == 0:
+        return None
+    system = tr.systems[0]
+    if (system.hybrid or system.reaction_loop or (system.py_forces and loads is None)
+            or any(s is not system for s in tr.systems[:n])):
+        return None
+    return output_rows(system, tr.t[:n], np.array(tr.q[:n]), np.array(tr.qd[:n]), loads)
+
+
 def build_result(model, prep, opt, tr, span):
     """The Result of a run: the standard channels and monitors at the outputs of ``tr``
     and its summary (the error estimate is added by
@@ -222,11 +289,16 @@ def build_result(model, prep, opt, tr, span):
     hybrid = bool(run.hybrid)
     loads = output_loads(model, tr.systems[0].py_forces if n else (), np.asarray(tr.t[:n]),
                          np.array(tr.q[:n]), np.array(tr.qd[:n]))
+    bulk = bulk_outputs(tr, n, loads)  # all outputs in one C call where it can
+    done = bulk[0] if bulk is not None else 0
     try:
         for k in range(n):
             try:
-                qdd, la, ph, v = output_row(model, tr.systems[k], tr.t[k], tr.q[k], tr.qd[k],
-                                            None if loads is None else loads[k])
+                if k < done:
+                    qdd, la, ph, v = bulk[1][k], bulk[2][k], bulk[3][k], bulk[4][k]
+                else:
+                    qdd, la, ph, v = output_row(model, tr.systems[k], tr.t[k], tr.q[k],
+                                                tr.qd[k], None if loads is None else loads[k])
             except NUMERICAL_ERRORS as exc:
                 if k == 0:
                     raise DeckError(f"the equations of motion cannot be solved at t_start = "
@@ -379,7 +451,7 @@ class Stepper:
     each located event, sets the modes it changes, appends the rows those modes hold
     (:func:`mbsim.events.extend_model`) and restarts the integration at the event."""
 
-    def __init__(self, model, cls, opt, t0, q, qd, t1, rows):
+    def __init__(self, model, cls, opt, t0, q, qd, t1, rows, system=None):
         self.model, self.cls, self.opt, self.t1 = model, cls, opt, t1
         self.rows = rows
         # hybrid elements' modes and the constraint rows those modes hold (mbsim.events);
@@ -389,7 +461,9 @@ class Stepper:
         self.events: list[dict] = []
         self.hybrid = tuple(el for el in model.forces if getattr(el, "hybrid", False))
         self.watch = Watch(model.events) if (model.events or self.hybrid) else None
-        self.system = self._system(rows)
+        # ``system``: another run's equations of motion on the same rows, reused (the
+        # coarse companion of the error estimate shares the run's: no second set-up)
+        self.system = self._system(rows) if system is None or self.hybrid else system
         if self.hybrid:
             ctx = Context(self.system, t0, q, qd)
             self.modes = {el.name: el.initial_mode(ctx) for el in self.hybrid}

@@ -40,9 +40,10 @@ log = logging.getLogger(__name__)
 
 HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "kernels.c"
-SOURCES = (SOURCE, HERE / "step.c")
-"""The files of the one library: the physics (kernels.c) and the integrators' step
-(step.c, :mod:`mbsim.fast.stepper`)."""
+SOURCES = (SOURCE, HERE / "step.c", HERE / "outputs.c")
+"""The files of the one library: the physics (kernels.c), the integrators' step
+(step.c, :mod:`mbsim.fast.stepper`) and the equations at a run's outputs (outputs.c,
+:func:`mbsim.analyses.trajectory.output_rows`)."""
 HEADERS = (HERE / "mb_model.h",)
 """What both sources include (the one definition of mb_model): part of the source hash."""
 CFLAGS = ["-O2", "-std=c99", "-fPIC", "-shared"]  # -O3: no faster (benchmarks/kernels.py)
@@ -211,6 +212,8 @@ def _declare(lib):
         "mb_loop_size": ([], ctypes.c_int64),
         "mb_kinematic": ([P, ctypes.c_double, ctypes.c_int64, I, P, P, P], I),
         "mb_apply_minv": ([P, I, ctypes.c_int64, P, P], None),
+        "mb_outputs": ([P, I, ctypes.c_int64, ctypes.c_int64, P, P, P, P, P, P, P, P, P],
+                       ctypes.c_int64),
     }
     for name, (args, res) in sig.items():
         f = getattr(lib, name)
