@@ -199,6 +199,17 @@ class Recorder:
             lst.append(v)
         self._n = n + 1  # last: an add interrupted before here records nothing
 
+    def add_many(self, t, q, qd, qdd):
+        """:meth:`add` of k outputs at once (no extras): t (k,), q, qd, qdd (k, nq)."""
+        n, k = self._n, len(t)
+        if n + k > self._t.size:
+            grow = max(n + k, 2 * self._t.size) - self._t.size
+            self._t = np.concatenate([self._t, np.empty(grow)])
+            self._s = np.concatenate([self._s, np.empty((3, grow, self.model.nq))], axis=1)
+        self._t[n:n + k] = t
+        self._s[0, n:n + k], self._s[1, n:n + k], self._s[2, n:n + k] = q, qd, qdd
+        self._n = n + k  # last: an add interrupted before here records nothing
+
     def trim(self):
         """Drop what an interrupted :meth:`add` left in ``extra`` beyond the outputs."""
         for v in self.extra.values():

@@ -291,8 +291,18 @@ def build_result(model, prep, opt, tr, span):
                          np.array(tr.q[:n]), np.array(tr.qd[:n]))
     bulk = bulk_outputs(tr, n, loads)  # all outputs in one C call where it can
     done = bulk[0] if bulk is not None else 0
+    start = 0
+    if done and not hybrid and tr.systems[0].rows.size == model.m:
+        # no rows dropped (dropped_rows_conflict has nothing to check): the outputs before
+        # the first drift recorded at once; the loop below reports that one
+        pos_all = np.abs(bulk[3][:done]).max(axis=1, initial=0.0)
+        start = int(np.argmax(pos_all > drift_limit)) if np.any(pos_all > drift_limit) else done
+        rec.add_many(tr.t[:start], tr.q[:start], tr.qd[:start], bulk[1][:start])
+        lam.extend(bulk[2][:start, :model.m])
+        pos.extend(pos_all[:start].tolist())
+        vel.extend(np.abs(bulk[4][:start]).max(axis=1, initial=0.0).tolist())
     try:
-        for k in range(n):
+        for k in range(start, n):
             try:
                 if k < done:
                     qdd, la, ph, v = bulk[1][k], bulk[2][k], bulk[3][k], bulk[4][k]

@@ -21,6 +21,7 @@ that lies outside that box.
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 
@@ -90,27 +91,43 @@ def cylinder(radius: float, length: float, n: int = SEGMENTS) -> tuple[np.ndarra
 
 
 def capsule(radius: float, length: float, n: int = SEGMENTS, rings: int = RINGS):
-    """A capsule along z (cap centres at z = +-length/2); a sphere when ``length`` is 0."""
+    """A capsule along z (cap centres at z = +-length/2); a sphere when ``length`` is 0.
+    Rows of vertices from the north pole, the equator ring doubled (it splits the two caps);
+    the mesh's layout and faces depend on (n, rings) only (:func:`_capsule_layout`)."""
+    sin_th, cos_th, cos_a, sin_a, ti, ai, north, faces = _capsule_layout(n, rings)
+    rs = radius * sin_th[ti]
+    row = np.c_[rs * cos_a[ai], rs * sin_a[ai], radius * cos_th[ti]]
+    half = np.array([0.0, 0.0, length / 2])
+    v = np.where(north[:, None], row + half, row - half)
+    return v, faces.copy()
+
+
+@functools.lru_cache(maxsize=8)
+def _capsule_layout(n: int, rings: int):
+    """What :func:`capsule` needs besides its size: sin, cos of the rings' polar angles and
+    of the segments' azimuths, each vertex's ring and segment, whether it is on the north
+    cap, and the faces (two triangles per quad between neighbouring rows)."""
     rings += rings % 2  # an equator ring, doubled below, splits the two caps
     theta = np.pi * np.arange(rings + 1) / rings  # from the north pole
     a = 2 * np.pi * np.arange(n) / n
-    rows = []
-    for i, th in enumerate(theta):
-        z = radius * np.cos(th)
-        row = np.c_[radius * np.sin(th) * np.cos(a), radius * np.sin(th) * np.sin(a), np.full(n, z)]
-        if 2 * i <= rings:
-            rows.append(row + [0, 0, length / 2])
-        if 2 * i >= rings:
-            rows.append(row - [0, 0, length / 2])
-    v = np.concatenate(rows)
+    ring = [i for i in range(rings + 1) for _ in range((2 * i <= rings) + (2 * i >= rings))]
+    north = [2 * i <= rings and (j == 0 or 2 * i != rings)
+             for i in range(rings + 1) for j in range((2 * i <= rings) + (2 * i >= rings))]
+    nrows = len(ring)
+    ti = np.repeat(ring, n)
+    ai = np.tile(np.arange(n), nrows)
     k = np.arange(n)
     k1 = (k + 1) % n
     faces = []
-    for r in range(len(rows) - 1):
+    for r in range(nrows - 1):
         top, bot = r * n, (r + 1) * n
         faces.append(np.c_[top + k, bot + k, bot + k1])
         faces.append(np.c_[top + k, bot + k1, top + k1])
-    return v, np.concatenate(faces)
+    out = (np.sin(theta), np.cos(theta), np.cos(a), np.sin(a), ti, ai,
+           np.repeat(north, n), np.concatenate(faces))
+    for x in out:
+        x.flags.writeable = False
+    return out
 
 
 def inertia_box(mass: float, inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
