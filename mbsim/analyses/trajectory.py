@@ -87,6 +87,16 @@ class Trajectory:
         self.systems.append(system)
         self.t.append(float(t))
 
+    def add_many(self, ts, Q, QD, W, h, system):
+        """:meth:`add` of the outputs ``ts`` (k,) of one step at once: Q, QD (k, nq) fresh
+        arrays (their rows are kept, not copied), W (k,), h the step."""
+        self.q.extend(Q)
+        self.qd.extend(QD)
+        self.w.extend(np.asarray(W, dtype=float).tolist())
+        self.h.extend([float(h)] * len(ts))
+        self.systems.extend([system] * len(ts))
+        self.t.extend(np.asarray(ts, dtype=float).tolist())
+
     def __len__(self):
         return min(len(self.t), len(self.q), len(self.qd), len(self.systems))
 
@@ -113,9 +123,14 @@ def trajectory(run, times, q0, qd0, max_steps, progress=None):
         if progress is not None:
             progress(t, t1)
 
+    def record_many(ts, Q, QD, W, h):
+        tr.add_many(ts, Q, QD, W, h, run.system)
+        if progress is not None:
+            progress(float(ts[-1]), t1)
+
     try:
         record(times[0], q0, qd0, 0.0, np.nan)
-        tr.status, tr.message = integrate(run, times, record, max_steps)
+        tr.status, tr.message = integrate(run, times, record, max_steps, record_many)
     except KeyboardInterrupt:  # Ctrl-C: keep what was computed, marked incomplete
         tr.status, tr.interrupted = STATUS_INCOMPLETE, True
         tr.message = (f"t = {run.solver.t:.6g} s: interrupted (Ctrl-C) before "
@@ -261,11 +276,14 @@ def output_rows(system, t, q, qd, loads=None):
 
 def bulk_outputs(tr, n, loads):
     """:func:`output_rows` of the first n outputs of ``tr`` when they allow it (one system,
-    no hybrid elements, no multiplier-dependent loads, the Python loads known), else None."""
+    no hybrid elements, no multiplier-dependent loads, the Python loads known, and the
+    system's own ``accelerations``: one replaced on the instance, a wrapper such as a test's
+    injected failure, is called output by output), else None."""
     if n == 0:
         return None
     system = tr.systems[0]
     if (system.hybrid or system.reaction_loop or (system.py_forces and loads is None)
+            or "accelerations" in vars(system)
             or any(s is not system for s in tr.systems[:n])):
         return None
     return output_rows(system, tr.t[:n], np.array(tr.q[:n]), np.array(tr.qd[:n]), loads)
@@ -674,9 +692,9 @@ def step_outputs(solver, ts):
 ADVANCE_STEPS = 10000  # steps per call of Integrator.advance at most (a Ctrl-C waits for it)
 
 
-def integrate(run, times, record, max_steps):
+def integrate(run, times, record, max_steps, record_many=None):
     """Step ``run`` (a :class:`Stepper`) to times[-1], calling ``record(t, q, qd, w, h)`` at
-    times[1:].
+    times[1:] (or ``record_many(ts, Q, QD, W, h)`` once for the outputs of a step).
 
     With events (``run.watch``) the steps are taken one at a time and each is searched for
     events (:meth:`mbsim.events.Watch.check`); at an event the outputs before it come from
@@ -714,7 +732,10 @@ def integrate(run, times, record, max_steps):
             j = int(np.searchsorted(times, t_end + eps, side="right"))
             Q, QD, W, failure = step_outputs(solver, times[k:j])
             try:
-                for i in range(len(W)):
+                if record_many is not None and len(W):
+                    record_many(times[k:k + len(W)], Q, QD, W, solver.h_last)
+                    k += len(W)
+                for i in range(len(W) if record_many is None else 0):
                     record(times[k], Q[i], QD[i], W[i], solver.h_last)
                     k += 1
             except NUMERICAL_ERRORS as exc:  # the output's own accelerations, energies
