@@ -4,9 +4,10 @@ the bare integration, the estimate <= 0.5x the run).
     python benchmarks/user_run.py [--repeats 5] [--decks governor,slider_crank:free,vehicle]
 
 Per deck (``name`` or ``name:scene``): the work of ``mbsim run DECK --mode dynamic -o FILE``
-in process (the deck loaded once, untimed; one untimed warm-up run so that first-use imports
-and the kernels' loading count nowhere), split by the functions it calls, process CPU per
-run in ms, median of --repeats [min-max]:
+in process, with the deck as that command passes it (``common.run_with_deck``: its settings,
+text and shapes; the deck loaded once, untimed; one untimed warm-up run so that first-use
+imports and the kernels' loading count nowhere), split by the functions it calls, process
+CPU per run in ms, median of --repeats [min-max]:
 
 - ``set-up``: :class:`mbsim.analyses.trajectory.Prepared` (initial state, row selection);
 - ``trajectory``: the run's integration with the state at every output

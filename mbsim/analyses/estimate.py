@@ -54,6 +54,7 @@ from mbsim.analyses.trajectory import Stepper, Trajectory, trajectory
 from mbsim.fast import stepper
 from mbsim.integrators import INTEGRATORS
 from mbsim.integrators.base import NUMERICAL_ERRORS
+from mbsim.integrators.genalpha import GeneralizedAlpha
 from mbsim.integrators.rk import RungeKuttaIntegrator
 from mbsim.result import STATUS_INCOMPLETE
 
@@ -183,6 +184,9 @@ def interpolant_many(solver, times):
         if status == stepper.ST_ACCEPTED:
             return Q, QD
     dense = interpolant(solver)
+    if isinstance(solver, GeneralizedAlpha):  # cubic Hermite in q and qd: on a column of t
+        Q, QD, _ = dense(np.asarray(times, dtype=float)[:, None])
+        return Q, QD
     Q, QD = np.empty((len(times), solver.q.size)), np.empty((len(times), solver.q.size))
     for i, t in enumerate(times):
         Q[i], QD[i] = dense(t)[:2]

@@ -120,3 +120,44 @@ def test_generalized_alpha_with_redundant_constraints_gets_the_tighter_companion
     assert "at rtol/5" in est["method"]
     pos = R.position_error(res, pb.reference(res.t)).max()
     assert 0.1 <= est["position"] / pos <= 10, (est["position"], pos)
+
+
+@pytest.mark.parametrize("integrator", ["projection-dop853", "genalpha"])
+def test_companion_samples_in_bulk_equal_its_interpolant(integrator):
+    """interpolant_many (one C call for an RK step, a column of times for the Hermite
+    interpolant of generalized-alpha) against the interpolant sampled one time at a time,
+    after a step of the default (C) and of the index-3 integrator: the same arithmetic, so
+    equal to round-off (1e-12 of the state's scale, about 5e3 machine epsilons)."""
+    import numpy as np
+
+    from mbsim.analyses.estimate import interpolant, interpolant_many
+    from mbsim.analyses.trajectory import Stepper, integrator_class
+
+    pb = M.reference_problem("slider_crank")
+    cls = integrator_class(integrator)
+    opt = {"rtol": 1e-6, "atol": 1e-8, "h0": None, "max_steps": 100}
+    run = Stepper(pb.model, cls, opt, 0.0, pb.q0.copy(), pb.qd0.copy(), pb.t_end,
+                  np.arange(pb.model.m))
+    for _ in range(3):
+        ok, msg = run.step()
+        assert ok, msg
+    s = run.solver
+    times = np.linspace(s.t_old, s.t, 7)[1:-1]
+    Q, QD = interpolant_many(s, times)
+    dense = interpolant(s)
+    for k, t in enumerate(times):
+        q, qd = dense(t)[:2]
+        scale = max(1.0, float(np.abs(q).max()), float(np.abs(qd).max()))
+        assert np.abs(Q[k] - q).max() <= 1e-12 * scale
+        assert np.abs(QD[k] - qd).max() <= 1e-12 * scale
+
+
+def test_coarse_companion_leaves_the_runs_counters_as_they_were():
+    """The coarse companion integrates on the run's own equations of motion (no second
+    set-up); the run's counters (function evaluations, factorisations, ...) are the run's
+    alone, as without an estimate."""
+    pb = M.reference_problem("slider_crank")
+    on = run(pb, rtol=1e-7, atol=1e-9)
+    off = run(pb, rtol=1e-7, atol=1e-9, error_estimate=False)
+    assert "coarsened by 2" in on.summary["error_estimate"]["method"]
+    assert on.counters == off.counters
