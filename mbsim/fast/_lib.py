@@ -1,4 +1,4 @@
-"""Find, build and load the C kernels (mbsim/fast/kernels.c and step.c) through ctypes.
+"""Find, build and load the C kernels (mbsim/fast/kernels.c, step.c, outputs.c) through ctypes.
 
 Where the shared library comes from, in this order:
 
@@ -65,8 +65,8 @@ class KernelBuildError(MbsimError):
 
 
 def source_hash(text: bytes | None = None) -> str:
-    """First 16 hex digits of the SHA-256 of the sources (kernels.c, step.c, then the header
-    mb_model.h: their bytes one after the other; setup.py computes the same)."""
+    """First 16 hex digits of the SHA-256 of the sources (kernels.c, step.c, outputs.c, then
+    the header mb_model.h: their bytes one after the other; setup.py computes the same)."""
     text = b"".join(p.read_bytes() for p in (*SOURCES, *HEADERS)) if text is None else text
     return hashlib.sha256(text).hexdigest()[:16]
 
@@ -178,8 +178,9 @@ def library():
         lib = _installed(digest)
         if lib is None:
             if digest is None:
-                raise KernelBuildError("mbsim/fast/kernels.c, step.c or mb_model.h is missing "
-                                       "and no built kernels are installed; reinstall mbsim")
+                raise KernelBuildError("mbsim/fast/kernels.c, step.c, outputs.c or mb_model.h is "
+                                       "missing and no built kernels are installed; reinstall "
+                                       "mbsim")
             lib = ctypes.CDLL(str(build()))
         _declare(lib)
         sizes = (lib.mb_struct_size(), ctypes.sizeof(Struct))
