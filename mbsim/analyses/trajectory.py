@@ -125,8 +125,8 @@ def trajectory(run, times, q0, qd0, max_steps, progress=None):
 
     def record_many(ts, Q, QD, W, h):
         tr.add_many(ts, Q, QD, W, h, run.system)
-        if progress is not None:
-            progress(float(ts[-1]), t1)
+        for t in ts if progress is not None else ():  # once per output, as record
+            progress(float(t), t1)
 
     try:
         record(times[0], q0, qd0, 0.0, np.nan)
