@@ -355,13 +355,22 @@ def outputs_measure(model, prep, tr):
     s is linear in the distance to the point, |x - x0| a, so three outputs around the
     minimum give its vertex, s_k - |s_(k-1) - s_(k+1)| / 2 (at least 0): a fast crossing
     between two outputs is seen (the four parallel cranks at rtol 1e-7 cross at 0.3 s
-    between outputs of s 2.4e-3).  None for a model of DENSE_NQ or more coordinates (a
-    dense SVD per output would cost more than the run)."""
+    between outputs of s 2.4e-3).
+
+    None for a model of DENSE_NQ or more coordinates (a dense SVD per output would cost
+    more than the run), and for a model without redundant rows at t_start unless the run's
+    counters show a change point: the rank of such a model's Phi_q can fall only where the
+    mechanism locks (as for COARSE_NEEDS_INDEPENDENT_ROWS, an estimate there errs on the
+    large side), and the SVDs, about 0.1 ms per output on the vehicle deck, would double
+    the coarse estimate's cost."""
     from mbsim.analyses.common import DENSE_NQ
     from mbsim.analyses.diagnosis import jacobian
 
     n = len(tr)
     if n == 0 or model.nq >= DENSE_NQ or prep.rows.size == 0:
+        return None
+    counters = tr.run.all_counters() if tr.run is not None else {}
+    if not prep.red.size and not any(counters.get(k) for k in CHANGE_POINT_COUNTERS):
         return None
     s = np.ones(n)
     for k in range(n):
