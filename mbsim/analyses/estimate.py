@@ -46,7 +46,7 @@ BLAS kernel).  There the companion's difference is one noise term against anothe
 - the estimate is at least the passage's round-off floor (:func:`roundoff_floor`), and
   the method string says so with the figures;
 - a companion that stops at the passage where the run did not (tighter than the run, its
-  steps crawl on the round-off) is retried with the run's method at rtol/2, then with
+  steps crawl on the round-off, and a tighter retry does no better) is retried with the
   other methods at the run's own tolerance (:func:`fallback_companion`): their difference
   is the larger of two errors of about the tolerance; only when every retry stops is there
   no estimate (NaN in the file), with that reason.
@@ -184,7 +184,7 @@ def interpolant(solver):
 
 def coarse_estimate(model, prep, opt, tr, near=None):
     """(channels, description) of the coarse estimate of the run ``tr``, or (None, why);
-    ``near``: (s, size) of :func:`outputs_measure`.
+    ``near``: :func:`outputs_measure` of the run, or None.
 
     On a mesh h(t) = H theta(t) the global error of a method of order p is
     H^p e(t) + O(H^(p+1)); the run's mesh coarsened by two (every other step end) gives
@@ -195,8 +195,8 @@ def coarse_estimate(model, prep, opt, tr, near=None):
     run's outputs as they are (the run's interpolation error, of the same order, is part of
     the estimate).  Applies to complete runs of :data:`COARSE_FAMILIES` methods with at
     least COARSE_MIN_STEPS steps that met no change point: no CHANGE_POINT_COUNTERS, and
-    no output where the change-point measure s is below Policy.law(rtol) = (eps /
-    rtol)^(1/3), where three solves' round-off reaches the tolerance (a run whose steps
+    the change-point measure s between the outputs nowhere below :func:`near_measure`,
+    (eps / rtol)^(1/3), where three solves' round-off reaches the tolerance (a run whose steps
     pass the point without a tangent stage: the four parallel cranks at rtol 1e-7 with
     the Python step; under OpenBLAS Prescott the coarse estimate was 34x the true error
     there).  Returns :data:`INTERRUPTED` when Ctrl-C stopped it."""
@@ -328,14 +328,17 @@ def estimate(model, prep, opt, tr, companion=None):
     err = state_differences(model, np.array(tr.q[:n]), np.array(tr.qd[:n]),
                             np.array(companion.q[:n]), np.array(companion.qd[:n]))
     out["channels"] = {key: factor * err[key] for key in ERROR_UNITS}
-    if passed:  # at least the passage's round-off floor (roundoff_floor)
+    if passed and near is None:
+        method += "; the change point's round-off floor is not computed for this model"
+        out["method"] = method
+    elif passed:  # at least the passage's round-off floor (roundoff_floor)
         floor = roundoff_floor(near)
         k0 = first_near_output(near, opt)
         for key in ("position", "orientation"):
             out["channels"][key][k0:] = np.maximum(out["channels"][key][k0:], floor[key])
         method += (f"; at least the round-off floor of the change point passed, "
                    f"{floor['position']:.2g} m and {floor['orientation']:.2g} rad "
-                   f"(eps x size / s, s = {near[0] if near else math.nan:.2g} the smallest "
+                   f"(eps x size / s, s = {near[0]:.2g} the smallest "
                    f"change-point measure at an output, size {floor['size']:.3g} m)")
         out["method"] = method
     for key in ERROR_UNITS:
@@ -474,11 +477,11 @@ def fallback_companion(model, prep, opt, tr, passed=False):
     tighter than the run stops where the run did not because the passage's round-off, not
     the tolerance, limits its steps (the four parallel cranks at rtol 1e-10 under OpenBLAS
     Prescott: the companions at 2e-11, 5e-11 and the three others at 2e-13 all crawled
-    at 1e-9 s steps), and a tighter one does no better; so after the run's method at
-    rtol/FALLBACK_RATIO the FALLBACK_COMPANIONS are taken at the run's own tolerance: the
-    difference of two independent errors of about the tolerance, the larger of the two
-    (an overestimate where the other method is the less accurate), kept at least the
-    passage's round-off floor by :func:`estimate`."""
+    at 1e-9 s steps, 19 s of CPU for a 0.13 s run), and a tighter one does no better; so
+    only the FALLBACK_COMPANIONS are tried, at the run's own tolerance: the difference of
+    two independent errors of about the tolerance, the larger of the two (an overestimate
+    where the other method is the less accurate), kept at least the passage's round-off
+    floor by :func:`estimate`."""
     if opt.get("h") is not None or not prep.cls.adaptive:
         return None
     copt, _, _ = companion_options(prep.cls, opt)
@@ -488,8 +491,8 @@ def fallback_companion(model, prep, opt, tr, passed=False):
               1.0 / (1.0 - ratio))]
     tighter = dict(copt, rtol=max(copt["rtol"] * FALLBACK_TIGHTER, 2.5e-14),
                    atol=max(copt["atol"] * FALLBACK_TIGHTER, 1e-300))
-    if passed:  # the run's own tolerance (docstring)
-        tighter = dict(copt, rtol=float(opt["rtol"]), atol=float(opt["atol"]))
+    if passed:  # other methods at the run's own tolerance only (docstring)
+        tries, tighter = [], dict(copt, rtol=float(opt["rtol"]), atol=float(opt["atol"]))
     tries += [(INTEGRATORS[n], dict(tighter, integrator=n), 1.0) for n in FALLBACK_COMPANIONS
               if INTEGRATORS[n] is not prep.cls]
     times = np.asarray(tr.t, float)

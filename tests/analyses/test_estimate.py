@@ -144,10 +144,10 @@ def _slow_crossing(monkeypatch, stops):
 
 
 def test_a_companion_stopping_at_a_passage_is_replaced_at_the_runs_tolerance(monkeypatch):
-    """The run passed a change point and its method's companions (rtol/5, rtol/2) stop
-    where it did not, as they did under OpenBLAS Prescott: another method at the run's own
-    tolerance gives the estimate (a tighter one stops at the passage too), within [err / 10,
-    10 max(err, PASSAGE_FLOOR)]."""
+    """The run passed a change point and its method's companion (rtol/5) stops where it
+    did not, as it did under OpenBLAS Prescott: another method at the run's own tolerance
+    gives the estimate (the run's method at rtol/2 is not tried: it crawled there too),
+    within [err / 10, 10 max(err, PASSAGE_FLOOR)]."""
     res, err = _slow_crossing(
         monkeypatch, lambda name, rtol: name == "projection-dop853" and rtol < 1e-10)
     assert res.complete, res.message
