@@ -63,8 +63,13 @@ def test_slow_crossing_at_tight_tolerance(integrator):
     passage where the run did not (under OpenBLAS Prescott projection-dop853's at rtol/5
     and rtol/2 crawl at 1e-9 s steps): another method then gives the estimate
     (estimate.fallback_companion), and only if none reaches the end is there no estimate,
-    with that reason.  Measured (unset, Haswell, SkylakeX, Prescott): in the module's
-    report.  max_steps bounds the old crawl (it would fail here, not hang)."""
+    with that reason.  Measured, in the parametrised order, errors and estimate / error:
+    OpenBLAS default (= SkylakeX here) 4.9e-11, 3.1e-11, 3.8e-11, 4.5e-11, 1.7e-10 m,
+    0.99, 1.28, 2.17, 0.82, 0.99; Haswell 3.4e-11, 7.2e-11, 6.9e-11, 2.9e-11, 6.1e-11 m,
+    5.9, 1.13, 1.05, 1.27 (gcp-dop853's companion at rtol/5 crawled: projection-dop853 at
+    rtol 1e-10 instead), 0.40; Prescott 6.5e-11, 5.9e-11, 5.8e-11, 2.7e-11, 6.3e-11 m,
+    1.38 (its companion at rtol/5 crawled: gcp-dop853 at rtol 1e-10 instead), 0.86, 1.16,
+    2.35, 0.70.  max_steps bounds the old crawl (it would fail here, not hang)."""
     res, err = _run(integrator=integrator, rtol=1e-10, max_steps=2000)
     assert res.complete, res.message
     assert err <= 10 * 1e-10 + 1e-9, f"{err:.3g} m"
