@@ -102,8 +102,10 @@ def accuracy_run(model, opt, progress, explicit, context=NO_DECK):
             new["rtol"] = max(float(opt["rtol"]) * ratio, 1e-13)
             new["atol"] = max(float(opt["atol"]) * ratio, 1e-15)
         copt, comp = est["_copt"], est["_companion"]
-        promote = copt is not None and comp.complete and (new["h"] >= copt["h"] if fixed
-                                     else new["rtol"] >= copt["rtol"])
+        # (a companion of another method, estimate.fallback_companion, is not the run's)
+        promote = (copt is not None and comp.complete
+                   and copt.get("integrator") == opt.get("integrator")
+                   and (new["h"] >= copt["h"] if fixed else new["rtol"] >= copt["rtol"]))
         log.info("accuracy %.3g: estimate %.3g missed; %s", tol, e,
                  "the companion becomes the run" if promote else
                  f"refining (rtol {new['rtol']:.3g}, h {new.get('h')})")

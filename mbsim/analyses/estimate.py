@@ -36,6 +36,21 @@ Either can be wrong where the error does not shrink with the step or tolerance: 
 limited by h_max or by stability rather than accuracy, chaotic motion over long times, a
 solution that jumps branch at a bifurcation.
 
+At a change point (a rank loss of Phi_q: a run with a CHANGE_POINT_COUNTERS counter, or one
+whose outputs show the change-point measure s falling below (eps / rtol)^(1/3) between them,
+:func:`outputs_measure`) the state is fixed by the constraints only to their round-off,
+eps x size / s, and a run at a tight tolerance ends with an error at that floor whatever its
+tolerance (the four parallel cranks at rtol 1e-10: 2.3e-11 ... 2.5e-9 m, depending on the
+BLAS kernel).  There the companion's difference is one noise term against another, so:
+
+- the estimate is at least the passage's round-off floor (:func:`roundoff_floor`), and
+  the method string says so with the figures;
+- a companion that stops at the passage where the run did not (tighter than the run, its
+  steps crawl on the round-off, and a tighter retry does no better) is retried with the
+  other methods at the run's own tolerance (:func:`fallback_companion`): their difference
+  is the larger of two errors of about the tolerance; only when every retry stops is there
+  no estimate (NaN in the file), with that reason.
+
 An estimate covers every output of the run or it is none (:func:`estimate`).  Channels
 written: ``error/position``, ``error/orientation``, ``error/velocity``,
 ``error/angular_velocity``: the estimated global error at each output time (max over
@@ -54,6 +69,7 @@ from mbsim.analyses.trajectory import Stepper, Trajectory, trajectory
 from mbsim.fast import stepper
 from mbsim.integrators import INTEGRATORS
 from mbsim.integrators.base import NUMERICAL_ERRORS
+from mbsim.integrators.changepoints import EPS, S_FIXED, Policy
 from mbsim.integrators.genalpha import GeneralizedAlpha
 from mbsim.integrators.rk import RungeKuttaIntegrator
 from mbsim.result import STATUS_INCOMPLETE
@@ -193,8 +209,9 @@ def interpolant_many(solver, times):
     return Q, QD
 
 
-def coarse_estimate(model, prep, opt, tr):
-    """(channels, description) of the coarse estimate of the run ``tr``, or (None, why).
+def coarse_estimate(model, prep, opt, tr, near=None):
+    """(channels, description) of the coarse estimate of the run ``tr``, or (None, why);
+    ``near``: :func:`outputs_measure` of the run, or None.
 
     On a mesh h(t) = H theta(t) the global error of a method of order p is
     H^p e(t) + O(H^(p+1)); the run's mesh coarsened by two (every other step end) gives
@@ -204,8 +221,12 @@ def coarse_estimate(model, prep, opt, tr):
     rejected, and its outputs are its interpolant's (:func:`interpolant`), compared with the
     run's outputs as they are (the run's interpolation error, of the same order, is part of
     the estimate).  Applies to complete runs of :data:`COARSE_FAMILIES` methods with at
-    least COARSE_MIN_STEPS steps; the companion must reach every output.  Returns
-    :data:`INTERRUPTED` when Ctrl-C stopped it."""
+    least COARSE_MIN_STEPS steps that met no change point: no CHANGE_POINT_COUNTERS, and
+    the change-point measure s between the outputs nowhere below :func:`near_measure`,
+    (eps / rtol)^(1/3), where three solves' round-off reaches the tolerance (a run whose steps
+    pass the point without a tangent stage: the four parallel cranks at rtol 1e-7 with
+    the Python step; under OpenBLAS Prescott the coarse estimate was 34x the true error
+    there).  Returns :data:`INTERRUPTED` when Ctrl-C stopped it."""
     cls, run = prep.cls, tr.run
     if cls.name not in COARSE_FAMILIES or opt.get("h") is not None:
         return None, f"{cls.name} is not estimated on a coarse mesh"
@@ -220,6 +241,11 @@ def coarse_estimate(model, prep, opt, tr):
     if passed:
         return None, (f"the run passed a change point ({', '.join(passed)}): a doubled step "
                       f"there is not in the asymptotic regime")
+    if near is not None and near[3].min() < near_measure(opt):
+        return None, (f"the run passed next to a change point (measure s = "
+                      f"{near[3].min():.2g} between outputs, below (eps / rtol)^(1/3) = "
+                      f"{near_measure(opt):.2g}): a doubled step there is not in the "
+                      f"asymptotic regime")
     t0 = float(tr.t[0])
     ends = [t0] + run.step_ends
     mesh = np.array(ends[::2] + ([ends[-1]] if (len(ends) - 1) % 2 else []))
@@ -284,8 +310,9 @@ def estimate(model, prep, opt, tr, companion=None):
     times = np.asarray(tr.t, float)
     spent = 0.0  # CPU of a companion computed before (a promoted run's: its own)
     coarse, why = None, None
+    near = outputs_measure(model, prep, tr)
     if companion is None and opt.get("estimate_method", "coarse") == "coarse":
-        coarse, why = coarse_estimate(model, prep, opt, tr)
+        coarse, why = coarse_estimate(model, prep, opt, tr, near)
     if coarse is INTERRUPTED:
         return {"method": "coarse companion", "position": None, "reason": why,
                 "cpu": _time.process_time() - cpu0}
@@ -313,13 +340,16 @@ def estimate(model, prep, opt, tr, companion=None):
                     "reason": "the companion run was interrupted (Ctrl-C) before it finished"}
     else:
         spent = companion.cpu
-    first = None
+    first, passed = None, passed_change_point(tr, near, opt)
     if len(companion) < len(tr):  # stopped where the run did not: another method
         first = companion.message or "it stopped early"
-        alt = fallback_companion(model, prep, opt, tr)
+        alt = fallback_companion(model, prep, opt, tr, passed)
         if alt is not None:
             companion, copt, factor, method = alt
             method += f" (the companion at the run's method stopped: {first})"
+        else:
+            first += ("; no other companion (FALLBACK_COMPANIONS) reached the run's last "
+                      "output either")
     n = min(len(companion), len(tr))
     out = {"method": method, "cpu": spent + _time.process_time() - cpu0,
            "steps": int(companion.run.all_counters()["steps"]) if companion.run else 0,
@@ -328,18 +358,121 @@ def estimate(model, prep, opt, tr, companion=None):
         out["position"] = None
         out["reason"] = (f"the companion run stopped at t = "
                          f"{times[n - 1] if n else times[0]:.6g} s before the run's last "
-                         f"output t = {times[len(tr) - 1]:.6g} s ({companion.message or first})"
+                         f"output t = {times[len(tr) - 1]:.6g} s ({first or companion.message})"
                          "; an estimate that does not cover the run is not given")
         log.info("error estimate: none (%s)", out["reason"])
         return out
     err = state_differences(model, np.array(tr.q[:n]), np.array(tr.qd[:n]),
                             np.array(companion.q[:n]), np.array(companion.qd[:n]))
     out["channels"] = {key: factor * err[key] for key in ERROR_UNITS}
+    if passed and near is None:
+        method += "; the change point's round-off floor is not computed for this model"
+        out["method"] = method
+    elif passed:  # at least the passage's round-off floor (roundoff_floor)
+        floor = roundoff_floor(near)
+        k0 = first_near_output(near, opt)
+        for key in ("position", "orientation"):
+            out["channels"][key][k0:] = np.maximum(out["channels"][key][k0:], floor[key])
+        method += (f"; at least the round-off floor of the change point passed, "
+                   f"{floor['position']:.2g} m and {floor['orientation']:.2g} rad "
+                   f"(eps x size / s, s = {near[0]:.2g} the smallest "
+                   f"change-point measure at an output, size {floor['size']:.3g} m)")
+        out["method"] = method
     for key in ERROR_UNITS:
         out[key] = float(np.max(out["channels"][key]))
     log.info("error estimate: position %.3g m, orientation %.3g rad (%s)", out["position"],
              out["orientation"], method)
     return out
+
+
+def outputs_measure(model, prep, tr):
+    """(s_min, size, s, s_between) of the run ``tr``: s (n,) the change-point measure at
+    each output, sigma_min / sigma_max of Phi_q on the rows independent at t_start (measure
+    1 of :mod:`mbsim.integrators.changepoints`, here from a singular value decomposition
+    rather than a factor's pivots), s_min its smallest value, size (m) the largest |r| of a
+    centroid or the motion's span, the scale of the positions' round-off, and s_between
+    (n,) s with each local minimum replaced by the smallest value between its neighbours:
+    s is linear in the distance to the point, |x - x0| a, so three outputs around the
+    minimum give its vertex, s_k - |s_(k-1) - s_(k+1)| / 2 (at least 0): a fast crossing
+    between two outputs is seen (the four parallel cranks at rtol 1e-7 cross at 0.3 s
+    between outputs of s 2.4e-3).
+
+    None for a model of DENSE_NQ or more coordinates (a dense SVD per output would cost
+    more than the run), and for a model without redundant rows at t_start unless the run's
+    counters show a change point: the rank of such a model's Phi_q can fall only where the
+    mechanism locks (as for COARSE_NEEDS_INDEPENDENT_ROWS, an estimate there errs on the
+    large side), and the SVDs, about 0.1 ms per output on the vehicle deck, would double
+    the coarse estimate's cost."""
+    from mbsim.analyses.common import DENSE_NQ
+    from mbsim.analyses.diagnosis import jacobian
+
+    n = len(tr)
+    if n == 0 or model.nq >= DENSE_NQ or prep.rows.size == 0:
+        return None
+    counters = tr.run.all_counters() if tr.run is not None else {}
+    if not prep.red.size and not any(counters.get(k) for k in CHANGE_POINT_COUNTERS):
+        return None
+    s = np.ones(n)
+    for k in range(n):
+        J = jacobian(model, tr.q[k], tr.t[k])
+        J = (J.toarray() if hasattr(J, "toarray") else np.asarray(J))[prep.rows]
+        sv = np.linalg.svd(J, compute_uv=False)
+        s[k] = sv[-1] / sv[0] if sv[0] > 0 else 1.0
+    R = np.array(tr.q[:n]).reshape(n, model.nb, 7)[:, :, :3]
+    size = max(float(np.linalg.norm(R, axis=2).max()), float(np.ptp(R, axis=0).max()))
+    return float(s.min()), size, s, vertices(s)
+
+
+def vertices(s):
+    """s (n,) with each interior local minimum replaced by the vertex of the V through it
+    and its neighbours, s_k - |s_(k-1) - s_(k+1)| / 2, at least 0 (:func:`outputs_measure`)."""
+    s = np.asarray(s, float)
+    out = s.copy()
+    if s.size >= 3:
+        k = 1 + np.flatnonzero((s[1:-1] <= s[:-2]) & (s[1:-1] <= s[2:]))
+        out[k] = np.maximum(s[k] - 0.5 * np.abs(s[k - 1] - s[k + 1]), 0.0)
+    return out
+
+
+def near_measure(opt):
+    """The measure s below which a state is next to a change point: Policy.law(rtol) =
+    (eps / rtol)^(1/3), where the round-off of three solves through a factor of pivot
+    ratio s (q, qd, qdd) reaches the tolerance; S_FIXED for a fixed step (the policy's)."""
+    return S_FIXED if opt.get("h") is not None else Policy.law(float(opt["rtol"]))
+
+
+def passed_change_point(tr, near, opt):
+    """True when the run met a change point: a CHANGE_POINT_COUNTERS counter, or an output
+    whose measure is below :func:`near_measure`."""
+    counters = tr.run.all_counters() if tr.run is not None else {}
+    return bool(any(counters.get(k) for k in CHANGE_POINT_COUNTERS)
+                or (near is not None and near[3].min() < near_measure(opt)))
+
+
+def first_near_output(near, opt):
+    """Index of the first output next to a change point (0 when none is known)."""
+    if near is None:
+        return 0
+    k = np.flatnonzero(near[3] < near_measure(opt))
+    return int(k[0]) if k.size else 0
+
+
+def roundoff_floor(near):
+    """{'position' (m), 'orientation' (rad), 'size' (m)}: the round-off floor of a passage
+    of a change point, below which no companion can resolve the run's error.  Next to the
+    point the constraints fix the state to the round-off of one solve through a factor of
+    pivot ratio s, eps / s relative, that is eps x size / s in position and eps / s in
+    orientation; at the point itself (s -> 0) the two branches of Phi = 0 meet and the
+    residual eps x size fixes them only to sqrt(eps) x size, so s is taken at least
+    sqrt(eps): the floor is at most sqrt(eps) x size (1.5e-8 m on a 1 m mechanism).  s is
+    the smallest measure at an output (:func:`outputs_measure`), so the floor is that of
+    the nearest output, a lower bound of the passage's own; what the motion then makes of
+    it (measured on the four parallel cranks: 2.3e-11 ... 2.5e-9 m at the end, depending on
+    the BLAS kernel) is in the companion's difference.  Zero when no measure is known."""
+    if near is None:
+        return {"position": 0.0, "orientation": 0.0, "size": math.nan}
+    s = max(near[0], math.sqrt(EPS))
+    return {"position": EPS * near[1] / s, "orientation": EPS / s, "size": near[1]}
 
 
 def companion_step_limit(opt, tr):
@@ -370,12 +503,22 @@ too tight (h_min near round-off) often passes there.  Its difference is (1 - 2^-
 the run's error, so it is multiplied by 1/(1 - 2^-kappa) (2 for kappa = 1)."""
 
 
-def fallback_companion(model, prep, opt, tr):
+def fallback_companion(model, prep, opt, tr, passed=False):
     """(trajectory, options, factor, description) of a companion that reaches every output
     of ``tr`` when the first one stopped: the run's method at rtol/FALLBACK_RATIO, then the
     FALLBACK_COMPANIONS at FALLBACK_TIGHTER x the companion's tolerance; None when none
     does.  Only for error-controlled runs: a fixed-step run's companion is its own method at
-    h/2 (Richardson), which another method cannot replace."""
+    h/2 (Richardson), which another method cannot replace.
+
+    ``passed``: the run met a change point (:func:`passed_change_point`).  There a companion
+    tighter than the run stops where the run did not because the passage's round-off, not
+    the tolerance, limits its steps (the four parallel cranks at rtol 1e-10 under OpenBLAS
+    Prescott: the companions at 2e-11, 5e-11 and the three others at 2e-13 all crawled
+    at 1e-9 s steps, 19 s of CPU for a 0.13 s run), and a tighter one does no better; so
+    only the FALLBACK_COMPANIONS are tried, at the run's own tolerance: the difference of
+    two independent errors of about the tolerance, the larger of the two (an overestimate
+    where the other method is the less accurate), kept at least the passage's round-off
+    floor by :func:`estimate`."""
     if opt.get("h") is not None or not prep.cls.adaptive:
         return None
     copt, _, _ = companion_options(prep.cls, opt)
@@ -385,7 +528,9 @@ def fallback_companion(model, prep, opt, tr):
               1.0 / (1.0 - ratio))]
     tighter = dict(copt, rtol=max(copt["rtol"] * FALLBACK_TIGHTER, 2.5e-14),
                    atol=max(copt["atol"] * FALLBACK_TIGHTER, 1e-300))
-    tries += [(INTEGRATORS[n], tighter, 1.0) for n in FALLBACK_COMPANIONS
+    if passed:  # other methods at the run's own tolerance only (docstring)
+        tries, tighter = [], dict(copt, rtol=float(opt["rtol"]), atol=float(opt["atol"]))
+    tries += [(INTEGRATORS[n], dict(tighter, integrator=n), 1.0) for n in FALLBACK_COMPANIONS
               if INTEGRATORS[n] is not prep.cls]
     times = np.asarray(tr.t, float)
     for cls, o, factor in tries:
@@ -399,8 +544,10 @@ def fallback_companion(model, prep, opt, tr):
             return None
         if len(comp) >= len(tr):
             how = f", times {factor:.3g}" if factor != 1.0 else ""
+            same = (", the run's own tolerance: the difference is the larger of two errors"
+                    if cls is not prep.cls and o["rtol"] >= float(opt["rtol"]) else "")
             return comp, o, factor, (f"companion run with {cls.name} at rtol {o['rtol']:.3g}, "
-                                     f"atol {o['atol']:.3g}{how}")
+                                     f"atol {o['atol']:.3g}{how}{same}")
     return None
 
 

@@ -9,15 +9,22 @@ and turns 0.054 deg beyond; with 10.505 rad/s it turns 0.004 deg short of it
 the reference; every assertion is an error against it, never an internal counter.
 
 The round-off floor of such a passage.  Next to the change point the constraints fix the
-state only to eps / sigma_min(Phi_q), and a motion that dwells there carries that round-off
-along; what it leaves at the end depends on the machine's round-off pattern (the BLAS
-kernel, the start's last bits), not on the tolerance.  Measured (python
+state only to eps x size / s (s = sigma_min / sigma_max of Phi_q, the change-point measure),
+and at the point itself, where the two branches of Phi = 0 meet, only to sqrt(eps) x size
+(mbsim.analyses.estimate.roundoff_floor); a motion that dwells there carries that
+round-off along, and what it leaves at the end depends on the machine's round-off pattern
+(the BLAS kernel, the start's last bits), not on the tolerance.  CROSSING_ROUNDOFF is that
+bound, sqrt(eps) x 1 m (the cranks' size) = 1.5e-8 m.  Measured below it (python
 benchmarks/dead_centre.py --perturb 3 --integrators rk4 --steps 2.5e-4 --w0 10.51):
 rk4 at h = 0.25 ms ends 2.6e-11 ... 4.0e-9 m off over starts perturbed by 4 ulps and the
 OpenBLAS kernels Haswell, SkylakeX and Prescott; projection-dop853 through the deck's
-eleven fast passages at rtol 1e-11 2.3e-11 ... 2.5e-9 m.  CROSSING_ROUNDOFF is 2.5 times
-the largest of these (a measured floor, not a derived one); the faults these tests guard against leave 1e-4 ... 1e-3 m (module docs of
-changepoints.py and index1.py), five orders of magnitude above it.
+eleven fast passages at rtol 1e-11 2.3e-11 ... 2.5e-9 m.  The faults these tests guard
+against leave 1e-4 ... 1e-3 m (module docs of changepoints.py and index1.py), four orders
+of magnitude above it.
+
+An error at that floor is a ratio of two noise terms when compared with an estimate: the
+estimate is asserted to be never optimistic by more than 10x (est >= err / 10) and never
+pessimistic by more than 10x of the larger of the error and the floor.
 """
 
 from pathlib import Path
@@ -29,13 +36,15 @@ from mbsim.analyses.dynamic import dynamic
 from mbsim.api import load_model
 from mbsim.integrators import changepoints as cp
 from mbsim.integrators import rk
+from mbsim.integrators.changepoints import EPS
 from mbsim.options import run_options
 from tests.integrators import models as M
 from tests.integrators import references as R
 
 DECK = Path(__file__).resolve().parents[2] / "models" / "parallel_fourbar.yaml"
 W0 = 10.51
-CROSSING_ROUNDOFF = 1e-8  # m: the round-off floor of a slow or repeated passage (module doc)
+SIZE = 1.0  # m: the cranks' size (|r| of the coupler's centroid and the motion's span)
+CROSSING_ROUNDOFF = np.sqrt(EPS) * SIZE  # m: the round-off floor of a passage (module doc)
 
 
 def _run(**opt):
@@ -48,15 +57,29 @@ def _run(**opt):
 @pytest.mark.parametrize("integrator", ["projection-dop853", "projection", "baumgarte",
                                         "gcp-dop853", "gcp-rk45"])
 def test_slow_crossing_at_tight_tolerance(integrator):
-    """rtol 1e-10: complete in at most 2000 steps, within the issue's 10 rtol + 1e-9 m,
-    estimate / error in [0.1, 10].  Measured: errors 7.9e-11, 2.5e-11, 3.8e-11, 2.7e-11,
-    1.1e-10 m; estimate / error 1.37, 2.64, 1.36, 0.87, 0.83; 132 steps for
-    projection-dop853.  max_steps bounds the old crawl (it would fail here, not hang)."""
+    """rtol 1e-10: complete in at most 2000 steps, within the issue's 10 rtol + 1e-9 m; the
+    error is at the passage's round-off floor, so the estimate is asserted within
+    [err / 10, 10 max(err, CROSSING_ROUNDOFF)] (module doc).  Its companion may stop at the
+    passage where the run did not (under OpenBLAS Prescott projection-dop853's at rtol/5
+    and rtol/2 crawl at 1e-9 s steps): another method then gives the estimate
+    (estimate.fallback_companion), and only if none reaches the end is there no estimate,
+    with that reason.  Measured, in the parametrised order, errors and estimate / error:
+    OpenBLAS default (= SkylakeX here) 4.9e-11, 3.1e-11, 3.8e-11, 4.5e-11, 1.7e-10 m,
+    0.99, 1.28, 2.17, 0.82, 0.99; Haswell 3.4e-11, 7.2e-11, 6.9e-11, 2.9e-11, 6.1e-11 m,
+    5.9, 1.13, 1.05, 1.27 (gcp-dop853's companion at rtol/5 crawled: projection-dop853 at
+    rtol 1e-10 instead), 0.40; Prescott 6.5e-11, 5.9e-11, 5.8e-11, 2.7e-11, 6.3e-11 m,
+    1.38 (its companion at rtol/5 crawled: gcp-dop853 at rtol 1e-10 instead), 0.86, 1.16,
+    2.35, 0.70.  max_steps bounds the old crawl (it would fail here, not hang)."""
     res, err = _run(integrator=integrator, rtol=1e-10, max_steps=2000)
     assert res.complete, res.message
     assert err <= 10 * 1e-10 + 1e-9, f"{err:.3g} m"
-    est = res.summary["error_estimate"]["position"]
-    assert 0.1 <= est / err <= 10, f"estimate {est:.3g} m, true {err:.3g} m"
+    summary = res.summary["error_estimate"]
+    est = summary["position"]
+    if est is None:  # only when every companion stopped
+        assert "no other companion" in summary["reason"], summary["reason"]
+        return
+    assert err / 10 <= est <= 10 * max(err, CROSSING_ROUNDOFF), (
+        f"estimate {est:.3g} m, true {err:.3g} m")
 
 
 @pytest.mark.parametrize("integrator", ["rk4", "gcp-rk4"])
