@@ -21,6 +21,8 @@ Tables (k = 0 .. nc-1):
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from mbsim.core import Terms
@@ -69,7 +71,7 @@ class FastConstraints:
         if self.rows.ndim != 1 or np.any((self.rows < 0) | (self.rows >= model.m)):
             raise ValueError(f"rows: expected row numbers in [0, {model.m}), got {rows!r}")
         self.sparse = (model.nq >= SPARSE_NQ) if sparse is None else bool(sparse)
-        self.ci, self.cf, self.rb, self.funcs = flatten(model)
+        self.ci, self.cf, self.rb, self.funcs = model_table(model, "flatten", flatten, model)
         self.lib = _lib.library()
         m, ma, nq = self.m, self.rows.size, self.nq
         self.c = _lib.Model(nb=self.nb, nq=nq, m=m, ma=ma, nc=self.ci.shape[0])
@@ -185,6 +187,29 @@ class FastConstraints:
             dpos, data = self.c.set(dpos=dpos, data=np.zeros(indices.size))
             self._csr = (indptr.astype(np.int32), indices, dpos, data)
         return self._csr
+
+
+_TABLES: dict[int, dict] = {}
+"""id(model) -> {key: table}: the constant tables built from one Model (its entry goes with
+the Model: weakref.finalize)."""
+
+
+def model_table(model, key, build, *args):
+    """``build(*args)`` for ``model``, built at the first call with this key and shared by
+    every later one (compile once: a Model is frozen, so its tables never change).  The
+    arrays of the result are made read-only (the C code takes them as ``const``); ``key``
+    must name everything the result depends on besides the model (e.g. the row set)."""
+    tables = _TABLES.get(id(model))
+    if tables is None:
+        tables = _TABLES[id(model)] = {}
+        weakref.finalize(model, _TABLES.pop, id(model), None)
+    if key not in tables:
+        value = build(*args)
+        for a in value if isinstance(value, tuple) else (value,):
+            if isinstance(a, np.ndarray):
+                a.setflags(write=False)
+        tables[key] = value
+    return tables[key]
 
 
 def _csr(data, indices, indptr, shape):

@@ -49,7 +49,7 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim import core
-from mbsim.fast.constraints import FastConstraints
+from mbsim.fast.constraints import FastConstraints, model_table
 from mbsim.fast.ordering import reverse_cuthill_mckee, row_graph
 
 NB = 24
@@ -98,12 +98,13 @@ class System:
             "factorizations": 0,
             "newton_iterations": 0,
         }
-        self.bt, self.singular = body_table(model)
+        self.bt, self.singular = model_table(model, "bodies", body_table, model)
         self.kkt = bool(self.singular)  # no exact Mt^-1: dense LU of the KKT matrix
         # smallest pivot / diagonal of the Schur factor at the last accelerations() (1 for
         # the KKT path): ~ (sigma_min / sigma)^2 of the active rows, small near a change point
         self.pivot_ratio = 1.0
-        self.ei, self.ef, self.py_forces = element_tables(model.forces)
+        self.ei, self.ef, self.py_forces = model_table(model, "elements", element_tables,
+                                                       model.forces)
         # hybrid elements (mbsim.events): their modes in this system, and whether their
         # loads depend on the multipliers (the loop solved in accelerations())
         self.hybrid = tuple(el for el in self.py_forces if getattr(el, "hybrid", False))
@@ -111,7 +112,9 @@ class System:
         self.reaction_loop = any(getattr(el, "reactions", False) for el in self.hybrid)
         self._lam_known = None  # (m,) multipliers on all rows, the loop's last iterate
         self.family = None  # the run (Stepper) that builds systems for other modes
-        self.sidx, self.inc, self.pairs = schur_structure(self.fc.rb, self.rows, nb)
+        # the symbolic analysis of S (order, envelope, products): once per row set
+        self.sidx, self.inc, self.pairs = model_table(
+            model, ("schur", self.rows.tobytes()), schur_structure, self.fc.rb, self.rows, nb)
         # the model's struct (shared with self.fc) gets the dynamics tables and buffers
         c = self.c = self.fc.c
         nenv = _env_size(self.sidx)
