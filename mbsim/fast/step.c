@@ -24,6 +24,7 @@
 
 /* kernels.c */
 int mb_accelerations(const mb_model *M, int kkt, int have_jac);
+enum { JAC_HERE = 0, JAC_FACTORED = 2 }; /* mb_accelerations' have_jac (kernels.c) */
 void mb_constraints(const mb_model *M, int jac, int gam);
 int mb_project(const mb_model *M, int unit);
 void mb_jac_times(const mb_model *M, const double *x, double *out);
@@ -96,8 +97,11 @@ static int load_state(const mb_model *M, const mb_rk *R, double t, const double 
 }
 
 /* f = y'(t, y) = (qd, qdd, power) (index1.Index1._rhs); the change-point measure
- * s = sqrt(smallest Schur pivot ratio) (changepoints.measure_from_schur) into out. */
-static int rhs(const mb_model *M, mb_rk *R, double t, const double *y, double *f)
+ * s = sqrt(smallest Schur pivot ratio) (changepoints.measure_from_schur) into out.
+ * factored: the model's Phi_q and Schur factor are those of y's q at t (right after
+ * project_state at the same t and q: mb_accelerations' JAC_FACTORED). */
+static int rhs_at(const mb_model *M, mb_rk *R, double t, const double *y, double *f,
+                  int factored)
 {
     idx n = R->nq;
     if (load_state(M, R, t, y, y + n, 1))
@@ -107,8 +111,9 @@ static int rhs(const mb_model *M, mb_rk *R, double t, const double *y, double *f
     M->par[2] = R->stab ? 1.0 : 0.0;
     R->count[C_FE]++;
     R->count[C_CE]++;
-    R->count[C_FACT]++;
-    int code = mb_accelerations(M, (int)R->kkt, 0);
+    if (!factored || R->kkt)
+        R->count[C_FACT]++;
+    int code = mb_accelerations(M, (int)R->kkt, factored ? JAC_FACTORED : JAC_HERE);
     if (code) {
         R->out[O_CODE] = code;
         return ST_SOLVE;
@@ -123,6 +128,11 @@ static int rhs(const mb_model *M, mb_rk *R, double t, const double *y, double *f
     memcpy(f + n, M->qdd, (size_t)n * sizeof(double));
     f[2 * n] = M->out[0];
     return ST_ACCEPTED;
+}
+
+static int rhs(const mb_model *M, mb_rk *R, double t, const double *y, double *f)
+{
+    return rhs_at(M, R, t, y, f, 0);
 }
 
 /* max |Phi| on the active rows at M->q (after mb_constraints). */
@@ -169,14 +179,17 @@ static int project_positions(const mb_model *M, mb_rk *R, double t, double *q, i
     return 0;
 }
 
-/* qd projected onto Phi_q qd = nu at q (System.project_velocities), in place. */
+/* qd projected onto Phi_q qd = nu at q (System.project_velocities), in place; fresh: the
+ * model's Phi_q and nu are already those of q at t (project_positions' last evaluation). */
 static int project_velocities(const mb_model *M, mb_rk *R, double t, const double *q,
-                              double *qd)
+                              double *qd, int fresh)
 {
-    R->count[C_CE]++;
     if (load_state(M, R, t, q, qd, 0))
         return ST_CALLBACK;
-    mb_constraints(M, 1, 0);
+    if (!fresh) {
+        R->count[C_CE]++;
+        mb_constraints(M, 1, 0);
+    }
     mb_jac_times(M, M->qd, R->vm);
     for (idx k = 0; k < M->ma; k++) {
         idx r = M->rows[k];
@@ -204,7 +217,7 @@ static int project_state(const mb_model *M, mb_rk *R, double t, double *q, doubl
         return -ok;
     if (!ok && res > R->proj_fail)
         return ST_PROJECTION;
-    return project_velocities(M, R, t, q, qd);
+    return project_velocities(M, R, t, q, qd, 1); /* (its last evaluation was at this q) */
 }
 
 /* The RMS norm of a - b in the scale of q over the step (atol + rtol max(|y0|, |y_acc|),
@@ -303,7 +316,7 @@ int mb_rk_trial(const mb_model *M, mb_rk *R, double t, double h)
     }
     if ((st = project_state(M, R, t + h, R->y_acc, R->y_acc + n)))
         return st;
-    return rhs(M, R, t + h, R->y_acc, R->f_acc);
+    return rhs_at(M, R, t + h, R->y_acc, R->f_acc, 1); /* S factored by the projection */
 }
 
 /* -- dense output ------------------------------------------------------------------------ */
