@@ -934,6 +934,8 @@ int mb_accelerations(const mb_model *M, int kkt, int have_jac)
     return STATUS_OK;
 }
 
+void mb_project_factored(const mb_model *M);
+
 /* dq (nq,) = Mt^-1 Phi_q^T S^-1 rhs: the weighted least-norm correction with Phi_q dq = rhs
  * on the active rows (Phi_q: Jc of the last mb_constraints; unit: identity metric).
  * Returns a STATUS_*. */
@@ -942,6 +944,15 @@ int mb_project(const mb_model *M, int unit)
     minv_blocks(M, unit);
     if (!schur_factor(M, M->Jc, unit))
         return STATUS_NOT_PD;
+    mb_project_factored(M);
+    return STATUS_OK;
+}
+
+/* mb_project on the Schur factor already in the model (Mi, XG and the factor of S left by
+ * the last mb_accelerations or mb_project, unit 0, at this q and Phi_q: step.c's
+ * projections right after a derivative at the same q), so nothing is factored again. */
+void mb_project_factored(const mb_model *M)
+{
     schur_solve(M, M->rhs, M->lam);
     memset(M->dq, 0, (size_t)M->nq * sizeof(double));
     for (idx k = 0; k < M->ninc; k++) {
@@ -950,7 +961,6 @@ int mb_project(const mb_model *M, int unit)
         for (int c = 0; c < 7; c++)
             y[c] += x[c] * h;
     }
-    return STATUS_OK;
 }
 
 /* -- kinematic analysis: Phi = 0, Phi_q qd = nu, Phi_q qdd = gamma on one LU --------------- */
