@@ -21,8 +21,6 @@ Tables (k = 0 .. nc-1):
 
 from __future__ import annotations
 
-import weakref
-
 import numpy as np
 
 from mbsim.core import Terms
@@ -76,17 +74,12 @@ class FastConstraints:
         m, ma, nq = self.m, self.rows.size, self.nq
         self.c = _lib.Model(nb=self.nb, nq=nq, m=m, ma=ma, nc=self.ci.shape[0])
         self.c.set(ci=self.ci, cf=self.cf, rb=self.rb, rows=self.rows)
-        # inputs: q, qd (copied in per call), tv (nf, 3): c(t), c'(t), c''(t)
-        self._q, self._qd, self.tv = self.c.set(
-            q=np.zeros(nq), qd=np.zeros(nq), tv=np.zeros((len(self.funcs), 3))
-        )
-        # all m rows: phi, compact Phi_q (m, 14), gamma, nu
-        self.phi_all, self.Jc, self.gamma_all, self.nu_all = self.c.set(
-            phi=np.zeros(m), Jc=np.zeros((m, 14)), gamma=np.zeros(m), nu=np.zeros(m)
-        )
-        self._phi, self._gamma, self._nu = self.c.set(
-            phi_a=np.zeros(ma), gamma_a=np.zeros(ma), nu_a=np.zeros(ma)
-        )
+        # inputs: q, qd (copied in per call), tv (nf, 3): c(t), c'(t), c''(t); all m rows:
+        # phi, compact Phi_q (m, 14), gamma, nu; the rows `rows`: phi_a, gamma_a, nu_a
+        (self._q, self._qd, self.tv, self.phi_all, self.Jc, self.gamma_all, self.nu_all,
+         self._phi, self._gamma, self._nu) = self.c.zeros(
+            q=nq, qd=nq, tv=(len(self.funcs), 3), phi=m, Jc=(m, 14), gamma=m, nu=m, phi_a=ma,
+            gamma_a=ma, nu_a=ma)
         self._J = None  # dense (m_a, nq), allocated on first use (pattern-only writes)
         self._csr = None  # (indptr, indices, dpos, data), built on first use
 
@@ -189,20 +182,15 @@ class FastConstraints:
         return self._csr
 
 
-_TABLES: dict[int, dict] = {}
-"""id(model) -> {key: table}: the constant tables built from one Model (its entry goes with
-the Model: weakref.finalize)."""
-
-
 def model_table(model, key, build, *args):
     """``build(*args)`` for ``model``, built at the first call with this key and shared by
     every later one (compile once: a Model is frozen, so its tables never change).  The
     arrays of the result are made read-only (the C code takes them as ``const``); ``key``
     must name everything the result depends on besides the model (e.g. the row set)."""
-    tables = _TABLES.get(id(model))
-    if tables is None:
-        tables = _TABLES[id(model)] = {}
-        weakref.finalize(model, _TABLES.pop, id(model), None)
+    tables = model.__dict__.get("_fast_tables")
+    if tables is None:  # Model is frozen: a cache, not a field (as mbsim.core.make_data)
+        tables = {}
+        object.__setattr__(model, "_fast_tables", tables)
     if key not in tables:
         value = build(*args)
         for a in value if isinstance(value, tuple) else (value,):
