@@ -182,6 +182,14 @@ class FastConstraints:
         return self._csr
 
 
+class _TableCache(dict):
+    """key -> table, kept on the Model it was built from (it lives and dies with it);
+    pickled and copied empty, as mbsim.core's Data cache."""
+
+    def __reduce__(self):
+        return (_TableCache, ())
+
+
 def model_table(model, key, build, *args):
     """``build(*args)`` for ``model``, built at the first call with this key and shared by
     every later one (compile once: a Model is frozen, so its tables never change).  The
@@ -189,7 +197,7 @@ def model_table(model, key, build, *args):
     must name everything the result depends on besides the model (e.g. the row set)."""
     tables = model.__dict__.get("_fast_tables")
     if tables is None:  # Model is frozen: a cache, not a field (as mbsim.core.make_data)
-        tables = {}
+        tables = _TableCache()
         object.__setattr__(model, "_fast_tables", tables)
     if key not in tables:
         value = build(*args)
