@@ -341,6 +341,46 @@ def test_rows_subset_and_bad_shapes():
         fc.evaluate(q, gamma=True)
 
 
+def test_tables_are_built_once_per_model_and_row_set():
+    """The constant tables (flatten, body table, force elements) and the Schur matrix's
+    symbolic analysis (order, envelope, products) are built by the first System of a model
+    and row set and shared, read-only, by later ones; a System on other rows gets its own.
+    Reusing them changes no number: the accelerations of a second System equal, bit for
+    bit, those of a System of a freshly compiled copy of the model."""
+    model = _chain(8)
+    q = model.q0 + 1e-3 * rng.normal(size=model.nq)
+    qd = 1e-1 * rng.normal(size=model.nq)
+    a, b = fast.System(model), fast.System(model)
+    assert b.sidx is a.sidx and b.pairs is a.pairs and b.bt is a.bt and b.fc.ci is a.fc.ci
+    assert not (a.sidx.flags.writeable or a.bt.flags.writeable or a.fc.cf.flags.writeable)
+    rows = _independent_rows(model, q)[:-3]  # another row set: its own structure
+    c = fast.System(model, rows)
+    assert c.sidx is not a.sidx and c.sidx.shape[1] == rows.size
+    assert fast.System(model, rows).sidx is c.sidx
+    fresh = _chain(8)
+    for sys_b, sys_f in ((b, fast.System(fresh)), (c, fast.System(fresh, rows))):
+        qdd_b, lam_b, _ = sys_b.accelerations(q, qd, 0.3)
+        qdd_f, lam_f, _ = sys_f.accelerations(q, qd, 0.3)
+        assert np.array_equal(qdd_b, qdd_f) and np.array_equal(lam_b, lam_f)
+    _check_accelerations(model, q, qd, 0.3)  # (a System from the shared tables)
+
+
+def test_buffers_from_one_allocation_are_separate_arrays():
+    """_lib.Model.zeros carves the buffers from one block: each the size asked for, zero,
+    and the C pointer of each is its own first element (a write through C to one buffer
+    lands in it and in no other)."""
+    from mbsim.fast import _lib
+
+    c = _lib.Model()
+    a, b, m = c.zeros(Q=5, qdd=(2, 3), F=(1, 3))
+    assert (a.shape, b.shape, m.shape) == ((5,), (2, 3), (1, 3))
+    assert not (a.any() or b.any() or m.any())
+    for name, arr in (("Q", a), ("qdd", b), ("F", m)):
+        assert getattr(c.s, name) == arr.ctypes.data
+    b[:] = 1.0
+    assert not (a.any() or m.any())
+
+
 # -- the loader of the C library (mbsim.fast._lib) ---------------------------------------------
 _FIRST_USE = """
 import sys

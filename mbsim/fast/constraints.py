@@ -69,22 +69,17 @@ class FastConstraints:
         if self.rows.ndim != 1 or np.any((self.rows < 0) | (self.rows >= model.m)):
             raise ValueError(f"rows: expected row numbers in [0, {model.m}), got {rows!r}")
         self.sparse = (model.nq >= SPARSE_NQ) if sparse is None else bool(sparse)
-        self.ci, self.cf, self.rb, self.funcs = flatten(model)
+        self.ci, self.cf, self.rb, self.funcs = model_table(model, "flatten", flatten, model)
         self.lib = _lib.library()
         m, ma, nq = self.m, self.rows.size, self.nq
         self.c = _lib.Model(nb=self.nb, nq=nq, m=m, ma=ma, nc=self.ci.shape[0])
         self.c.set(ci=self.ci, cf=self.cf, rb=self.rb, rows=self.rows)
-        # inputs: q, qd (copied in per call), tv (nf, 3): c(t), c'(t), c''(t)
-        self._q, self._qd, self.tv = self.c.set(
-            q=np.zeros(nq), qd=np.zeros(nq), tv=np.zeros((len(self.funcs), 3))
-        )
-        # all m rows: phi, compact Phi_q (m, 14), gamma, nu
-        self.phi_all, self.Jc, self.gamma_all, self.nu_all = self.c.set(
-            phi=np.zeros(m), Jc=np.zeros((m, 14)), gamma=np.zeros(m), nu=np.zeros(m)
-        )
-        self._phi, self._gamma, self._nu = self.c.set(
-            phi_a=np.zeros(ma), gamma_a=np.zeros(ma), nu_a=np.zeros(ma)
-        )
+        # inputs: q, qd (copied in per call), tv (nf, 3): c(t), c'(t), c''(t); all m rows:
+        # phi, compact Phi_q (m, 14), gamma, nu; the rows `rows`: phi_a, gamma_a, nu_a
+        (self._q, self._qd, self.tv, self.phi_all, self.Jc, self.gamma_all, self.nu_all,
+         self._phi, self._gamma, self._nu) = self.c.zeros(
+            q=nq, qd=nq, tv=(len(self.funcs), 3), phi=m, Jc=(m, 14), gamma=m, nu=m, phi_a=ma,
+            gamma_a=ma, nu_a=ma)
         self._J = None  # dense (m_a, nq), allocated on first use (pattern-only writes)
         self._csr = None  # (indptr, indices, dpos, data), built on first use
 
@@ -185,6 +180,32 @@ class FastConstraints:
             dpos, data = self.c.set(dpos=dpos, data=np.zeros(indices.size))
             self._csr = (indptr.astype(np.int32), indices, dpos, data)
         return self._csr
+
+
+class _TableCache(dict):
+    """key -> table, kept on the Model it was built from (it lives and dies with it);
+    pickled and copied empty, as mbsim.core's Data cache."""
+
+    def __reduce__(self):
+        return (_TableCache, ())
+
+
+def model_table(model, key, build, *args):
+    """``build(*args)`` for ``model``, built at the first call with this key and shared by
+    every later one (compile once: a Model is frozen, so its tables never change).  The
+    arrays of the result are made read-only (the C code takes them as ``const``); ``key``
+    must name everything the result depends on besides the model (e.g. the row set)."""
+    tables = model.__dict__.get("_fast_tables")
+    if tables is None:  # Model is frozen: a cache, not a field (as mbsim.core.make_data)
+        tables = _TableCache()
+        object.__setattr__(model, "_fast_tables", tables)
+    if key not in tables:
+        value = build(*args)
+        for a in value if isinstance(value, tuple) else (value,):
+            if isinstance(a, np.ndarray):
+                a.setflags(write=False)
+        tables[key] = value
+    return tables[key]
 
 
 def _csr(data, indices, indptr, shape):

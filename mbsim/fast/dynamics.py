@@ -49,7 +49,7 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim import core
-from mbsim.fast.constraints import FastConstraints
+from mbsim.fast.constraints import FastConstraints, model_table
 from mbsim.fast.ordering import reverse_cuthill_mckee, row_graph
 
 NB = 24
@@ -98,12 +98,13 @@ class System:
             "factorizations": 0,
             "newton_iterations": 0,
         }
-        self.bt, self.singular = body_table(model)
+        self.bt, self.singular = model_table(model, "bodies", body_table, model)
         self.kkt = bool(self.singular)  # no exact Mt^-1: dense LU of the KKT matrix
         # smallest pivot / diagonal of the Schur factor at the last accelerations() (1 for
         # the KKT path): ~ (sigma_min / sigma)^2 of the active rows, small near a change point
         self.pivot_ratio = 1.0
-        self.ei, self.ef, self.py_forces = element_tables(model.forces)
+        self.ei, self.ef, self.py_forces = model_table(model, "elements", element_tables,
+                                                       model.forces)
         # hybrid elements (mbsim.events): their modes in this system, and whether their
         # loads depend on the multipliers (the loop solved in accelerations())
         self.hybrid = tuple(el for el in self.py_forces if getattr(el, "hybrid", False))
@@ -111,7 +112,9 @@ class System:
         self.reaction_loop = any(getattr(el, "reactions", False) for el in self.hybrid)
         self._lam_known = None  # (m,) multipliers on all rows, the loop's last iterate
         self.family = None  # the run (Stepper) that builds systems for other modes
-        self.sidx, self.inc, self.pairs = schur_structure(self.fc.rb, self.rows, nb)
+        # the symbolic analysis of S (order, envelope, products): once per row set
+        self.sidx, self.inc, self.pairs = model_table(
+            model, ("schur", self.rows.tobytes()), schur_structure, self.fc.rb, self.rows, nb)
         # the model's struct (shared with self.fc) gets the dynamics tables and buffers
         c = self.c = self.fc.c
         nenv = _env_size(self.sidx)
@@ -120,20 +123,18 @@ class System:
         c.set(sidx=self.sidx, inc=self.inc, pairs=self.pairs, bt=self.bt, nrm=self.norm_pos,
               ei=self.ei, ef=self.ef)
         nk = nq + ma if self.kkt else 0
-        self._loads, self._par, self._Jg, self._rhs = c.set(
-            loads=np.zeros((2, nb, 3)), par=np.zeros(3), Jg=np.zeros((model.m, 14)),
-            rhs=np.zeros(ma))
-        self._Q, self._qdd, self._lam, self._dq, self._out = c.set(
-            Q=np.zeros(nq), qdd=np.zeros(nq), lam=np.zeros(ma), dq=np.zeros(nq), out=np.ones(2))
-        c.set(Qt=np.zeros(nq), g=np.zeros(ma), Mi=np.zeros((nb, 4, 4)), XG=np.zeros((ninc, 8)),
-              JG=np.zeros((ninc, 8)), env=np.zeros(nenv), srhs=np.zeros(ma), z=np.zeros(ma),
-              K=np.zeros(nk * nk), kr=np.zeros(nk), kp=np.zeros(nk, np.int64),
-              A=np.zeros((nb, 3, 3)))
-        # after mb_applied_forces: F (nb, 3) global forces, n (nb, 3) body torques with the
-        # gyroscopic term, w (nb, 3) body-frame angular velocities
-        self._F, self._n, self._w = c.set(F=np.zeros((nb, 3)), n=np.zeros((nb, 3)),
-                                          w=np.zeros((nb, 3)))
-        (self._Mb,) = c.set(Mb=np.zeros((nb, 7, 7)))
+        # the buffers, zeros carved from one allocation (c.zeros); after mb_applied_forces:
+        # F (nb, 3) global forces, n (nb, 3) body torques with the gyroscopic term, w (nb, 3)
+        # body-frame angular velocities
+        (self._loads, self._par, self._Jg, self._rhs, self._Q, self._qdd, self._lam, self._dq,
+         self._out, _, _, _, _, _, _, _, _, _, _, _, self._F, self._n, self._w,
+         self._Mb) = c.zeros(
+            loads=(2, nb, 3), par=3, Jg=(model.m, 14), rhs=ma, Q=nq, qdd=nq, lam=ma, dq=nq,
+            out=2, Qt=nq, g=ma, Mi=(nb, 4, 4), XG=(ninc, 8), JG=(ninc, 8), env=nenv,
+            srhs=ma, z=ma, K=nk * nk, kr=nk, A=(nb, 3, 3), F=(nb, 3), n=(nb, 3), w=(nb, 3),
+            Mb=(nb, 7, 7))
+        self._out[:] = 1.0
+        c.set(kp=np.zeros(nk, np.int64))
         self._v = np.zeros(model.m)
         lib = self.fc.lib
         self._acc, self._project = lib.mb_accelerations, lib.mb_project

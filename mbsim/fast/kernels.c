@@ -39,6 +39,7 @@ enum { I_KERNEL, I_BI, I_BJ, I_ROW, I_FLAG, I_FUNC, I_SLOT, NI = 9 };
 enum { F_CONST = 9, NF = 15, NB = 24 };
 enum { EL_TSDA, EL_FORCE, EL_FORCE_LOCAL, EL_TORQUE, EL_TORQUE_LOCAL };
 enum { STATUS_OK = 0, STATUS_NOT_PD = 1, STATUS_SINGULAR = 2 };
+enum { JAC_HERE = 0, JAC_CALLER = 1, JAC_FACTORED = 2 }; /* mb_accelerations' have_jac */
 
 #ifndef MB_SOURCE_HASH
 #define MB_SOURCE_HASH "unknown"
@@ -769,13 +770,16 @@ static void rhs_terms(const mb_model *M, const double *Jc)
         }
 }
 
-/* lam = S^-1 (Phi_q Mt^-1 Qt - g), qdd = Mt^-1 (Qt - Phi_q^T lam). */
-static int solve_schur(const mb_model *M, const double *Jc)
+/* lam = S^-1 (Phi_q Mt^-1 Qt - g), qdd = Mt^-1 (Qt - Phi_q^T lam); factored: Mi, XG and
+ * the factor of S are already those of Jc at M->q (the last mb_project, unit 0). */
+static int solve_schur(const mb_model *M, const double *Jc, int factored)
 {
     const idx *inc = M->inc;
-    minv_blocks(M, 0);
-    if (!schur_factor(M, Jc, 0))
-        return STATUS_NOT_PD;
+    if (!factored) {
+        minv_blocks(M, 0);
+        if (!schur_factor(M, Jc, 0))
+            return STATUS_NOT_PD;
+    }
     double *rhs = M->srhs;
     for (idx u = 0; u < M->ma; u++)
         rhs[u] = -M->g[u];
@@ -904,16 +908,21 @@ static int solve_kkt(const mb_model *M, const double *Jc)
 }
 
 /* (qdd, lam) of the equations of motion at (q, qd): the constraint terms, the applied forces,
- * then the Schur complement of Mt, or the dense KKT matrix when kkt.  have_jac: the compact
- * Phi_q is the caller's Jg (m, 14) instead of the one evaluated here.  out[0] = power
- * Q.qd - lam.nu.  Returns a STATUS_*. */
+ * then the Schur complement of Mt, or the dense KKT matrix when kkt.  have_jac: JAC_HERE
+ * (0) evaluates Phi_q here; JAC_CALLER (1): the compact Phi_q is the caller's Jg (m, 14);
+ * JAC_FACTORED (2): Jc is already that of M->q and, unless kkt, so are Mi, XG and the Schur
+ * factor (the last call was mb_project at this q: the step's projection, whose S = Phi_q
+ * Mt^-1 Phi_q^T is the one needed here), so neither is computed again (the same numbers).
+ * out[0] = power Q.qd - lam.nu.  Returns a STATUS_*. */
 int mb_accelerations(const mb_model *M, int kkt, int have_jac)
 {
-    mb_constraints(M, !have_jac, 1);
-    const double *Jc = have_jac ? M->Jg : M->Jc;
+    mb_constraints(M, have_jac == JAC_HERE, 1);
+    const double *Jc = have_jac == JAC_CALLER ? M->Jg : M->Jc;
+    int factored = have_jac == JAC_FACTORED && !kkt;
     rhs_terms(M, Jc);
-    M->out[1] = 1.0;
-    int status = kkt ? solve_kkt(M, Jc) : solve_schur(M, Jc);
+    if (!factored) /* (else out[1] stays the pivot ratio of that factorisation) */
+        M->out[1] = 1.0;
+    int status = kkt ? solve_kkt(M, Jc) : solve_schur(M, Jc, factored);
     if (status != STATUS_OK)
         return status;
     double power = 0.0;
@@ -925,6 +934,8 @@ int mb_accelerations(const mb_model *M, int kkt, int have_jac)
     return STATUS_OK;
 }
 
+void mb_project_factored(const mb_model *M);
+
 /* dq (nq,) = Mt^-1 Phi_q^T S^-1 rhs: the weighted least-norm correction with Phi_q dq = rhs
  * on the active rows (Phi_q: Jc of the last mb_constraints; unit: identity metric).
  * Returns a STATUS_*. */
@@ -933,6 +944,15 @@ int mb_project(const mb_model *M, int unit)
     minv_blocks(M, unit);
     if (!schur_factor(M, M->Jc, unit))
         return STATUS_NOT_PD;
+    mb_project_factored(M);
+    return STATUS_OK;
+}
+
+/* mb_project on the Schur factor already in the model (Mi, XG and the factor of S left by
+ * the last mb_accelerations or mb_project, unit 0, at this q and Phi_q: step.c's
+ * projections right after a derivative at the same q), so nothing is factored again. */
+void mb_project_factored(const mb_model *M)
+{
     schur_solve(M, M->rhs, M->lam);
     memset(M->dq, 0, (size_t)M->nq * sizeof(double));
     for (idx k = 0; k < M->ninc; k++) {
@@ -941,7 +961,6 @@ int mb_project(const mb_model *M, int unit)
         for (int c = 0; c < 7; c++)
             y[c] += x[c] * h;
     }
-    return STATUS_OK;
 }
 
 /* -- kinematic analysis: Phi = 0, Phi_q qd = nu, Phi_q qdd = gamma on one LU --------------- */

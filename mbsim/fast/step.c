@@ -24,8 +24,10 @@
 
 /* kernels.c */
 int mb_accelerations(const mb_model *M, int kkt, int have_jac);
+enum { JAC_HERE = 0, JAC_FACTORED = 2 }; /* mb_accelerations' have_jac (kernels.c) */
 void mb_constraints(const mb_model *M, int jac, int gam);
 int mb_project(const mb_model *M, int unit);
+void mb_project_factored(const mb_model *M);
 void mb_jac_times(const mb_model *M, const double *x, double *out);
 
 /* What a call returns. */
@@ -96,8 +98,11 @@ static int load_state(const mb_model *M, const mb_rk *R, double t, const double 
 }
 
 /* f = y'(t, y) = (qd, qdd, power) (index1.Index1._rhs); the change-point measure
- * s = sqrt(smallest Schur pivot ratio) (changepoints.measure_from_schur) into out. */
-static int rhs(const mb_model *M, mb_rk *R, double t, const double *y, double *f)
+ * s = sqrt(smallest Schur pivot ratio) (changepoints.measure_from_schur) into out.
+ * factored: the model's Phi_q and Schur factor are those of y's q at t (right after
+ * project_state at the same t and q: mb_accelerations' JAC_FACTORED). */
+static int rhs_at(const mb_model *M, mb_rk *R, double t, const double *y, double *f,
+                  int factored)
 {
     idx n = R->nq;
     if (load_state(M, R, t, y, y + n, 1))
@@ -107,8 +112,9 @@ static int rhs(const mb_model *M, mb_rk *R, double t, const double *y, double *f
     M->par[2] = R->stab ? 1.0 : 0.0;
     R->count[C_FE]++;
     R->count[C_CE]++;
-    R->count[C_FACT]++;
-    int code = mb_accelerations(M, (int)R->kkt, 0);
+    if (!factored || R->kkt)
+        R->count[C_FACT]++;
+    int code = mb_accelerations(M, (int)R->kkt, factored ? JAC_FACTORED : JAC_HERE);
     if (code) {
         R->out[O_CODE] = code;
         return ST_SOLVE;
@@ -125,6 +131,11 @@ static int rhs(const mb_model *M, mb_rk *R, double t, const double *y, double *f
     return ST_ACCEPTED;
 }
 
+static int rhs(const mb_model *M, mb_rk *R, double t, const double *y, double *f)
+{
+    return rhs_at(M, R, t, y, f, 0);
+}
+
 /* max |Phi| on the active rows at M->q (after mb_constraints). */
 static double phi_max(const mb_model *M)
 {
@@ -139,54 +150,68 @@ static double phi_max(const mb_model *M)
 
 /* Mass-weighted Newton projection of q onto Phi(q, t) = 0 (System.project_positions):
  * q updated in place; *res the last max |Phi|; returns 1 converged, 0 not, or -ST_* on
- * a failure. */
+ * a failure.  *factored (in and out): 1 when the model's Phi, Phi_q and, unless kkt, its
+ * Schur factor are already those of q at t (a derivative just evaluated there), so the
+ * first iteration evaluates and factors nothing; on return, whether the factor is still
+ * that of the (final) q. */
 static int project_positions(const mb_model *M, mb_rk *R, double t, double *q, int max_iter,
-                             double *res)
+                             double *res, int *factored)
 {
     idx n = R->nq;
     for (int it = 0; it <= max_iter; it++) {
-        R->count[C_CE]++;
-        if (load_state(M, R, t, q, NULL, 0))
-            return -ST_CALLBACK;
-        mb_constraints(M, 1, 0);
+        if (!*factored) {
+            R->count[C_CE]++;
+            if (load_state(M, R, t, q, NULL, 0))
+                return -ST_CALLBACK;
+            mb_constraints(M, 1, 0);
+        }
         *res = phi_max(M);
         if (*res <= R->proj_tol)
             return 1;
         if (it == max_iter)
             break;
         R->count[C_NEWTON]++;
-        R->count[C_FACT]++;
         for (idx k = 0; k < M->ma; k++)
             M->rhs[k] = M->phi[M->rows[k]];
-        int code = mb_project(M, (int)R->kkt);
-        if (code) {
-            R->out[O_CODE] = code;
-            return -ST_SOLVE;
+        if (*factored && !R->kkt) {
+            mb_project_factored(M);
+        } else {
+            R->count[C_FACT]++;
+            int code = mb_project(M, (int)R->kkt);
+            if (code) {
+                R->out[O_CODE] = code;
+                return -ST_SOLVE;
+            }
         }
+        *factored = 0; /* q moves: its Phi, Phi_q and factor are evaluated next */
         for (idx i = 0; i < n; i++)
             q[i] -= M->dq[i];
     }
     return 0;
 }
 
-/* qd projected onto Phi_q qd = nu at q (System.project_velocities), in place. */
+/* qd projected onto Phi_q qd = nu at q (System.project_velocities), in place.  Phi_q and
+ * nu are already those of q at t (project_positions' last evaluation); factored: so is the
+ * Schur factor (unless kkt).  Afterwards the factor is that of q (unless kkt). */
 static int project_velocities(const mb_model *M, mb_rk *R, double t, const double *q,
-                              double *qd)
+                              double *qd, int factored)
 {
-    R->count[C_CE]++;
     if (load_state(M, R, t, q, qd, 0))
         return ST_CALLBACK;
-    mb_constraints(M, 1, 0);
     mb_jac_times(M, M->qd, R->vm);
     for (idx k = 0; k < M->ma; k++) {
         idx r = M->rows[k];
         M->rhs[k] = R->vm[r] - M->nu[r];
     }
-    R->count[C_FACT]++;
-    int code = mb_project(M, (int)R->kkt);
-    if (code) {
-        R->out[O_CODE] = code;
-        return ST_SOLVE;
+    if (factored && !R->kkt) {
+        mb_project_factored(M);
+    } else {
+        R->count[C_FACT]++;
+        int code = mb_project(M, (int)R->kkt);
+        if (code) {
+            R->out[O_CODE] = code;
+            return ST_SOLVE;
+        }
     }
     for (idx i = 0; i < R->nq; i++)
         qd[i] = M->qd[i] - M->dq[i];
@@ -194,17 +219,19 @@ static int project_velocities(const mb_model *M, mb_rk *R, double t, const doubl
 }
 
 /* (q, qd) put on Phi = 0, Phi_q qd = nu, in place (Index1._project): ST_PROJECTION when
- * the positions' Newton iteration stops above proj_fail. */
-static int project_state(const mb_model *M, mb_rk *R, double t, double *q, double *qd)
+ * the positions' Newton iteration stops above proj_fail.  factored: the model's terms and
+ * Schur factor are those of q at t already (project_positions). */
+static int project_state(const mb_model *M, mb_rk *R, double t, double *q, double *qd,
+                         int factored)
 {
     double res = 0.0;
-    int ok = project_positions(M, R, t, q, 10, &res);
+    int ok = project_positions(M, R, t, q, 10, &res, &factored);
     R->out[O_RES] = res;
     if (ok < 0)
         return -ok;
     if (!ok && res > R->proj_fail)
         return ST_PROJECTION;
-    return project_velocities(M, R, t, q, qd);
+    return project_velocities(M, R, t, q, qd, factored);
 }
 
 /* The RMS norm of a - b in the scale of q over the step (atol + rtol max(|y0|, |y_acc|),
@@ -254,17 +281,25 @@ static double error_norm(const mb_rk *R, double h)
     return fabs(h) * e5 / sqrt((e5 + 0.01 * e3) * (double)n);
 }
 
-/* ys = y + h sum_{j < s} a[j] K[j] (a stage's state). */
+/* ys = y + h sum_{j < s} a[j] K[j] (a stage's state).  Stage by stage over contiguous rows
+ * of K, each component summed in the order j = 0, 1, .. as a scalar loop over j would; the
+ * tableau's zeros (a quarter of DOP853's) are skipped: adding their +-0 products to a sum
+ * that starts at +0 changes no bit. */
 static void combine(const mb_rk *R, const double *y, const double *a, idx s, double h,
                     double *ys)
 {
     idx ny = 2 * R->nq + 1;
-    for (idx i = 0; i < ny; i++) {
-        double acc = 0.0;
-        for (idx j = 0; j < s; j++)
-            acc += R->K[j * ny + i] * a[j];
-        ys[i] = y[i] + h * acc;
+    for (idx i = 0; i < ny; i++)
+        ys[i] = 0.0;
+    for (idx j = 0; j < s; j++) {
+        const double *Kj = R->K + j * ny, aj = a[j];
+        if (aj == 0.0)
+            continue;
+        for (idx i = 0; i < ny; i++)
+            ys[i] += Kj[i] * aj;
     }
+    for (idx i = 0; i < ny; i++)
+        ys[i] = y[i] + h * ys[i];
 }
 
 /* One trial step of size h from (t, y) with y' = f (rk.RungeKuttaIntegrator._trial, then
@@ -301,9 +336,11 @@ int mb_rk_trial(const mb_model *M, mb_rk *R, double t, double h)
         memcpy(R->f_acc, K + ns * ny, (size_t)ny * sizeof(double));
         return ST_ACCEPTED;
     }
-    if ((st = project_state(M, R, t + h, R->y_acc, R->y_acc + n)))
+    /* y_acc = y_new, whose derivative (K[ns]) left its Phi, Phi_q and Schur factor in the
+     * model: the projection starts from them */
+    if ((st = project_state(M, R, t + h, R->y_acc, R->y_acc + n, 1)))
         return st;
-    return rhs(M, R, t + h, R->y_acc, R->f_acc);
+    return rhs_at(M, R, t + h, R->y_acc, R->f_acc, 1); /* S factored by the projection */
 }
 
 /* -- dense output ------------------------------------------------------------------------ */
@@ -407,7 +444,7 @@ int mb_rk_dense(const mb_model *M, mb_rk *R, double t0, double h, idx k, const d
         W[j] = y[2 * n];
         if (!R->project)
             continue;
-        st = project_state(M, R, t, q, qd);
+        st = project_state(M, R, t, q, qd, 0);
         if (st == ST_CALLBACK)
             return st;
         if (st) {
@@ -418,7 +455,8 @@ int mb_rk_dense(const mb_model *M, mb_rk *R, double t0, double h, idx k, const d
                                              * Newton steps against q after the first */
             double res;
             memcpy(R->qw, y, (size_t)n * sizeof(double));
-            int ok = project_positions(M, R, t, R->qw, 1, &res);
+            int fresh = 0;
+            int ok = project_positions(M, R, t, R->qw, 1, &res, &fresh);
             if (ok < 0)
                 return -ok;
             if (rms_diff(R, q, R->qw, n) > 1.0)

@@ -105,27 +105,12 @@ class CompiledStep:
         ny = 2 * nq + 1
         self.tableau = tab = tableau
         ns = tab.n_stages
-        self._keep = []  # the arrays C points into
-
-        def arr(x, shape=None):
-            a = np.ascontiguousarray(np.zeros(shape) if x is None else x, dtype=np.float64)
-            self._keep.append(a)
-            return a
-
-        A = np.zeros((ns, ns))
-        A[:, : tab.A.shape[1]] = tab.A[:ns, : min(ns, tab.A.shape[1])]
         err_form = tab.error_form if control else None
-        if err_form == "dop853":
-            E, E3 = tab.E5, tab.E3
-        elif err_form == "embedded":
-            E, E3 = tab.E, None
-        else:
-            E = E3 = None
-        P = getattr(tab, "P", None)
         r = self.r = RK()
         r.ns, r.nq = ns, nq
         r.err_kind = ERROR_FORMS[err_form]
         r.dense_kind = DENSE_FORMS[tab.dense_form]
+        P = getattr(tab, "P", None)
         r.np = 0 if P is None else P.shape[1]
         r.project, r.kkt = int(project), int(system.kkt)
         r.stab = int(stab is not None)
@@ -133,21 +118,23 @@ class CompiledStep:
         r.rtol, r.atol = rtol, atol
         r.proj_tol = proj_tol
         r.proj_fail = max(1e3 * proj_tol, 1e-11)  # Index1._project's failure rule
-        for name, x, shape in (("A", A, None), ("B", tab.B, None), ("C", tab.C, None),
-                               ("E", E, ns + 1), ("E3", E3, ns + 1), ("P", P, 1),
-                               ("AX", getattr(tab, "A_EXTRA", None), (3, 16)),
-                               ("CX", getattr(tab, "C_EXTRA", None), 3),
-                               ("D", getattr(tab, "D", None), (4, 16))):
-            setattr(r, name, arr(x, shape).ctypes.data)
-        self.y, self.f, self.y_new, self.y_acc, self.f_acc, ys, qw = (
-            arr(None, ny) for _ in range(7))
-        self.K = arr(None, (N_K, ny))
-        vm, Fd, self.out = arr(None, system.model.m), arr(None, (7, ny)), arr(None, 5)
-        self.count = np.zeros(4, dtype=np.int64)
-        for name, a in (("y", self.y), ("f", self.f), ("K", self.K), ("y_new", self.y_new),
-                        ("y_acc", self.y_acc), ("f_acc", self.f_acc), ("ys", ys), ("vm", vm),
-                        ("qw", qw), ("Fd", Fd), ("out", self.out), ("count", self.count)):
+        self._keep = tableau_arrays(tab, err_form)  # the arrays C points into
+        for name, a in self._keep.items():
             setattr(r, name, a.ctypes.data)
+        # the buffers, from one allocation (one pointer each by offset)
+        sizes = {"y": ny, "f": ny, "y_new": ny, "y_acc": ny, "f_acc": ny, "ys": ny, "qw": ny,
+                 "K": N_K * ny, "vm": system.model.m, "Fd": 7 * ny, "out": 5}
+        self._buffers = block = np.zeros(sum(sizes.values()))
+        base, off, view = block.ctypes.data, 0, {}
+        for name, size in sizes.items():
+            view[name] = block[off : off + size]
+            setattr(r, name, base + 8 * off)
+            off += size
+        self.y, self.f, self.y_new, self.y_acc, self.f_acc = (
+            view[k] for k in ("y", "f", "y_new", "y_acc", "f_acc"))
+        self.K, self.out = view["K"].reshape(N_K, ny), view["out"]
+        self.count = np.zeros(4, dtype=np.int64)
+        r.count = self.count.ctypes.data
         self._pending = []  # a KeyboardInterrupt (or SystemExit) met in the callback
         self._load = _load_callback(system, self._pending)
         r.load = ctypes.cast(self._load, ctypes.c_void_p).value if self._load else None
@@ -197,6 +184,41 @@ class CompiledStep:
                                   Q.ctypes.data, QD.ctypes.data, W.ctypes.data,
                                   flags.ctypes.data)
         return self._counted(st), Q, QD, W, flags
+
+
+_TABLEAU_ARRAYS: dict = {}
+
+
+def tableau_arrays(tab, err_form) -> dict:
+    """{RK field: contiguous float64 array} of a tableau as step.c reads it (A padded to
+    (ns, ns), the error weights of ``err_form``, zeros where a form has none), built once
+    per tableau class and error form (class data never changes; a tableau object that is
+    not a class is not kept)."""
+    key = (tab, err_form)
+    if key not in _TABLEAU_ARRAYS:
+        ns = tab.n_stages
+        A = np.zeros((ns, ns))
+        A[:, : tab.A.shape[1]] = tab.A[:ns, : min(ns, tab.A.shape[1])]
+        if err_form == "dop853":
+            E, E3 = tab.E5, tab.E3
+        elif err_form == "embedded":
+            E, E3 = tab.E, None
+        else:
+            E = E3 = None
+        out = {}
+        for name, x, shape in (("A", A, None), ("B", tab.B, None), ("C", tab.C, None),
+                               ("E", E, ns + 1), ("E3", E3, ns + 1),
+                               ("P", getattr(tab, "P", None), 1),
+                               ("AX", getattr(tab, "A_EXTRA", None), (3, 16)),
+                               ("CX", getattr(tab, "C_EXTRA", None), 3),
+                               ("D", getattr(tab, "D", None), (4, 16))):
+            a = np.ascontiguousarray(np.zeros(shape) if x is None else x, dtype=np.float64)
+            a.setflags(write=False)
+            out[name] = a
+        if not isinstance(tab, type):
+            return out
+        _TABLEAU_ARRAYS[key] = out
+    return _TABLEAU_ARRAYS[key]
 
 
 def solve_error(code):

@@ -129,6 +129,26 @@ def test_one_trial_step_agrees_with_the_python_path(kind, name, method):
     assert close(q1, Qc[1]) and close(qd1, QDc[1])
 
 
+@pytest.mark.parametrize("kind,name", [("chain", "40"), ("deck", "governor"),
+                                       ("deck", "four_bar"), ("deck", "vehicle")])
+def test_the_derivative_after_the_projection_is_a_fresh_evaluation(kind, name):
+    """After an accepted step step.c projects the end starting from the derivative just
+    evaluated there (its Phi_q and Schur factor) and evaluates f at the projected end on
+    the projection's factor: the same numbers as evaluating both afresh, so f at the end
+    equals, bit for bit, the accelerations of a new System at that state (four_bar: the
+    KKT path, which reuses only the constraint terms; vehicle: Python tyre forces)."""
+    from mbsim.fast.dynamics import System
+
+    model, q, qd = state_of(kind, name)
+    c, _ = pair(model, q, qd, "projection-dop853", 1.0)
+    h = min(c.h_abs, 1e-3)
+    while (a := c._attempt(h))[2] is None:
+        h *= 0.25
+    y, f, n = a[2], a[3], model.nq
+    qdd, _, power = System(model, c.system.rows).accelerations(y[:n], y[n:2 * n], c.t + h)
+    assert np.array_equal(f[n:2 * n], qdd) and f[2 * n] == power
+
+
 def test_which_models_call_python_per_stage():
     """The C step leaves C per stage only for time targets and Python force elements
     (mbsim.fast.stepper._load_callback): none on the governor and the reference problems,
