@@ -84,7 +84,8 @@ class Index1(RungeKuttaIntegrator):
             self.counters["output_steps"] = 0  # steps of outputs integrated to (dense output)
         # the change-point policy (changepoints.Policy; module doc: ``tangent_steps``)
         self.policy = cp.Policy.for_run("index-1", self.rtol, self.atol, self.h_fixed is not None,
-                                        bool(self.options.get("tangent_steps", True)))
+                                        bool(self.options.get("tangent_steps", True)),
+                                        exponent=self.error_exponent, n=n)
         self.newton_tol = float(self.options.get("newton_tol", self.policy.newton_tol))
         self.counters["tangent_stages"] = 0
         self.counters["noise_limited_steps"] = 0
@@ -172,7 +173,8 @@ class Index1(RungeKuttaIntegrator):
         """(q, qd, fac) on Phi = 0, Phi_q qd = nu with the same tangent coordinates v = C q,
         vd = C qd (:func:`changepoints.complete`, as gcp's); fac the LU of A = [Phi_q; C]."""
         C = self._C
-        x, qdp, fac, T = cp.complete(self.system, t, q, C @ q, C @ qd, C, self.newton_tol, 8)
+        x, qdp, fac, T = cp.complete(self.system, t, q, C @ q, C @ qd, C, self.newton_tol,
+                                  self.policy.newton_iter)
         if qdp is None:
             raise StageFailure(f"t = {t:.6g} s: Newton in tangent coordinates did not "
                                f"converge (max |Phi| = {np.abs(T.phi).max():.3g})")
@@ -207,9 +209,9 @@ class Index1(RungeKuttaIntegrator):
                 err_v = floored
         if self._tangent_h0 is None:
             self._tangent_h0 = h
-        if h < self.policy.noise_step * self._tangent_h0:
+        if h < self.policy.cut * self._tangent_h0:
             return err_v
-        scale_q = (self.atol + 0.1 * self.newton_tol
+        scale_q = (self.atol + self.newton_tol
                    + self.rtol * np.maximum(np.abs(self.y[:n]), np.abs(y_new[:n])))
         return max(err_v, self.tableau.error_norm(self.K[:, :n], h, scale_q))
 
@@ -297,7 +299,7 @@ class Index1(RungeKuttaIntegrator):
             h_min=self.h_min, h_fixed=self.h_fixed or 0.0, err_old=self._err_old,
             exponent=self.error_exponent, beta=self.pi_beta, safety=base.SAFETY,
             min_factor=base.MIN_FACTOR, max_factor=base.MAX_FACTOR,
-            near=approach.near if approach is not None else 0.0,
+            near=approach.near(self.h_abs) if approach is not None else 0.0,
             stall_floor=base.STALL_FLOOR, max_steps=max_steps, max_rejects=base.MAX_REJECTS)
         ends = None
         if self.step_ends is not None:
