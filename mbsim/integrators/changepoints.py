@@ -69,18 +69,19 @@ class Policy:
           from Phi_u ud = nu - Phi_v vd with Phi_q(q), qdd with Phi_q(q) and gamma(q, qd): the
           accelerations carry eps s^-3, so s_gcp = (eps / rtol)^(1/3) (:meth:`law`) =
           6.1e-4, 2.8e-3, 1.3e-2 at rtol 1e-6, 1e-8, 1e-10.
-        - index-1 integrates q and qd and solves once, the accelerations from the Schur
-          complement S = Phi_q M^-1 Phi_q^T: S's pivots go as s^2, so the multipliers carry
-          eps s^-2, but they act on the accelerations through M^-1 Phi_q^T, whose gain along
-          the soft direction is s: qdd carries eps / s, so the law is eps / rtol (2.2e-10,
-          2.2e-8, 2.2e-6 at rtol 1e-6, 1e-8, 1e-10).  The kernels add a limit: below
-          sqrt(SCHUR_PIVOT_FLOOR) = 1e-4 they raise the Schur pivot, and the accelerations
-          are no longer those of the equations; s_index1 = max(1e-4, eps / rtol) (the floor
-          holds down to rtol = eps / 1e-4 = 2.2e-12).
-        A fixed-step run has no error test and asks no accuracy: its switch is that of a run
-        that asks none, at DEFAULT_RTOL (gcp 6.1e-4, index-1 1e-4).  A run whose s at the start is already below the switch
-        keeps the other path (the integrators check): a model's scaling is not a change
-        point.
+        - index-1 integrates q and qd and solves once, for the accelerations, through the
+          Schur complement S = Phi_q M^-1 Phi_q^T, whose pivots go as s^2: a state off the
+          constraints by its round-off moves the multipliers, and with them qdd, by eps s^-2
+          relative (on the four cranks a 4-ulp perturbation of q moves qdd by 1.0-1.5 eps
+          s^-2 of max |qdd| for s from 1e-4 to 4e-2), so the law is sqrt(eps / rtol) =
+          1.5e-5, 1.5e-4, 1.5e-3 at rtol 1e-6, 1e-8, 1e-10.  The kernels add a limit:
+          below sqrt(SCHUR_PIVOT_FLOOR) = 1e-4 they raise the Schur pivot, and the
+          accelerations are no longer those of the equations; s_index1 = max(1e-4,
+          sqrt(eps / rtol)) (the floor holds down to rtol = 2.2e-8).
+        A fixed-step run has no error test and asks no accuracy: its switch is that of a
+        run that asks none, at DEFAULT_RTOL (gcp 6.1e-4, index-1 1e-4).  A run whose s at
+        the start is already below the switch keeps the other path (the integrators
+        check): a model's scaling is not a change point.
     noise_s: below this s a tangent step's round-off is not taken off its error test
         (index-1 ``_stage_noise``): s = eps^(1/3) = 6.1e-6 (:meth:`law` at rtol 1), where
         the three solves' round-off eps s^-3 is as large as the accelerations themselves,
@@ -107,8 +108,9 @@ class Policy:
         interpolant) is accurate to the local error, ~1 tolerance; where the coordinates
         change (s = tangent) the other branch lies tangent x L away, tangent / rtol
         tolerances.  The threshold is the geometric mean of the two, sqrt(tangent / rtol):
-        a factor sqrt(tangent / rtol) from each (gcp 25, 530, 1.1e4; index-1 10, 100, 1000
-        at rtol 1e-6, 1e-8, 1e-10).
+        a factor sqrt(tangent / rtol) from each (gcp 25, 530, 1.1e4; index-1 10, 120, 3900
+        at rtol 1e-6, 1e-8, 1e-10).  Where tangent <= rtol the two branches lie within one
+        tolerance of each other, which the error test cannot tell apart: no check (inf).
     newton_tol: the completion's Newton tolerance on max |dq| (m or rad): a hundredth of
         atol, within [1e-12, 1e-9] (1e-12 for fixed steps): its own error stays two orders
         below the error test's, and above the round-off of q ~ 1 (Newton stagnates there).
@@ -144,14 +146,14 @@ class Policy:
         if family == "gcp":
             s = cls.law(asked)
         else:
-            s = max(float(np.sqrt(SCHUR_PIVOT_FLOOR)), EPS / asked)
+            s = max(float(np.sqrt(SCHUR_PIVOT_FLOOR)), float(np.sqrt(EPS / asked)))
         k = -1.0 / exponent if exponent and not fixed else 0.0
         return cls(
             tangent=s if tangent else 0.0,
             noise_s=cls.law(1.0),
             noise_err=SAFETY ** k if k else 1.0,
             cut=(EPS / rtol) ** (1.0 / k) if k else 1.0,
-            branch_jump=float(np.sqrt(s / rtol)),
+            branch_jump=float(np.sqrt(s / rtol)) if s > rtol else np.inf,
             newton_tol=1e-12 if fixed else min(1e-9, max(1e-12, 1e-2 * atol)),
             newton_iter=2 * int(np.ceil(np.log2(-np.log10(EPS)))),
             rank_lost=n * EPS)

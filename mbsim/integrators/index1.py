@@ -30,17 +30,18 @@ path; so does ``drift_bound: false``.
 In the region the error test sees round-off, not truncation error, in two places, and the
 policy takes each off: the completed stage velocities carry round-off that grows as s falls,
 which the full-q part of the error test would read as error, so that part is left out once
-a passage's steps are cut below ``Policy.noise_step`` x its first tangent step (an embedded
-estimate of truncation error falls like h^(p+1): what still cuts the step is the round-off;
+a passage's steps are cut below ``Policy.cut`` x its first tangent step (an embedded
+estimate of truncation error falls like h^k: what still cuts the step is the round-off;
 :meth:`Index1._error_norm`); and where the motion dwells next to the point without crossing
 it, the error test takes off what the stages' round-off alone makes, probed by two
 completions from q perturbed by ROUNDOFF_ULPS ulps (:meth:`Index1._stage_noise`).  A motion
 that approaches the point slowly is given a step across it that keeps its stages clear of
 it (:class:`changepoints.Approach`; counter ``straddle_steps``).
 
-Option ``tangent_steps`` (default true; false keeps the Schur path everywhere).  The
-measurements behind these choices are in docs/benchmarks.md (python
-benchmarks/singular_loops.py, benchmarks/dead_centre.py).
+Option ``tangent_steps`` (default true; false keeps the Schur path everywhere).  Every
+threshold of these rules is the policy's (:class:`changepoints.Policy`, which derives each);
+their effect is measured in docs/benchmarks.md (python benchmarks/singular_loops.py,
+benchmarks/dead_centre.py).
 """
 
 from __future__ import annotations
@@ -185,12 +186,13 @@ class Index1(RungeKuttaIntegrator):
         embedded error of the full q from the stages' completed velocities (gcp's
         _extra_error: a step that (v, vd) accepts can still be off in q across the point);
         not that of the full qd, which near the change point carries the round-off of the
-        completion (~eps / sigma_min).  The q scale has a floor of a tenth of the
-        completion's Newton tolerance, the noise of the completed q.  The policy's two
+        completion (~eps / sigma_min).  The q scale has a floor of the completion's Newton
+        tolerance: Newton stops once a correction is below it, so the completed q is noisy
+        to that much.  The policy's two
         round-off rules (module doc): the noise of (v, vd) probed and taken off
         (:meth:`_stage_noise`) where the norm exceeds ``noise_err`` and no stage came below
-        ``noise_s``; the q part left out once the passage's steps are cut below
-        ``noise_step`` x its first tangent step."""
+        ``noise_s``; the q part left out once the passage's steps are cut below ``cut`` x
+        its first tangent step."""
         if not self._tangent:
             return super()._error_norm(h, y_new)
         n, C = self.n, self._C

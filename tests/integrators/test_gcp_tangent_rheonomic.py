@@ -34,7 +34,6 @@ from mbsim.analyses.dynamic import dynamic
 from mbsim.analyses.trajectory import make_system
 from mbsim.expr import parse_expression
 from mbsim.integrators import INTEGRATORS, gcp
-from mbsim.integrators import changepoints as cp
 from mbsim.model import compile_model
 from tests.helpers import body, driver, func, joint, pts, spec
 from tests.integrators import models as M
@@ -159,7 +158,7 @@ def test_tangent_accelerations_regular_states(shaken, sparse):
         else:
             assert not np.any(Tm.nu)
         # a regular configuration: gcp would not switch to tangent coordinates here
-        assert integ._pivot_ratio(integ._factor(Tm.jac, integ.part.iu)) > 10 * cp.S_FIXED
+        assert integ._pivot_ratio(integ._factor(Tm.jac, integ.part.iu)) > integ.policy.tangent
         assert np.linalg.cond(J) < 100
         qdd_sys, _, power_sys = system.accelerations(q, qd, t)
         Q = system.generalized_forces(q, qd, t)
@@ -212,7 +211,7 @@ def test_tangent_accelerations_near_flat_position(delta, power_tol):
     power_ex = exact_power(model, qd, qdd_ex, thd, theta_acc(t, th))
     Tm = system.terms(q, t, qd=qd, gamma=True, nu=True)
     assert np.abs(Tm.nu).max() >= 0.4
-    assert integ._pivot_ratio(integ._factor(Tm.jac, integ.part.iu)) < cp.S_FIXED
+    assert integ._pivot_ratio(integ._factor(Tm.jac, integ.part.iu)) < integ.policy.tangent
     part = tangent_partition(integ, exact_state(model, t, np.pi - 1e-2, thd)[0], t)
     qdd, power = integ._tangent_accelerations(t, q, qd, integ._factor_tangent(Tm.jac, part.C),
                                               part)
