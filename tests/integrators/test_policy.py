@@ -197,11 +197,11 @@ def test_step_across_clears_the_point_once_round_off_cuts_the_steps(tableau):
 
 def test_fixed_step_moves_only_where_a_stage_would_meet_the_noise():
     """A fixed step is moved across the point only where the unmoved step would put a stage
-    closer to it than noise_s / RATE (s'(t) = RATE); then into [h/2, 3h/2]."""
+    closer to it than noisy / RATE (s'(t) = RATE); then into [h/2, 3h/2]."""
     pol = policy("index-1", 1e-6, exponent=0.0, fixed=True)
     c = cp.stage_times(ClassicRK4)  # 0, 1/2, 1
-    h = 1e-3
-    for offset, moved in ((0.5 * h + 0.25 * h, False), (0.5 * h + 1e-9, True)):
+    h = 2e-2
+    for offset, moved in ((0.5 * h + 0.25 * h, False), (0.5 * h + 1e-4, True)):
         # the last state sits `offset` before the point: the unmoved step's middle stage
         # lands offset - h/2 from it
         a = cp.Approach(c, h, pol)
@@ -209,7 +209,7 @@ def test_fixed_step_moves_only_where_a_stage_would_meet_the_noise():
         feed(a, [t_last - 3 * h, t_last - 2 * h, t_last - h, t_last])
         assert len(a.points) == 2
         near_stage = abs(offset - 0.5 * h) * RATE
-        assert (near_stage < pol.noise_s) == moved
+        assert (near_stage < pol.noisy) == moved
         got = a.step(h)
         assert (got is not None) == moved
         if moved:
