@@ -82,10 +82,6 @@ class Policy:
         run that asks none, at DEFAULT_RTOL (gcp 6.1e-4, index-1 1e-4).  A run whose s at
         the start is already below the switch keeps the other path (the integrators
         check): a model's scaling is not a change point.
-    noisy: s below which the tangent coordinates' accelerations, three solves from the
-        completed q and qd, carry more round-off than the run asks: :meth:`law` at the
-        rtol the switch keeps (gcp: the switch itself).  A fixed step is moved across the
-        point (:class:`Approach`) only where the unmoved step would put a stage there.
     noise_s: below this s a tangent step's round-off is not taken off its error test
         (index-1 ``_stage_noise``): s = eps^(1/3) = 6.1e-6 (:meth:`law` at rtol 1), where
         the three solves' round-off eps s^-3 is as large as the accelerations themselves,
@@ -126,7 +122,6 @@ class Policy:
     """
 
     tangent: float
-    noisy: float
     noise_s: float
     noise_err: float
     cut: float
@@ -153,7 +148,6 @@ class Policy:
         k = -1.0 / exponent if exponent and not fixed else 0.0
         return cls(
             tangent=s if tangent else 0.0,
-            noisy=cls.law(asked),
             noise_s=cls.law(1.0),
             noise_err=SAFETY ** k if k else 1.0,
             cut=(EPS / rtol) ** (1.0 / k) if k else 1.0,
@@ -320,16 +314,19 @@ class Approach:
       of the point, where the prediction is wrong, keeps them), tried again only once d
       has halved; the error test decides;
     - fixed steps h: a step in [h/2, 3h/2] once d < 3h/2 (the point then at most half a
-      step from the nearest step end of the unmoved grid), where the unmoved step would
-      put a stage below the policy's ``noisy`` (its s extrapolated at the speed -ds/dt of
-      the last step).
+      step from the nearest step end of the unmoved grid), where the motion dwells in the
+      tangent region: where s changes by less than the policy's switch over the widest gap
+      between stage times (at the speed -ds/dt of the last step), so that stages cannot
+      help landing next to the point.  A faster passage has at most one stage of a step
+      in that gap, which the tangent coordinates take as they are: moving it would only
+      put the step's stages in the coordinates' near-singular Phi_u on either side.
     A step across counts as taken when it was accepted at the size tried (a rejected step
     comes back at most base.SAFETY x its size).
     """
 
     def __init__(self, stages, h_fixed, policy):
         self.stages, self.h_fixed = stages, h_fixed  # stages: stage_times
-        self.tangent, self.cut, self.noisy = policy.tangent, policy.cut, policy.noisy
+        self.tangent, self.cut = policy.tangent, policy.cut
         self.h_far = None  # the last accepted step before the approach
         self.last = None  # (t, s) of the last accepted state
         self.rate = 0.0  # -ds/dt between the last two accepted states (> 0: approaching)
@@ -375,8 +372,8 @@ class Approach:
             h = self.h_fixed
             if d >= 1.5 * h:
                 return None
-            if self.rate * clear_step(self.stages, d, h, h)[1] >= self.noisy:
-                return None  # the unmoved step's stages stay out of the noise
+            if self.rate * h * np.diff(self.stages).max() >= self.tangent:
+                return None  # a passage, not a dwell (class doc)
             moved = clear_step(self.stages, d, 0.5 * h, 1.5 * h)[0]
             if moved == h:
                 return None

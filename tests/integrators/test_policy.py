@@ -195,21 +195,19 @@ def test_step_across_clears_the_point_once_round_off_cuts_the_steps(tableau):
     assert a.accepted(times[-1] + h_try, h_try, RATE * abs(T_POINT - times[-1] - h_try))
 
 
-def test_fixed_step_moves_only_where_a_stage_would_meet_the_noise():
-    """A fixed step is moved across the point only where the unmoved step would put a stage
-    closer to it than noisy / RATE (s'(t) = RATE); then into [h/2, 3h/2]."""
+def test_fixed_step_moves_only_where_the_motion_dwells_next_to_the_point():
+    """A fixed step is moved across the point (into [h/2, 3h/2]) only where s changes by
+    less than the switch over the widest gap between stage times (s'(t) = -rate): a dwell,
+    not a passage."""
     pol = policy("index-1", 1e-6, exponent=0.0, fixed=True)
-    c = cp.stage_times(ClassicRK4)  # 0, 1/2, 1
-    h = 2e-2
-    for offset, moved in ((0.5 * h + 0.25 * h, False), (0.5 * h + 1e-4, True)):
-        # the last state sits `offset` before the point: the unmoved step's middle stage
-        # lands offset - h/2 from it
+    c = cp.stage_times(ClassicRK4)  # 0, 1/2, 1: widest gap h/2
+    h = 1e-3
+    for rate, moved in ((0.5 * pol.tangent / (0.5 * h), True), (4 * pol.tangent / h, False)):
         a = cp.Approach(c, h, pol)
-        t_last = T_POINT - offset
-        feed(a, [t_last - 3 * h, t_last - 2 * h, t_last - h, t_last])
+        t_last = T_POINT - 0.6 * h
+        for t in (t_last - 3 * h, t_last - 2 * h, t_last - h, t_last):
+            a.accepted(t, h, rate * (T_POINT - t))
         assert len(a.points) == 2
-        near_stage = abs(offset - 0.5 * h) * RATE
-        assert (near_stage < pol.noisy) == moved
         got = a.step(h)
         assert (got is not None) == moved
         if moved:
