@@ -206,7 +206,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             q = q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
         if C is not None:
             q, qd, fac, T = cp.complete(s, t, q, v, vd, C, self.newton_tol,
-                                         self.policy.newton_iter)
+                                        self.policy.newton_iter)
             if qd is None:
                 self._raise_newton_failure(T, t)
             self._jac = T.jac
@@ -220,7 +220,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             return dx, fac
 
         q, T, fac, ok = cp.newton(s, t, q, correction, self.newton_tol,
-                                         self.policy.newton_iter)
+                                  self.policy.newton_iter)
         if not ok:
             self._raise_newton_failure(T, t)
         nu = T.nu if s.rheonomic else np.zeros(s.m)
@@ -295,10 +295,11 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
                                    f"{ratio:.3g}); tangent coordinates")
 
     def _check_branch(self, t, q, pred):
-        """Reject a Newton solution q of the dependent coordinates far from the RK solution
-        pred of the full q (q' = qd with the method's weights, accurate to the local error):
-        it has jumped to another branch of the constraints (at a change point, e.g. a
-        parallelogram's flat position).  Fixed step: no tolerance to measure it with."""
+        """Reject a Newton solution q of the dependent coordinates more than the policy's
+        ``branch_jump`` tolerances from the RK solution pred of the full q (q' = qd with the
+        method's weights, accurate to the local error): it has jumped to another branch of
+        the constraints (at a change point, e.g. a parallelogram's flat position).  Fixed
+        step: no tolerance to measure it with."""
         if self.h_fixed is not None:
             return
         dev = rms_norm(q - pred, self.atol + self.rtol * np.abs(pred))

@@ -175,7 +175,7 @@ class Index1(RungeKuttaIntegrator):
         vd = C qd (:func:`changepoints.complete`, as gcp's); fac the LU of A = [Phi_q; C]."""
         C = self._C
         x, qdp, fac, T = cp.complete(self.system, t, q, C @ q, C @ qd, C, self.newton_tol,
-                                  self.policy.newton_iter)
+                                     self.policy.newton_iter)
         if qdp is None:
             raise StageFailure(f"t = {t:.6g} s: Newton in tangent coordinates did not "
                                f"converge (max |Phi| = {np.abs(T.phi).max():.3g})")
@@ -188,11 +188,10 @@ class Index1(RungeKuttaIntegrator):
         not that of the full qd, which near the change point carries the round-off of the
         completion (~eps / sigma_min).  The q scale has a floor of the completion's Newton
         tolerance: Newton stops once a correction is below it, so the completed q is noisy
-        to that much.  The policy's two
-        round-off rules (module doc): the noise of (v, vd) probed and taken off
-        (:meth:`_stage_noise`) where the norm exceeds ``noise_err`` and no stage came below
-        ``noise_s``; the q part left out once the passage's steps are cut below ``cut`` x
-        its first tangent step."""
+        to that much.  The policy's two round-off rules (module doc): the noise of (v, vd)
+        probed and taken off (:meth:`_stage_noise`) where the norm exceeds ``noise_err``
+        and no stage came below ``noise_s``; the q part left out once the passage's steps
+        are cut below ``cut`` x its first tangent step."""
         if not self._tangent:
             return super()._error_norm(h, y_new)
         n, C = self.n, self._C
