@@ -78,10 +78,18 @@ class Policy:
           below sqrt(SCHUR_PIVOT_FLOOR) = 1e-4 they raise the Schur pivot, and the
           accelerations are no longer those of the equations; s_index1 = max(1e-4,
           sqrt(eps / rtol)) (the floor holds down to rtol = 2.2e-8).
-        A fixed-step run has no error test and asks no accuracy: its switch is that of a
-        run that asks none, at DEFAULT_RTOL (gcp 6.1e-4, index-1 1e-4).  A run whose s at
-        the start is already below the switch keeps the other path (the integrators
-        check): a model's scaling is not a change point.
+        A fixed-step run has no error test: nothing in it sees either path's round-off or
+        the accuracy its steps deliver (rk4 at 0.25 ms: 1e-12 m on the four cranks, far
+        below any default).  Its switch is where the tangent coordinates themselves meet
+        the accuracy of a run that asks none, :meth:`law` at DEFAULT_RTOL = 6.1e-4, for
+        both families (index-1 at its own law, 1e-4 there: 1.3e-11 m instead).  An index-1 run
+        whose measure at the start, s0, is already below its switch (a tight tolerance on
+        a model whose regular states have s0 ~ 1e-2: the four cranks start at 1.4e-2,
+        below sqrt(eps / rtol) for rtol < 1.2e-12) meets the law nowhere, on either path;
+        a change point is where s falls from its regular value towards 0, so the switch is
+        taken below s0, at the geometric mean of the kernels' floor and s0
+        (:meth:`at_start`; 1.2e-3 on the four cranks).  A start at or below the floor (at
+        the change point itself, where no branch is known) takes no tangent coordinates.
     noise_s: below this s a tangent step's round-off is not taken off its error test
         (index-1 ``_stage_noise``): s = eps^(1/3) = 6.1e-6 (:meth:`law` at rtol 1), where
         the three solves' round-off eps s^-3 is as large as the accelerations themselves,
@@ -140,21 +148,38 @@ class Policy:
         """The policy of a run: family 'gcp' | 'index-1'; fixed: a fixed-step run;
         tangent: False takes no tangent coordinates (index-1 option ``tangent_steps``);
         exponent: the integrator's error exponent -1/k (0: no error estimate); n: nq."""
-        asked = DEFAULT_RTOL if fixed else rtol  # the accuracy the switch keeps
-        if family == "gcp":
-            s = cls.law(asked)
+        if fixed:
+            s = cls.law(DEFAULT_RTOL)
+        elif family == "gcp":
+            s = cls.law(rtol)
         else:
-            s = max(float(np.sqrt(SCHUR_PIVOT_FLOOR)), float(np.sqrt(EPS / asked)))
+            s = max(float(np.sqrt(SCHUR_PIVOT_FLOOR)), float(np.sqrt(EPS / rtol)))
         k = -1.0 / exponent if exponent and not fixed else 0.0
         return cls(
             tangent=s if tangent else 0.0,
             noise_s=cls.law(1.0),
             noise_err=SAFETY ** k if k else 1.0,
             cut=(EPS / rtol) ** (1.0 / k) if k else 1.0,
-            branch_jump=float(np.sqrt(s / rtol)) if s > rtol else np.inf,
+            branch_jump=cls.jump(s, rtol),
             newton_tol=1e-12 if fixed else min(1e-9, max(1e-12, 1e-2 * atol)),
             newton_iter=2 * int(np.ceil(np.log2(-np.log10(EPS)))),
             rank_lost=n * EPS)
+
+    @staticmethod
+    def jump(s, rtol):
+        """branch_jump for the switch s (class doc)."""
+        return float(np.sqrt(s / rtol)) if s > rtol else np.inf
+
+    def at_start(self, s0, rtol):
+        """The policy of an index-1 run whose measure at its start is s0 (class doc,
+        ``tangent``)."""
+        floor = float(np.sqrt(SCHUR_PIVOT_FLOOR))
+        if self.tangent <= s0:
+            return self
+        if s0 <= floor:
+            return self.off()
+        s = float(np.sqrt(floor * s0))
+        return dataclasses.replace(self, tangent=s, branch_jump=self.jump(s, rtol))
 
     def off(self):
         """The same policy without tangent coordinates."""

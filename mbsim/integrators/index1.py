@@ -104,11 +104,11 @@ class Index1(RungeKuttaIntegrator):
         self.counters["straddle_steps"] = 0
         self._approach = None
         if self.policy.tangent > 0.0:
-            # a measure already below the switch at the start is the model's scaling (or a
-            # start at the change point, where no branch is known): no tangent coordinates
+            # a measure already below the switch at the start: a switch below it, or none
+            # at a start next to the change point (changepoints.Policy.at_start)
             system.accelerations(self.q, self.qd, self.t, self.stab)
-            if cp.measure_from_schur(system.pivot_ratio) < self.policy.tangent:
-                self.policy = self.policy.off()
+            self.policy = self.policy.at_start(cp.measure_from_schur(system.pivot_ratio),
+                                               self.rtol)
         if self.policy.tangent > 0.0:
             self._approach = self._new_approach()
         self._compiled = self._compiled_step()
@@ -527,9 +527,10 @@ class Index1(RungeKuttaIntegrator):
         n = self.n
         opt = dict(self.options, h0=last["h"] or self.h_last or None)
         sub = type(self)(self.system, t_s, y_s[:n], y_s[n:2 * n], t, opt)
-        if sub.policy.tangent == 0.0 < self.policy.tangent:
-            # a start next to the change point, where a new run keeps the Schur path: this
-            # run's tangent steps (the start is on its branch)
+        if sub.policy != self.policy and self.policy.tangent > 0.0:
+            # a start next to the change point, where a new run would lower its switch or
+            # keep the Schur path (Policy.at_start): this run's policy (the start is on its
+            # branch)
             sub.policy = self.policy
             sub._approach = sub._new_approach()
         while sub.t < t:

@@ -63,6 +63,22 @@ def test_round_off_thresholds_follow_their_derivations(rtol, exponent):
         assert 1.0 < p.branch_jump < p.tangent / rtol
 
 
+def test_a_start_below_the_switch_takes_the_region_below_it():
+    """index-1 at a tolerance whose switch exceeds the start's measure s0: the switch moves
+    to the geometric mean of the kernels' floor and s0 (below s0, above the floor), with
+    branch_jump recomputed; a start at or below the floor takes no tangent coordinates; a
+    start above the switch keeps the policy."""
+    floor = np.sqrt(cp.SCHUR_PIVOT_FLOOR)
+    p = policy("index-1", 1e-12)
+    s0 = 0.5 * p.tangent
+    q = p.at_start(s0, 1e-12)
+    assert q.tangent == pytest.approx(np.sqrt(floor * s0), rel=REL)
+    assert floor < q.tangent < s0
+    assert q.branch_jump == pytest.approx(np.sqrt(q.tangent / 1e-12), rel=REL)
+    assert p.at_start(0.5 * floor, 1e-12).tangent == 0.0
+    assert p.at_start(2 * p.tangent, 1e-12) == p
+
+
 def test_newton_and_rank_thresholds_follow_eps():
     """newton_iter: twice the quadratic-convergence count from one correct digit to the
     digits of a double; rank_lost: n eps (the factor's backward error)."""
@@ -90,11 +106,12 @@ def test_policy_is_monotone_in_rtol(family):
 
 @pytest.mark.parametrize("family", ["gcp", "index-1"])
 def test_fixed_steps_take_the_policy_of_a_run_that_asks_no_accuracy(family):
-    """No error test: the switch at DEFAULT_RTOL whatever rtol says, no cut, no probe;
+    """No error test: the switch where the tangent coordinates' own round-off meets the
+    default rtol, whatever rtol says; no cut, no probe;
     ``tangent_steps: false`` (index-1) and off() take no tangent coordinates."""
     for rtol in RTOLS:
         p = policy(family, rtol, exponent=0.0, fixed=True)
-        assert p.tangent == policy(family, cp.DEFAULT_RTOL).tangent
+        assert p.tangent == cp.Policy.law(cp.DEFAULT_RTOL)
         assert (p.cut, p.noise_err, p.newton_tol) == (1.0, 1.0, 1e-12)
     p = cp.Policy.for_run(family, 1e-6, 1e-8, False, tangent=False, exponent=-0.2, n=28)
     assert p.tangent == 0.0
