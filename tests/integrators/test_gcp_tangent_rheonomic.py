@@ -127,8 +127,8 @@ TOL = 1e-9
 @pytest.mark.parametrize("sparse", [False, True], ids=["dense", "sparse"])
 @pytest.mark.parametrize("shaken", [True, False], ids=["rheonomic", "scleronomic"])
 def test_tangent_accelerations_regular_states(shaken, sparse):
-    """At regular states (the coordinate partition's Phi_u pivot ratio >= 10 x
-    changepoints.S_FIXED, the switch's smallest value),
+    """At regular states (the coordinate partition's Phi_u pivot ratio above the run's
+    switch, changepoints.Policy.tangent),
     with the tangent partition of the state itself and of a state 0.3 rad away (a rotated
     tangent: the reduced equations are exact for any C with [Phi_q; C] regular), and after
     ``_complete`` rebuilt (q, qd) from v = C q, vd = C qd (Newton started 1e-9 off):
@@ -188,7 +188,7 @@ def test_tangent_accelerations_regular_states(shaken, sparse):
 @pytest.mark.parametrize("delta,power_tol", [(1e-3, 1e-6), (1e-4, 1e-3)])
 def test_tangent_accelerations_near_flat_position(delta, power_tol):
     """delta rad past the flat position theta = pi (Phi_u's pivot ratio below
-    changepoints.S_FIXED (the switch at the default rtol); the tangent partition taken 1e-2
+    the run's switch, changepoints.Policy.tangent); the tangent partition taken 1e-2
     rad before it, as gcp picks it on the way
     in) at t = 0.4 s, where the base moves (nu = s' = 0.43 m/s) and accelerates (s'' = 1.9
     m/s^2):
