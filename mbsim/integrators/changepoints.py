@@ -38,79 +38,105 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from mbsim.integrators.base import SAFETY
 from mbsim.integrators.rk import StageFailure
 
 EPS = float(np.finfo(float).eps)
 
 # -- the policy ------------------------------------------------------------------------------
-# Every constant of the policy, once; Policy's docstring derives each.  s is the measure above
-# (dimensionless); "tolerances" are the scaled RMS norms of the error test (1 = the tolerance).
-SCHUR_PIVOT_FLOOR = 1e-8  # kernels.c PIVOT_FLOOR: Schur pivot / diagonal below which it is raised
-S_FIXED = 1e-3  # s of the tangent switch for fixed steps (no tolerance)
-S_INDEX1_CAP = 10 ** -2.5  # the index-1 switch's largest s (Schur pivot ratio 1e-5)
-S_NOISE = 1e-5  # the round-off probe is not used below this s (Schur pivot ratio 1e-10)
-NEAR_INDEX1 = 10 ** 1.5  # an approach is followed below this x the switch (index-1)
-NEAR_GCP = 3.0  # ... (gcp)
-NOISE_ERR = 0.1  # tangent steps whose error norm exceeds this are probed for round-off
-NOISE_STEP = 1e-2  # steps cut below this x a passage's first tangent step: the q part is noise
-BRANCH_JUMP = 1e3  # tolerances: a completion that moves q farther started off the branch
-APPROACH_CUT = 0.1  # a step cut below this x the last step before the approach: step across
+# The two numbers the policy takes from elsewhere (tests/integrators/test_policy.py checks
+# that each agrees with its source); every threshold is derived from them in Policy.
+SCHUR_PIVOT_FLOOR = 1e-8  # mbsim/fast/kernels.c PIVOT_FLOOR: the Schur factor's smallest
+# pivot / diagonal below which the kernels raise the pivot
+DEFAULT_RTOL = 1e-6  # mbsim.analyses.dynamic.DEFAULTS: the rtol of a run that asks none
 
 
 @dataclasses.dataclass(frozen=True)
 class Policy:
-    """The thresholds of one run near change points (all dimensionless; s is the measure of
-    the module doc, linear in the distance to the point).
+    """The thresholds of one run near change points, each derived below from the machine
+    epsilon eps, the run's tolerances (rtol; atol in m or rad) and the integrator's error
+    exponent -1/k (k: the order of its error estimate + 1; 0 for fixed steps).  s is the
+    measure of the module doc: dimensionless, ~ sigma_min / sigma_max of the active Phi_q,
+    linear in the distance to the point.  Error norms are the scaled RMS norms of the error
+    test (1 = the tolerance); a length L (m) is the mechanism's size, with atol <= rtol L, so
+    that a distance d is d / (rtol L) tolerances.
 
-    tangent: s below which a step's stages are in tangent coordinates (0: never).
-        A solve through a factor whose pivot ratio is s amplifies relative round-off by
-        1/s, and the accelerations come out of three such solves in a row: q from the
-        constraints, qd from the velocity equations with Phi_q(q), qdd from the
-        acceleration equations with Phi_q(q) and gamma(q, qd).  Their relative noise is
-        then eps s^-3, which must stay below what the error test asks, rtol:
-        s < (eps / rtol)^(1/3) = 6.1e-4, 2.8e-3, 1.3e-2, 6.1e-2 at rtol 1e-6, 1e-8, 1e-10,
-        1e-12: gcp's switch, at least S_FIXED.  The index-1 family switches later, at
-        the square of that law, (eps / rtol)^(2/3) = 3.7e-7, 7.9e-6, 1.7e-4, 3.7e-3 at the
-        same tolerances: this exponent is measured, not derived.  Its tangent steps cost
-        more per stage than its Schur path, and the Schur path is accurate there on every
-        motion measured; the derived law itself moved the slow crossing of
-        benchmarks/dead_centre.py (w0 10.51, projection-dop853, rtol 1e-10) from 7.9e-11 m
-        in 0.75 s to 2.9e-10 m in 9 s (eps / rtol, the Schur solve's condition bound: 2.3e-10
-        m, 9.8 s).  Its limits: at least sqrt(SCHUR_PIVOT_FLOOR) = 1e-4, where the
-        kernels' pivot floor changes the Schur solve itself (below it the Schur
-        accelerations are not those of the equations), and at most S_INDEX1_CAP: a run
-        whose s at the start is already below the switch keeps the Schur path (a model's
-        scaling is not a change point), and the seed decks' smallest s at regular states is
-        2.4e-2 (Schur ratio 5.9e-4), eight times the cap.  Fixed steps have no tolerance:
-        S_FIXED, the law at rtol 2e-7, for both families.
-    near: s below which the approach to the point is followed (:class:`Approach`);
-        NEAR_INDEX1 or NEAR_GCP x tangent.
+    tangent: s below which a step's stages are in tangent coordinates (0: never).  A solve
+        through a factor whose smallest pivot ratio is s perturbs its solution by eps / s
+        relative; the switch is the s at which the family's solves leave round-off as large
+        as the error test allows, rtol:
+        - gcp solves three times in a row through Phi_u: q by Newton on Phi(u, v) = 0, qd
+          from Phi_u ud = nu - Phi_v vd with Phi_q(q), qdd with Phi_q(q) and gamma(q, qd): the
+          accelerations carry eps s^-3, so s_gcp = (eps / rtol)^(1/3) (:meth:`law`) =
+          6.1e-4, 2.8e-3, 1.3e-2 at rtol 1e-6, 1e-8, 1e-10.
+        - index-1 integrates q and qd and solves once, for the accelerations, through the
+          Schur complement S = Phi_q M^-1 Phi_q^T, whose pivots go as s^2: a state off the
+          constraints by its round-off moves the multipliers, and with them qdd, by eps s^-2
+          relative (on the four cranks a 4-ulp perturbation of q moves qdd by 1.0-1.5 eps
+          s^-2 of max |qdd| for s from 1e-4 to 4e-2), so the law is sqrt(eps / rtol) =
+          1.5e-5, 1.5e-4, 1.5e-3 at rtol 1e-6, 1e-8, 1e-10.  The kernels add a limit:
+          below sqrt(SCHUR_PIVOT_FLOOR) = 1e-4 they raise the Schur pivot, and the
+          accelerations are no longer those of the equations; s_index1 = max(1e-4,
+          sqrt(eps / rtol)) (the floor holds down to rtol = 2.2e-8).
+        A fixed-step run has no error test: nothing in it sees either path's round-off or
+        the accuracy its steps deliver (rk4 at 0.25 ms: 1e-12 m on the four cranks, far
+        below any default).  Its switch is where the tangent coordinates themselves meet
+        the accuracy of a run that asks none, :meth:`law` at DEFAULT_RTOL = 6.1e-4, for
+        both families (index-1 at its own law, 1e-4 there: 1.3e-11 m instead).  An index-1 run
+        whose measure at the start, s0, is already below its switch (a tight tolerance on
+        a model whose regular states have s0 ~ 1e-2: the four cranks start at 1.4e-2,
+        below sqrt(eps / rtol) for rtol < 1.2e-12) meets the law nowhere, on either path;
+        a change point is where s falls from its regular value towards 0, so the switch is
+        taken below s0, at the geometric mean of the kernels' floor and s0
+        (:meth:`at_start`; 1.2e-3 on the four cranks).  A start at or below the floor (at
+        the change point itself, where no branch is known) takes no tangent coordinates.
     noise_s: below this s a tangent step's round-off is not taken off its error test
-        (index-1 ``_stage_noise``): there the noise is that of a crossing, unbounded.
-    noise_err: error norms above this are probed for round-off (a norm below it passes
-        anyway; the probe costs two completions).
-    noise_step: once a passage's steps are cut below this x its first tangent step, the
-        error test of the full q (index-1) is left out: an embedded estimate of
-        truncation error falls like h^(p+1), so what still cuts the step is round-off.
+        (index-1 ``_stage_noise``): s = eps^(1/3) = 6.1e-6 (:meth:`law` at rtol 1), where
+        the three solves' round-off eps s^-3 is as large as the accelerations themselves,
+        so that a probe of it measures nothing and taking it off would pass any step.
+    noise_err: error norms above this are probed for round-off: SAFETY^k (base.SAFETY =
+        0.9; 0.43 for DOP853, k = 8; 0.59 for Dormand-Prince 5(4), k = 5), the norm above
+        which the step-size controller makes the next step smaller than this one (h_new =
+        h SAFETY err^(-1/k), the PI memory aside).  Below it the step passes and the next
+        one grows whatever the round-off is; the probe costs two completions.
+    cut: a step cut below this x a reference step is cut by round-off, not by truncation
+        error: (eps / rtol)^(1/k).  At the reference step the error norm was ~1; an
+        embedded estimate of truncation error falls like h^k, so at cut x that step it is
+        eps / rtol, the round-off of q ~ L in tolerances (0.062, 0.11, 0.20 at rtol 1e-6,
+        1e-8, 1e-10 for DOP853; 0.012, 0.034, 0.073 for 5(4)).  Two uses: once a passage's
+        steps are cut below cut x its first tangent step, the error test of the full q
+        (index-1) is left out; once an adaptive step is cut below cut x the last step before
+        the approach, the approach tries a step across the point (:class:`Approach`).
+        1 for fixed steps (no cuts).
     branch_jump: a completion that moves q by more than this many tolerances started off
-        the step's branch (gcp rejects the step; index-1 dense output completes another
-        interpolant).  The RK prediction it starts from is accurate to the local error,
-        about one tolerance; the other branch lies s x (the mechanism's size) away.
-    cut: an adaptive step cut below this x the last step before the approach makes the
-        approach try a step across the point.
+        the step's branch (gcp rejects the stage; index-1 dense output completes another
+        interpolant).  The prediction it starts from (an RK combination, or the RK
+        interpolant) is accurate to the local error, ~1 tolerance; where the coordinates
+        change (s = tangent) the other branch lies tangent x L away, tangent / rtol
+        tolerances.  The threshold is the geometric mean of the two, sqrt(tangent / rtol):
+        a factor sqrt(tangent / rtol) from each (gcp 25, 530, 1.1e4; index-1 10, 120, 3900
+        at rtol 1e-6, 1e-8, 1e-10).  Where tangent <= rtol the two branches lie within one
+        tolerance of each other, which the error test cannot tell apart: no check (inf).
     newton_tol: the completion's Newton tolerance on max |dq| (m or rad): a hundredth of
         atol, within [1e-12, 1e-9] (1e-12 for fixed steps): its own error stays two orders
         below the error test's, and above the round-off of q ~ 1 (Newton stagnates there).
+    newton_iter: the completion's most Newton iterations: quadratic convergence doubles the
+        correct digits per iteration, from one (a start within the local error) to the 16
+        of a double in ceil(log2(-log10 eps)) = 4; twice that for a start outside the
+        quadratic regime.
+    rank_lost: s at which the active Phi_q has lost rank (no partition exists): n eps, the
+        backward error of its QR or LU factor (Higham, Accuracy and Stability, Thm 19.4;
+        n = nq), below which a pivot is round-off.
     """
 
     tangent: float
-    near: float
     noise_s: float
     noise_err: float
-    noise_step: float
-    branch_jump: float
     cut: float
+    branch_jump: float
     newton_tol: float
+    newton_iter: int
+    rank_lost: float
 
     @staticmethod
     def law(rtol):
@@ -118,25 +144,46 @@ class Policy:
         return (EPS / rtol) ** (1.0 / 3.0)
 
     @classmethod
-    def for_run(cls, family, rtol, atol, fixed, tangent=True):
+    def for_run(cls, family, rtol, atol, fixed, tangent=True, *, exponent, n):
         """The policy of a run: family 'gcp' | 'index-1'; fixed: a fixed-step run;
-        tangent: False takes no tangent coordinates (index-1 option ``tangent_steps``)."""
+        tangent: False takes no tangent coordinates (index-1 option ``tangent_steps``);
+        exponent: the integrator's error exponent -1/k (0: no error estimate); n: nq."""
         if fixed:
-            s = S_FIXED
+            s = cls.law(DEFAULT_RTOL)
         elif family == "gcp":
-            s = max(S_FIXED, cls.law(rtol))
+            s = cls.law(rtol)
         else:
-            s = min(S_INDEX1_CAP, max(np.sqrt(SCHUR_PIVOT_FLOOR), cls.law(rtol) ** 2))
-        s = s if tangent else 0.0
-        near = (NEAR_GCP if family == "gcp" else NEAR_INDEX1) * s
-        newton_tol = 1e-12 if fixed else min(1e-9, max(1e-12, 1e-2 * atol))
-        return cls(tangent=s, near=near, noise_s=S_NOISE, noise_err=NOISE_ERR,
-                   noise_step=NOISE_STEP, branch_jump=BRANCH_JUMP, cut=APPROACH_CUT,
-                   newton_tol=newton_tol)
+            s = max(float(np.sqrt(SCHUR_PIVOT_FLOOR)), float(np.sqrt(EPS / rtol)))
+        k = -1.0 / exponent if exponent and not fixed else 0.0
+        return cls(
+            tangent=s if tangent else 0.0,
+            noise_s=cls.law(1.0),
+            noise_err=SAFETY ** k if k else 1.0,
+            cut=(EPS / rtol) ** (1.0 / k) if k else 1.0,
+            branch_jump=cls.jump(s, rtol),
+            newton_tol=1e-12 if fixed else min(1e-9, max(1e-12, 1e-2 * atol)),
+            newton_iter=2 * int(np.ceil(np.log2(-np.log10(EPS)))),
+            rank_lost=n * EPS)
+
+    @staticmethod
+    def jump(s, rtol):
+        """branch_jump for the switch s (class doc)."""
+        return float(np.sqrt(s / rtol)) if s > rtol else np.inf
+
+    def at_start(self, s0, rtol):
+        """The policy of an index-1 run whose measure at its start is s0 (class doc,
+        ``tangent``)."""
+        floor = float(np.sqrt(SCHUR_PIVOT_FLOOR))
+        if self.tangent <= s0:
+            return self
+        if s0 <= floor:
+            return self.off()
+        s = float(np.sqrt(floor * s0))
+        return dataclasses.replace(self, tangent=s, branch_jump=self.jump(s, rtol))
 
     def off(self):
         """The same policy without tangent coordinates."""
-        return dataclasses.replace(self, tangent=0.0, near=0.0)
+        return dataclasses.replace(self, tangent=0.0)
 
 
 def measure_from_schur(pivot_ratio):
@@ -267,47 +314,74 @@ class Approach:
     """A motion's approach to a change point, and the step across it.
 
     Near the point the tangent coordinates' accelerations carry round-off that grows like
-    s^-3 (the policy's three solves; about 3e-21 s^-3 in C qdd on the four cranks): the
-    completed state lies on a computed constraint set u w = eps whose curvature near the
-    crossing u = w = 0 is ~ eps / theta^3.  A motion that approaches the point slowly has
-    its steps cut by that noise as it nears the point, ~ distance^3, and never arrives.  A
-    step across instead whose stages stay clear of the point meets only the noise of its
-    nearest stage, which falls with the step (a DOP853 step of 1e-2 s with the point midway
-    between its stages at c = 1/3 and 0.6 keeps them 1.3e-3 s from it).  Fixed steps meet
-    the same noise wherever a stage lands next to the point.
+    s^-3 (the policy's three solves): the completed state lies on a computed constraint set
+    u w = eps whose curvature near the crossing u = w = 0 is ~ eps / theta^3.  A motion that
+    approaches the point slowly has its steps cut by that noise as it nears the point,
+    ~ distance^3, and never arrives.  A step across instead whose stages stay clear of the
+    point meets only the noise of its nearest stage, which falls with the step (a DOP853
+    step of 1e-2 s with the point midway between its stages at c = 1/3 and 0.6 keeps them
+    1.3e-3 s from it).  Fixed steps meet the same noise wherever a stage lands next to the
+    point.
 
     So after each accepted step the integrator reports s (the measure, linear in the
-    distance to the point).  While s is below the policy's ``near``, the time d to the point
-    is extrapolated linearly from the last two states (:func:`crossing_time`), and
-    :meth:`step` gives the step to try instead of the one proposed: the step whose stages,
-    dense output's included, lie farthest from the point (:func:`clear_step`) among
+    distance to the point).  The approach is followed from the first state whose s lies
+    within two steps of the policy's switch at the speed s fell over the last step,
+    s < tangent + 2 h (-ds/dt) (:meth:`near`): the steps that reach the switch are then two
+    accepted states of the approach, enough to extrapolate; it ends where s rises above the
+    s at which it began.  Meanwhile the time d to the point is extrapolated linearly from
+    the last two states (:func:`crossing_time`), and :meth:`step` gives the step to try
+    instead of the one proposed: the step whose stages, dense output's included, lie
+    farthest from the point (:func:`clear_step`) among
     - adaptive steps that cross it, of at most the larger of the proposed step and the
       last step before the approach (their truncation error), once the proposed step has
-      been cut below the policy's ``cut`` x that last one (uncut, the controller's steps
-      pass the point as they are: a motion that turns short of the point, where the
-      prediction is wrong, keeps them), tried again only once d has halved; the error test
-      decides;
-    - fixed steps h: a step in [h/2, 3h/2] once d < 3h/2.
+      been cut below the policy's ``cut`` x that last one (what cuts it is round-off;
+      uncut, the controller's steps pass the point as they are: a motion that turns short
+      of the point, where the prediction is wrong, keeps them), tried again only once d
+      has halved; the error test decides;
+    - fixed steps h: a step in [h/2, 3h/2] once d < 3h/2 (the point then at most half a
+      step from the nearest step end of the unmoved grid), where the motion dwells in the
+      tangent region: where s changes by less than the policy's switch over the widest gap
+      between stage times (at the speed -ds/dt of the last step), so that stages cannot
+      help landing next to the point.  A faster passage has at most one stage of a step
+      in that gap, which the tangent coordinates take as they are: moving it would only
+      put the step's stages in the coordinates' near-singular Phi_u on either side.
+    A step across counts as taken when it was accepted at the size tried (a rejected step
+    comes back at most base.SAFETY x its size).
     """
 
     def __init__(self, stages, h_fixed, policy):
         self.stages, self.h_fixed = stages, h_fixed  # stages: stage_times
-        self.near, self.cut = policy.near, policy.cut
+        self.tangent, self.cut = policy.tangent, policy.cut
         self.h_far = None  # the last accepted step before the approach
+        self.last = None  # (t, s) of the last accepted state
+        self.rate = 0.0  # -ds/dt between the last two accepted states (> 0: approaching)
+        self.entry = None  # s where the approach began (None: no approach)
         self.points = ()  # (t, s) of the last two accepted states of the approach
         self.d_tried = np.inf  # the predicted distance at the last step tried across
         self.tried = None  # the step size tried by the current step, if any
 
+    def near(self, h):
+        """s below which a state after a step of size h belongs to the approach (class
+        doc): the s where it began, or the switch plus two steps' fall."""
+        if self.entry is not None:
+            return self.entry
+        return self.tangent + 2.0 * h * max(self.rate, 0.0)
+
     def accepted(self, t, h, s):
         """After an accepted step of size h to t, s there (None: not comparable with the
         earlier ones, e.g. a new coordinate partition); True when it was a step across."""
-        across = self.tried is not None and h >= 0.99 * self.tried
+        across = self.tried is not None and h >= SAFETY * self.tried
         self.tried = None
         if s is None:
-            self.points = ()
-        elif s >= self.near:
-            self.h_far, self.points, self.d_tried = h, (), np.inf
+            self.points, self.last, self.rate = (), None, 0.0
+            return across
+        if self.last is not None and t > self.last[0]:
+            self.rate = (self.last[1] - s) / (t - self.last[0])
+        self.last = (t, s)
+        if s >= self.near(h):
+            self.h_far, self.points, self.d_tried, self.entry = h, (), np.inf, None
         else:
+            self.entry = s if self.entry is None else self.entry
             self.points = (self.points + ((t, s),))[-2:]
         return across
 
@@ -323,6 +397,8 @@ class Approach:
             h = self.h_fixed
             if d >= 1.5 * h:
                 return None
+            if self.rate * h * np.diff(self.stages).max() >= self.tangent:
+                return None  # a passage, not a dwell (class doc)
             moved = clear_step(self.stages, d, 0.5 * h, 1.5 * h)[0]
             if moved == h:
                 return None
@@ -333,7 +409,7 @@ class Approach:
             if not (d < h_cap and d <= 0.5 * self.d_tried):
                 return None
             self.d_tried = d
-            moved = clear_step(self.stages, d, d * (1 + 1e-9), h_cap)[0]
+            moved = clear_step(self.stages, d, d * (1 + EPS ** 0.5), h_cap)[0]
         self.tried = moved
         return moved
 

@@ -88,7 +88,6 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
     formulation = "gcp"
     repartition_ratio = 1.2
     partition_method = "nullspace"
-    max_newton = 8
 
     def __init__(self, system, t0, q0, qd0, t_bound, options=None):
         super().__init__(system, t0, q0, qd0, t_bound, options)
@@ -98,7 +97,8 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         if self.method not in ("nullspace", "lu"):
             raise ValueError(f"partition: expected nullspace | lu, got {self.method!r}")
         # the change-point policy (changepoints.Policy)
-        self.policy = cp.Policy.for_run("gcp", self.rtol, self.atol, self.h_fixed is not None)
+        self.policy = cp.Policy.for_run("gcp", self.rtol, self.atol, self.h_fixed is not None,
+                                        exponent=self.error_exponent, n=self.n)
         self.newton_tol = float(self.options.get("newton_tol", self.policy.newton_tol))
         self.counters["repartitions"] = 0
         self.counters["tangent_partitions"] = 0
@@ -138,7 +138,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             d = np.abs(np.diag(R))
             _, piv = la.qr(Qf[:, m:].T, mode="r", pivoting=True, check_finite=False)
             iu = np.setdiff1d(np.arange(self.n), piv[:k])
-        if d.size and d.min() <= 1e-12 * d.max():
+        if d.size and d.min() <= self.policy.rank_lost * d.max():
             raise StageFailure("the constraint Jacobian lost rank: no set of dependent "
                                "coordinates (a lock-up or a bifurcation)")
         iv = np.setdiff1d(np.arange(self.n), iu)
@@ -205,7 +205,8 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             tau = t - t0
             q = q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
         if C is not None:
-            q, qd, fac, T = cp.complete(s, t, q, v, vd, C, self.newton_tol, self.max_newton)
+            q, qd, fac, T = cp.complete(s, t, q, v, vd, C, self.newton_tol,
+                                        self.policy.newton_iter)
             if qd is None:
                 self._raise_newton_failure(T, t)
             self._jac = T.jac
@@ -218,7 +219,8 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             dx[iu] = self._solve(fac, T.phi)
             return dx, fac
 
-        q, T, fac, ok = cp.newton(s, t, q, correction, self.newton_tol, self.max_newton)
+        q, T, fac, ok = cp.newton(s, t, q, correction, self.newton_tol,
+                                  self.policy.newton_iter)
         if not ok:
             self._raise_newton_failure(T, t)
         nu = T.nu if s.rheonomic else np.zeros(s.m)
@@ -293,10 +295,11 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
                                    f"{ratio:.3g}); tangent coordinates")
 
     def _check_branch(self, t, q, pred):
-        """Reject a Newton solution q of the dependent coordinates far from the RK solution
-        pred of the full q (q' = qd with the method's weights, accurate to the local error):
-        it has jumped to another branch of the constraints (at a change point, e.g. a
-        parallelogram's flat position).  Fixed step: no tolerance to measure it with."""
+        """Reject a Newton solution q of the dependent coordinates more than the policy's
+        ``branch_jump`` tolerances from the RK solution pred of the full q (q' = qd with the
+        method's weights, accurate to the local error): it has jumped to another branch of
+        the constraints (at a change point, e.g. a parallelogram's flat position).  Fixed
+        step: no tolerance to measure it with."""
         if self.h_fixed is not None:
             return
         dev = rms_norm(q - pred, self.atol + self.rtol * np.abs(pred))

@@ -30,17 +30,18 @@ path; so does ``drift_bound: false``.
 In the region the error test sees round-off, not truncation error, in two places, and the
 policy takes each off: the completed stage velocities carry round-off that grows as s falls,
 which the full-q part of the error test would read as error, so that part is left out once
-a passage's steps are cut below ``Policy.noise_step`` x its first tangent step (an embedded
-estimate of truncation error falls like h^(p+1): what still cuts the step is the round-off;
+a passage's steps are cut below ``Policy.cut`` x its first tangent step (an embedded
+estimate of truncation error falls like h^k: what still cuts the step is the round-off;
 :meth:`Index1._error_norm`); and where the motion dwells next to the point without crossing
 it, the error test takes off what the stages' round-off alone makes, probed by two
 completions from q perturbed by ROUNDOFF_ULPS ulps (:meth:`Index1._stage_noise`).  A motion
 that approaches the point slowly is given a step across it that keeps its stages clear of
 it (:class:`changepoints.Approach`; counter ``straddle_steps``).
 
-Option ``tangent_steps`` (default true; false keeps the Schur path everywhere).  The
-measurements behind these choices are in docs/benchmarks.md (python
-benchmarks/singular_loops.py, benchmarks/dead_centre.py).
+Option ``tangent_steps`` (default true; false keeps the Schur path everywhere).  Every
+threshold of these rules is the policy's (:class:`changepoints.Policy`, which derives each);
+their effect is measured in docs/benchmarks.md (python benchmarks/singular_loops.py,
+benchmarks/dead_centre.py).
 """
 
 from __future__ import annotations
@@ -84,7 +85,8 @@ class Index1(RungeKuttaIntegrator):
             self.counters["output_steps"] = 0  # steps of outputs integrated to (dense output)
         # the change-point policy (changepoints.Policy; module doc: ``tangent_steps``)
         self.policy = cp.Policy.for_run("index-1", self.rtol, self.atol, self.h_fixed is not None,
-                                        bool(self.options.get("tangent_steps", True)))
+                                        bool(self.options.get("tangent_steps", True)),
+                                        exponent=self.error_exponent, n=n)
         self.newton_tol = float(self.options.get("newton_tol", self.policy.newton_tol))
         self.counters["tangent_stages"] = 0
         self.counters["noise_limited_steps"] = 0
@@ -102,11 +104,11 @@ class Index1(RungeKuttaIntegrator):
         self.counters["straddle_steps"] = 0
         self._approach = None
         if self.policy.tangent > 0.0:
-            # a measure already below the switch at the start is the model's scaling (or a
-            # start at the change point, where no branch is known): no tangent coordinates
+            # a measure already below the switch at the start: a switch below it, or none
+            # at a start next to the change point (changepoints.Policy.at_start)
             system.accelerations(self.q, self.qd, self.t, self.stab)
-            if cp.measure_from_schur(system.pivot_ratio) < self.policy.tangent:
-                self.policy = self.policy.off()
+            self.policy = self.policy.at_start(cp.measure_from_schur(system.pivot_ratio),
+                                               self.rtol)
         if self.policy.tangent > 0.0:
             self._approach = self._new_approach()
         self._compiled = self._compiled_step()
@@ -172,7 +174,8 @@ class Index1(RungeKuttaIntegrator):
         """(q, qd, fac) on Phi = 0, Phi_q qd = nu with the same tangent coordinates v = C q,
         vd = C qd (:func:`changepoints.complete`, as gcp's); fac the LU of A = [Phi_q; C]."""
         C = self._C
-        x, qdp, fac, T = cp.complete(self.system, t, q, C @ q, C @ qd, C, self.newton_tol, 8)
+        x, qdp, fac, T = cp.complete(self.system, t, q, C @ q, C @ qd, C, self.newton_tol,
+                                     self.policy.newton_iter)
         if qdp is None:
             raise StageFailure(f"t = {t:.6g} s: Newton in tangent coordinates did not "
                                f"converge (max |Phi| = {np.abs(T.phi).max():.3g})")
@@ -183,12 +186,12 @@ class Index1(RungeKuttaIntegrator):
         embedded error of the full q from the stages' completed velocities (gcp's
         _extra_error: a step that (v, vd) accepts can still be off in q across the point);
         not that of the full qd, which near the change point carries the round-off of the
-        completion (~eps / sigma_min).  The q scale has a floor of a tenth of the
-        completion's Newton tolerance, the noise of the completed q.  The policy's two
-        round-off rules (module doc): the noise of (v, vd) probed and taken off
-        (:meth:`_stage_noise`) where the norm exceeds ``noise_err`` and no stage came below
-        ``noise_s``; the q part left out once the passage's steps are cut below
-        ``noise_step`` x its first tangent step."""
+        completion (~eps / sigma_min).  The q scale has a floor of the completion's Newton
+        tolerance: Newton stops once a correction is below it, so the completed q is noisy
+        to that much.  The policy's two round-off rules (module doc): the noise of (v, vd)
+        probed and taken off (:meth:`_stage_noise`) where the norm exceeds ``noise_err``
+        and no stage came below ``noise_s``; the q part left out once the passage's steps
+        are cut below ``cut`` x its first tangent step."""
         if not self._tangent:
             return super()._error_norm(h, y_new)
         n, C = self.n, self._C
@@ -207,9 +210,9 @@ class Index1(RungeKuttaIntegrator):
                 err_v = floored
         if self._tangent_h0 is None:
             self._tangent_h0 = h
-        if h < self.policy.noise_step * self._tangent_h0:
+        if h < self.policy.cut * self._tangent_h0:
             return err_v
-        scale_q = (self.atol + 0.1 * self.newton_tol
+        scale_q = (self.atol + self.newton_tol
                    + self.rtol * np.maximum(np.abs(self.y[:n]), np.abs(y_new[:n])))
         return max(err_v, self.tableau.error_norm(self.K[:, :n], h, scale_q))
 
@@ -297,7 +300,7 @@ class Index1(RungeKuttaIntegrator):
             h_min=self.h_min, h_fixed=self.h_fixed or 0.0, err_old=self._err_old,
             exponent=self.error_exponent, beta=self.pi_beta, safety=base.SAFETY,
             min_factor=base.MIN_FACTOR, max_factor=base.MAX_FACTOR,
-            near=approach.near if approach is not None else 0.0,
+            near=approach.near(self.h_abs) if approach is not None else 0.0,
             stall_floor=base.STALL_FLOOR, max_steps=max_steps, max_rejects=base.MAX_REJECTS)
         ends = None
         if self.step_ends is not None:
@@ -524,9 +527,10 @@ class Index1(RungeKuttaIntegrator):
         n = self.n
         opt = dict(self.options, h0=last["h"] or self.h_last or None)
         sub = type(self)(self.system, t_s, y_s[:n], y_s[n:2 * n], t, opt)
-        if sub.policy.tangent == 0.0 < self.policy.tangent:
-            # a start next to the change point, where a new run keeps the Schur path: this
-            # run's tangent steps (the start is on its branch)
+        if sub.policy != self.policy and self.policy.tangent > 0.0:
+            # a start next to the change point, where a new run would lower its switch or
+            # keep the Schur path (Policy.at_start): this run's policy (the start is on its
+            # branch)
             sub.policy = self.policy
             sub._approach = sub._new_approach()
         while sub.t < t:

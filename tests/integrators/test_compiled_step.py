@@ -238,8 +238,8 @@ def test_a_loop_of_steps_in_c_takes_the_steps_of_one_by_one(kind, name, method, 
     for key in ("steps", "rejected_steps", "function_evaluations", "factorizations"):
         assert ca[key] == cb[key], key
     if h is None and method != "baumgarte":  # (Baumgarte's drift test is Python; the
-        # fixed step's change-point approach starts further from the point, at s = 0.03
-        # (changepoints S_FIXED x NEAR_INDEX1), and leaves the steps there to Python)
+        # fixed step's change-point approach starts two steps before its switch
+        # (changepoints.Approach), and leaves the steps there to Python)
         assert calls == len(outputs) < ca["steps"] - 1
 
 

@@ -34,7 +34,6 @@ from mbsim.analyses.dynamic import dynamic
 from mbsim.analyses.trajectory import make_system
 from mbsim.expr import parse_expression
 from mbsim.integrators import INTEGRATORS, gcp
-from mbsim.integrators import changepoints as cp
 from mbsim.model import compile_model
 from tests.helpers import body, driver, func, joint, pts, spec
 from tests.integrators import models as M
@@ -128,8 +127,8 @@ TOL = 1e-9
 @pytest.mark.parametrize("sparse", [False, True], ids=["dense", "sparse"])
 @pytest.mark.parametrize("shaken", [True, False], ids=["rheonomic", "scleronomic"])
 def test_tangent_accelerations_regular_states(shaken, sparse):
-    """At regular states (the coordinate partition's Phi_u pivot ratio >= 10 x
-    changepoints.S_FIXED, the switch's smallest value),
+    """At regular states (the coordinate partition's Phi_u pivot ratio above the run's
+    switch, changepoints.Policy.tangent),
     with the tangent partition of the state itself and of a state 0.3 rad away (a rotated
     tangent: the reduced equations are exact for any C with [Phi_q; C] regular), and after
     ``_complete`` rebuilt (q, qd) from v = C q, vd = C qd (Newton started 1e-9 off):
@@ -159,7 +158,7 @@ def test_tangent_accelerations_regular_states(shaken, sparse):
         else:
             assert not np.any(Tm.nu)
         # a regular configuration: gcp would not switch to tangent coordinates here
-        assert integ._pivot_ratio(integ._factor(Tm.jac, integ.part.iu)) > 10 * cp.S_FIXED
+        assert integ._pivot_ratio(integ._factor(Tm.jac, integ.part.iu)) > integ.policy.tangent
         assert np.linalg.cond(J) < 100
         qdd_sys, _, power_sys = system.accelerations(q, qd, t)
         Q = system.generalized_forces(q, qd, t)
@@ -189,7 +188,7 @@ def test_tangent_accelerations_regular_states(shaken, sparse):
 @pytest.mark.parametrize("delta,power_tol", [(1e-3, 1e-6), (1e-4, 1e-3)])
 def test_tangent_accelerations_near_flat_position(delta, power_tol):
     """delta rad past the flat position theta = pi (Phi_u's pivot ratio below
-    changepoints.S_FIXED (the switch at the default rtol); the tangent partition taken 1e-2
+    the run's switch, changepoints.Policy.tangent); the tangent partition taken 1e-2
     rad before it, as gcp picks it on the way
     in) at t = 0.4 s, where the base moves (nu = s' = 0.43 m/s) and accelerates (s'' = 1.9
     m/s^2):
@@ -212,7 +211,7 @@ def test_tangent_accelerations_near_flat_position(delta, power_tol):
     power_ex = exact_power(model, qd, qdd_ex, thd, theta_acc(t, th))
     Tm = system.terms(q, t, qd=qd, gamma=True, nu=True)
     assert np.abs(Tm.nu).max() >= 0.4
-    assert integ._pivot_ratio(integ._factor(Tm.jac, integ.part.iu)) < cp.S_FIXED
+    assert integ._pivot_ratio(integ._factor(Tm.jac, integ.part.iu)) < integ.policy.tangent
     part = tangent_partition(integ, exact_state(model, t, np.pi - 1e-2, thd)[0], t)
     qdd, power = integ._tangent_accelerations(t, q, qd, integ._factor_tangent(Tm.jac, part.C),
                                               part)

@@ -1,0 +1,231 @@
+"""The change-point policy (mbsim/integrators/changepoints.py, Policy and Approach): each
+threshold against the derivation its docstring gives, the policy's direction in rtol, the two
+numbers it takes from elsewhere against their sources, no change-point threshold outside the
+module, and the approach's bookkeeping on a measure s(t) known in closed form."""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mbsim.integrators import base
+from mbsim.integrators import changepoints as cp
+from mbsim.integrators.rk import ClassicRK4, Dop853, DormandPrince54
+
+ROOT = Path(__file__).resolve().parents[2]
+EPS = np.finfo(float).eps
+RTOLS = (1e-4, 1e-6, 1e-8, 1e-10, 1e-12)
+# the error exponents -1/k of the adaptive pairs: DOP853 (k = 8), Dormand-Prince 5(4) (k = 5)
+EXPONENTS = (-1.0 / (Dop853.error_order + 1), -1.0 / (DormandPrince54.error_order + 1))
+REL = 1e-12  # relative tolerance of a closed-form law evaluated in floating point
+
+
+def policy(family, rtol, exponent=EXPONENTS[0], fixed=False, n=28):
+    return cp.Policy.for_run(family, rtol, rtol / 100, fixed, exponent=exponent, n=n)
+
+
+@pytest.mark.parametrize("rtol", RTOLS)
+def test_switch_is_where_the_family_round_off_reaches_rtol(rtol):
+    """gcp: three solves leave eps s^-3, equal to rtol at the switch; index-1: the Schur
+    complement's eps s^-2, at most rtol at the switch, which is the kernels' Schur pivot
+    floor (sqrt of it in s) wherever that is the larger."""
+    g, i = policy("gcp", rtol), policy("index-1", rtol)
+    assert EPS * g.tangent ** -3 == pytest.approx(rtol, rel=REL)
+    assert EPS * i.tangent ** -2 <= rtol * (1 + REL)
+    floor = np.sqrt(cp.SCHUR_PIVOT_FLOOR)
+    assert i.tangent == pytest.approx(max(floor, np.sqrt(EPS / rtol)), rel=REL)
+    assert i.tangent >= floor
+
+
+@pytest.mark.parametrize("exponent", EXPONENTS)
+@pytest.mark.parametrize("rtol", RTOLS)
+def test_round_off_thresholds_follow_their_derivations(rtol, exponent):
+    """noise_s: eps s^-3 = 1 (round-off as large as the accelerations); noise_err: the error
+    norm at which the controller's next step equals this one (SAFETY err^(-1/k) = 1); cut:
+    a step cut by it has the truncation error eps / rtol of a step that had norm 1
+    (cut^k = eps / rtol); branch_jump: sqrt(tangent / rtol), as many tolerances from the
+    prediction's error (1) as from the other branch (tangent / rtol)."""
+    k = -1.0 / exponent
+    for family in ("gcp", "index-1"):
+        p = policy(family, rtol, exponent)
+        assert EPS * p.noise_s ** -3 == pytest.approx(1.0, rel=REL)
+        assert base.SAFETY * p.noise_err ** (-1.0 / k) == pytest.approx(1.0, rel=REL)
+        assert p.cut ** k == pytest.approx(EPS / rtol, rel=REL)
+        if p.tangent <= rtol:  # the branches within a tolerance: no check
+            assert p.branch_jump == np.inf
+            continue
+        assert p.branch_jump / 1.0 == pytest.approx((p.tangent / rtol) / p.branch_jump,
+                                                    rel=REL)
+        assert 1.0 < p.branch_jump < p.tangent / rtol
+
+
+def test_a_start_below_the_switch_takes_the_region_below_it():
+    """index-1 at a tolerance whose switch exceeds the start's measure s0: the switch moves
+    to the geometric mean of the kernels' floor and s0 (below s0, above the floor), with
+    branch_jump recomputed; a start at or below the floor takes no tangent coordinates; a
+    start above the switch keeps the policy."""
+    floor = np.sqrt(cp.SCHUR_PIVOT_FLOOR)
+    p = policy("index-1", 1e-12)
+    s0 = 0.5 * p.tangent
+    q = p.at_start(s0, 1e-12)
+    assert q.tangent == pytest.approx(np.sqrt(floor * s0), rel=REL)
+    assert floor < q.tangent < s0
+    assert q.branch_jump == pytest.approx(np.sqrt(q.tangent / 1e-12), rel=REL)
+    assert p.at_start(0.5 * floor, 1e-12).tangent == 0.0
+    assert p.at_start(2 * p.tangent, 1e-12) == p
+
+
+def test_newton_and_rank_thresholds_follow_eps():
+    """newton_iter: twice the quadratic-convergence count from one correct digit to the
+    digits of a double; rank_lost: n eps (the factor's backward error)."""
+    p = policy("gcp", 1e-8, n=41)
+    digits = -np.log10(EPS)
+    assert 2 ** (p.newton_iter // 2) >= digits > 2 ** (p.newton_iter // 2 - 1)
+    assert p.rank_lost == pytest.approx(41 * EPS, rel=REL)
+
+
+@pytest.mark.parametrize("family", ["gcp", "index-1"])
+def test_policy_is_monotone_in_rtol(family):
+    """A tighter tolerance never shrinks the tangent region, the cut or the branch-jump
+    threshold, and leaves the rtol-free thresholds alone."""
+    for exponent in EXPONENTS:
+        ps = [policy(family, r, exponent) for r in RTOLS]  # loosest first
+        for a, b in zip(ps, ps[1:]):
+            assert b.tangent >= a.tangent
+            assert b.cut >= a.cut
+            assert b.branch_jump >= a.branch_jump or a.branch_jump == np.inf
+            assert (b.noise_s, b.noise_err, b.newton_iter) == (a.noise_s, a.noise_err,
+                                                               a.newton_iter)
+            assert b.newton_tol <= a.newton_tol
+        assert all(0.0 < p.cut < 1.0 and 0.0 < p.noise_err < 1.0 for p in ps)
+
+
+@pytest.mark.parametrize("family", ["gcp", "index-1"])
+def test_fixed_steps_take_the_policy_of_a_run_that_asks_no_accuracy(family):
+    """No error test: the switch where the tangent coordinates' own round-off meets the
+    default rtol, whatever rtol says; no cut, no probe;
+    ``tangent_steps: false`` (index-1) and off() take no tangent coordinates."""
+    for rtol in RTOLS:
+        p = policy(family, rtol, exponent=0.0, fixed=True)
+        assert p.tangent == cp.Policy.law(cp.DEFAULT_RTOL)
+        assert (p.cut, p.noise_err, p.newton_tol) == (1.0, 1.0, 1e-12)
+    p = cp.Policy.for_run(family, 1e-6, 1e-8, False, tangent=False, exponent=-0.2, n=28)
+    assert p.tangent == 0.0
+    assert policy(family, 1e-8).off().tangent == 0.0
+
+
+def test_numbers_taken_from_elsewhere_agree_with_their_sources():
+    """SCHUR_PIVOT_FLOOR is kernels.c's PIVOT_FLOOR, DEFAULT_RTOL the dynamic analysis's."""
+    from mbsim.analyses.dynamic import DEFAULTS
+
+    src = (ROOT / "mbsim" / "fast" / "kernels.c").read_text()
+    m = re.search(r"#define PIVOT_FLOOR ([0-9.eE+-]+)", src)
+    assert m and float(m.group(1)) == cp.SCHUR_PIVOT_FLOOR
+    assert DEFAULTS["rtol"] == cp.DEFAULT_RTOL
+
+
+# The float literals the integrators may hold, none of them a change-point threshold: the
+# projection's tolerance and its acceptance when it stagnates (index-1), Baumgarte's rates,
+# the coordinate partition's re-partition ratio, the Taylor predictor's 1/2 and the
+# acceptance of the quintic Hermite fallback's projection (gcp).
+ALLOWED_FLOATS = {
+    "index1.py": {0.001, 1e-10, 1e-14, 1e-11, 1000.0, 10.0},
+    "gcp.py": {0.5, 1.2, 100.0},
+}
+IDENTITIES = {0.0, 1.0, 2.0}  # (zero, one; sqrt 2 of two draws' spread, index1._stage_noise)
+OLD_NAMES = ("SINGULAR_PIVOT", "STRADDLE_NEAR", "TANGENT_PIVOT", "TANGENT_FLOOR", "NOISE_ERR",
+             "NOISE_RATIO", "NOISE_STEP", "BRANCH_JUMP", "CUT", "S_FIXED", "S_NOISE",
+             "S_INDEX1_CAP", "NEAR_INDEX1", "NEAR_GCP", "APPROACH_CUT")
+
+
+@pytest.mark.parametrize("name", sorted(ALLOWED_FLOATS))
+def test_no_change_point_threshold_outside_the_policy(name):
+    """index1.py and gcp.py hold no threshold of their own: every float literal there is one
+    of the documented non-policy numbers above, no module-level constant names a
+    change-point threshold, and the only change-point numbers they read are the Policy's."""
+    tree = ast.parse((ROOT / "mbsim" / "integrators" / name).read_text())
+    floats = {n.value for n in ast.walk(tree)
+              if isinstance(n, ast.Constant) and isinstance(n.value, float)}
+    extra = floats - ALLOWED_FLOATS[name] - IDENTITIES
+    assert not extra, sorted(extra)
+    assigned = {t.id for n in tree.body if isinstance(n, ast.Assign)
+                for t in n.targets if isinstance(t, ast.Name)}
+    assert not assigned & set(OLD_NAMES)
+    read = {n.attr for n in ast.walk(tree)
+            if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name)
+            and n.value.id == "cp" and n.attr.isupper()}
+    assert not read, sorted(read)
+
+
+# -- the approach, on s(t) = RATE (T_POINT - t): the measure falls linearly to the point ---
+RATE, T_POINT = 0.35, 1.0  # 1/s, s (the four cranks cross at s' ~ 0.35 x their rad/s)
+
+
+def feed(approach, times):
+    """Accepted states at ``times`` (steps between them), s from the closed form."""
+    for t0, t1 in zip(times, times[1:]):
+        approach.accepted(t1, t1 - t0, RATE * (T_POINT - t1))
+
+
+def test_approach_begins_two_steps_before_the_switch():
+    """After a step of h with s falling at RATE, a state belongs to the approach once s <
+    tangent + 2 h RATE; the s where it began holds until s rises past it."""
+    pol = policy("gcp", 1e-8)
+    a = cp.Approach(cp.stage_times(Dop853), None, pol)
+    h = 1e-2
+    s_begin = pol.tangent + 2 * h * RATE
+    t_begin = T_POINT - s_begin / RATE  # the approach begins at the first state past this
+    times = list(np.arange(0.0, t_begin + 1.5 * h, h))
+    feed(a, times)
+    assert a.near(h) == pytest.approx(RATE * (T_POINT - times[-1]), rel=1e-9)
+    assert len(a.points) == 1 and a.h_far == pytest.approx(h)
+    a.accepted(T_POINT + 0.5, 0.5, a.near(h) * 2)  # the motion turned away
+    assert a.points == () and a.near(0.5) < RATE * 0.5 * 2 * 2 + pol.tangent
+
+
+@pytest.mark.parametrize("tableau", [Dop853, DormandPrince54])
+def test_step_across_clears_the_point_once_round_off_cuts_the_steps(tableau):
+    """Two states of the approach and a proposed step cut below ``cut`` x the last step
+    before it: the step tried crosses the extrapolated point with its stages clear of it
+    (its nearest stage farther from it than those of the largest and the smallest step
+    that cross it); an uncut
+    step is left alone."""
+    pol = policy("index-1", 1e-10, exponent=-1.0 / (tableau.error_order + 1))
+    a = cp.Approach(cp.stage_times(tableau), None, pol)
+    h = 1e-3
+    times = list(T_POINT - 0.6 * h - h * np.arange(20)[::-1])  # the last 0.6 h before it
+    feed(a, times)
+    assert len(a.points) == 2
+    assert a.step(h) is None  # not cut: the controller's step as it is
+    d = T_POINT - times[-1]
+    h_try = a.step(0.5 * pol.cut * h)
+    assert h_try is not None and d < h_try <= h * (1 + REL)
+    c = cp.stage_times(tableau)
+    clear = np.abs(c * h_try - d).min()
+    assert clear > 0.0
+    for other in (h, d * (1 + 1e-6)):  # the largest step allowed, the smallest that crosses
+        assert clear >= np.abs(c * other - d).min()
+    assert a.accepted(times[-1] + h_try, h_try, RATE * abs(T_POINT - times[-1] - h_try))
+
+
+def test_fixed_step_moves_only_where_the_motion_dwells_next_to_the_point():
+    """A fixed step is moved across the point (into [h/2, 3h/2]) only where s changes by
+    less than the switch over the widest gap between stage times (s'(t) = -rate): a dwell,
+    not a passage."""
+    pol = policy("index-1", 1e-6, exponent=0.0, fixed=True)
+    c = cp.stage_times(ClassicRK4)  # 0, 1/2, 1: widest gap h/2
+    h = 1e-3
+    for rate, moved in ((0.5 * pol.tangent / (0.5 * h), True), (4 * pol.tangent / h, False)):
+        a = cp.Approach(c, h, pol)
+        t_last = T_POINT - 0.6 * h
+        for t in (t_last - 3 * h, t_last - 2 * h, t_last - h, t_last):
+            a.accepted(t, h, rate * (T_POINT - t))
+        assert len(a.points) == 2
+        got = a.step(h)
+        assert (got is not None) == moved
+        if moved:
+            assert 0.5 * h <= got <= 1.5 * h
