@@ -69,7 +69,7 @@ from mbsim.analyses.trajectory import Stepper, Trajectory, trajectory
 from mbsim.fast import stepper
 from mbsim.integrators import INTEGRATORS
 from mbsim.integrators.base import NUMERICAL_ERRORS
-from mbsim.integrators.changepoints import EPS, S_FIXED, Policy
+from mbsim.integrators.changepoints import DEFAULT_RTOL, EPS, Policy
 from mbsim.integrators.genalpha import GeneralizedAlpha
 from mbsim.integrators.rk import RungeKuttaIntegrator
 from mbsim.result import STATUS_INCOMPLETE
@@ -437,8 +437,9 @@ def vertices(s):
 def near_measure(opt):
     """The measure s below which a state is next to a change point: Policy.law(rtol) =
     (eps / rtol)^(1/3), where the round-off of three solves through a factor of pivot
-    ratio s (q, qd, qdd) reaches the tolerance; S_FIXED for a fixed step (the policy's)."""
-    return S_FIXED if opt.get("h") is not None else Policy.law(float(opt["rtol"]))
+    ratio s (q, qd, qdd) reaches the tolerance; for a fixed step the law at the default rtol
+    (the policy's fixed-step switch)."""
+    return Policy.law(DEFAULT_RTOL if opt.get("h") is not None else float(opt["rtol"]))
 
 
 def passed_change_point(tr, near, opt):

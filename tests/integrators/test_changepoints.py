@@ -171,27 +171,6 @@ def test_dwell_at_the_dead_centre_below_round_off():
     assert err <= 10 * 1e-11 + CROSSING_ROUNDOFF, f"{err:.3g} m"
 
 
-def test_policy_switch_follows_the_round_off_law():
-    """Policy.tangent: gcp where three solves' round-off eps s^-3 reaches rtol, s = (eps /
-    rtol)^(1/3), index-1 at its square (measured), each within its family's limits
-    (changepoints.Policy); fixed steps S_FIXED;
-    ``tangent_steps: false`` is 0; the approach region a fixed multiple of the switch."""
-    eps = np.finfo(float).eps
-    for rtol in (1e-4, 1e-6, 1e-8, 1e-10, 1e-12):
-        law = (eps / rtol) ** (1 / 3)
-        g = cp.Policy.for_run("gcp", rtol, rtol / 100, fixed=False)
-        i = cp.Policy.for_run("index-1", rtol, rtol / 100, fixed=False)
-        assert g.tangent == pytest.approx(max(cp.S_FIXED, law))
-        assert i.tangent == pytest.approx(min(cp.S_INDEX1_CAP,
-                                              max(np.sqrt(cp.SCHUR_PIVOT_FLOOR), law ** 2)))
-        assert eps * g.tangent ** -3 <= rtol * (1 + 1e-12)
-        assert g.near == pytest.approx(cp.NEAR_GCP * g.tangent)
-        assert i.near == pytest.approx(cp.NEAR_INDEX1 * i.tangent)
-    for family in ("gcp", "index-1"):
-        assert cp.Policy.for_run(family, 1e-6, 1e-8, fixed=True).tangent == cp.S_FIXED
-    assert cp.Policy.for_run("index-1", 1e-6, 1e-8, False, tangent=False).tangent == 0.0
-
-
 def test_schur_pivot_floor_is_the_kernels():
     """The index-1 switch's floor is the pivot floor of the Schur factor in
     mbsim/fast/kernels.c (below it the kernels change the solve): one number in two
