@@ -93,10 +93,10 @@ class Tire(_Element):
 
     def state(self, st, t) -> dict:
         """Everything the tire computes at one state (see the module doc for the symbols):
-        F, sc, v, u (3,), the rest floats."""
+        F, sc, v, u (3,), the rest floats (copies: the group's result is shared)."""
         s = self.group.at(st)
         k = self.k
-        out = {key: s[key][k] for key in ("F", "sc", "v", "u")}
+        out = {key: s[key][k].copy() for key in ("F", "sc", "v", "u")}
         out.update({key: float(s[key][k]) for key in _SCALARS})
         return out
 
@@ -112,9 +112,10 @@ class Tire(_Element):
 
     def state_many(self, states, t) -> dict:
         """:meth:`state` at every output of ``states`` (:class:`mbsim.core.States`): the same
-        quantities with a leading time axis (F, sc, v, u (nt, 3); the rest (nt,))."""
+        quantities with a leading time axis (F, sc, v, u (nt, 3); the rest (nt,)); copies,
+        as in :meth:`state`."""
         s = self.group.at_many(states)
-        return {key: value[:, self.k] for key, value in s.items()}
+        return {key: value[:, self.k].copy() for key, value in s.items()}
 
     def loads_many(self, states, t, F, n_local):
         """:meth:`apply` at every output: adds to F, n_local (nt, nb, 3)."""

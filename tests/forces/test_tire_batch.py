@@ -174,3 +174,14 @@ def test_branches_match_the_one_tire_law(circle_run, seed):
     assert_matches(batch, reference(model, qs, vs))
     ref = reference(model, qs, vs)
     assert ref["F_ver"].min() == 0.0 and ref["F_ver"].max() > 0.0
+
+
+def test_a_changed_state_result_leaves_the_other_tires_alone(circle_run):
+    """state() returns copies: the group's shared result (read by every tire's apply at the
+    same state) cannot be changed through it."""
+    model, t, q, qd, _ = circle_run
+    tires = tires_of(model)
+    st = core.State(model, q[-1], qd[-1])
+    before = tires[1].group.at(st)["F"].copy()
+    tires[0].state(st, t[-1])["F"][:] = 0.0
+    assert np.array_equal(tires[1].group.at(st)["F"], before)
