@@ -43,24 +43,7 @@ import numpy as np
 
 from mbsim.errors import DeckError
 from mbsim.forces import register
-from mbsim.forces.elements import _body_indices, _Element, _local_point, _skew
-
-Z = np.array([0.0, 0.0, 1.0])
-
-
-def smoothstep(x: float, x1: float) -> float:
-    """0 at x <= 0, 1 at x >= x1, 3 s^2 - 2 s^3 between (C1)."""
-    if x <= 0.0:
-        return 0.0
-    if x >= x1:
-        return 1.0
-    s = x / x1
-    return s * s * (3.0 - 2.0 * s)
-
-
-def slip_angle(v_fwd: float, v_lat: float) -> float:
-    """alpha = atan2(v_lat, |v_fwd|) (rad): Haug eq. 12.5.1 in the tire's heading frame."""
-    return math.atan2(v_lat, abs(v_fwd))
+from mbsim.forces.elements import _body_indices, _Element, _local_point
 
 
 @register
@@ -96,40 +79,31 @@ class Tire(_Element):
             raise DeckError("the forward axis must not be the zero vector", where.child("forward"))
         el.fwd = fwd / np.linalg.norm(fwd)
         el.fwd.setflags(write=False)
+        el.group, el.k = TireGroup((el,)), 0  # until bind(): a group of its own
         return el
 
+    def bind(self, model):
+        """Share one :class:`TireGroup` among all tires of ``model`` (compile_model's call)."""
+        tires = tuple(el for el in model.forces if isinstance(el, Tire))
+        if self.group.b.size == len(tires) > 1:
+            return  # bound with its siblings by the first tire's call
+        group = TireGroup(tires)
+        for k, el in enumerate(tires):
+            el.group, el.k = group, k
+
     def state(self, st, t) -> dict:
-        """Everything the tire computes at one state (see the module doc for the symbols)."""
-        b = self.b
-        A, r = st.A[b], st.r[b]
-        P = r + A @ self.s
-        h = float(P[2])
-        sc = A.T @ (P - h * Z - r)  # contact point, body frame
-        v = st.rd[b] - A @ (_skew(sc) @ st.omega_local[b])  # w x s = -s~ w (body frame)
-        u = A @ self.fwd
-        un = math.hypot(u[0], u[1])
-        u = np.array([u[0] / un, u[1] / un, 0.0]) if un > 1e-12 else np.array([0.0, 1.0, 0.0])
-        lat = np.array([u[1], -u[0], 0.0])  # u x z
-        v_fwd, v_lat = float(u @ v), float(lat @ v)
-        alpha = slip_angle(v_fwd, v_lat)
-        defl = self.radius - h
-        f_ver = max(0.0, self.kt * defl - self.c * float(v[2])) if defl > 0 else 0.0
-        limit = self.mu * f_ver
-        f_lin = self.c_alpha * alpha
-        saturated = defl > 0 and f_lin != 0.0 and abs(f_lin) >= limit
-        w = smoothstep(math.hypot(v_fwd, v_lat), self.v_min)
-        f_lat = w * min(max(f_lin, -limit), limit)
-        f_roll = self.rolling * f_ver * min(max(v_fwd / self.v_min, -1.0), 1.0)
-        F = f_ver * Z - f_lat * lat - f_roll * u
-        return dict(F=F, sc=sc, F_ver=f_ver, F_lat=f_lat, F_roll=f_roll, alpha=alpha,
-                    saturated=float(saturated), deflection=defl, v=v, u=u,
-                    speed=math.hypot(v_fwd, v_lat))  # fmt: skip
+        """Everything the tire computes at one state (see the module doc for the symbols):
+        F, sc, v, u (3,), the rest floats (copies: the group's result is shared)."""
+        s = self.group.at(st)
+        k = self.k
+        out = {key: s[key][k].copy() for key in ("F", "sc", "v", "u")}
+        out.update({key: float(s[key][k]) for key in _SCALARS})
+        return out
 
     def apply(self, st, t, F, n_local):
-        s = self.state(st, t)
-        b = self.b
-        F[b] += s["F"]
-        n_local[b] += _skew(s["sc"]) @ (st.A[b].T @ s["F"])
+        s, b, k = self.group.at(st), self.b, self.k
+        F[b] += s["F"][k]
+        n_local[b] += s["n_local"][k]
 
     def potential(self, st):
         """k_t d^2 / 2 on the ground (the damping, lateral and rolling forces are not counted)."""
@@ -137,46 +111,17 @@ class Tire(_Element):
         return 0.5 * self.kt * d * d if d > 0 else 0.0
 
     def state_many(self, states, t) -> dict:
-        """:meth:`state` at every output of ``states`` (:class:`mbsim.core.States`) in array
-        code: the same quantities with a leading time axis (F, sc, v, u (nt, 3); the rest
-        (nt,))."""
-        b = self.b
-        A, r = states.A[:, b], states.r[:, b]
-        P = r + A @ self.s
-        h = P[:, 2]
-        sc = np.einsum("tji,tj->ti", A, P - h[:, None] * Z - r)  # contact point, body frame
-        v = states.rd[:, b] - np.einsum("tij,tj->ti", A, np.cross(sc, states.omega_local[:, b]))
-        u = A @ self.fwd
-        un = np.hypot(u[:, 0], u[:, 1])
-        ok = un > 1e-12
-        u = np.where(ok[:, None], np.stack([u[:, 0] / np.where(ok, un, 1.0),
-                                            u[:, 1] / np.where(ok, un, 1.0),
-                                            np.zeros_like(un)], axis=1), [0.0, 1.0, 0.0])
-        lat = np.stack([u[:, 1], -u[:, 0], np.zeros_like(un)], axis=1)  # u x z
-        v_fwd, v_lat = np.einsum("ti,ti->t", u, v), np.einsum("ti,ti->t", lat, v)
-        alpha = np.arctan2(v_lat, np.abs(v_fwd))
-        defl = self.radius - h
-        ground = defl > 0
-        f_ver = np.where(ground, np.maximum(0.0, self.kt * defl - self.c * v[:, 2]), 0.0)
-        limit = self.mu * f_ver
-        f_lin = self.c_alpha * alpha
-        saturated = ground & (f_lin != 0.0) & (np.abs(f_lin) >= limit)
-        speed = np.hypot(v_fwd, v_lat)
-        x = np.clip(speed / self.v_min, 0.0, 1.0)
-        w = x * x * (3.0 - 2.0 * x)  # smoothstep
-        f_lat = w * np.minimum(np.maximum(f_lin, -limit), limit)
-        f_roll = self.rolling * f_ver * np.clip(v_fwd / self.v_min, -1.0, 1.0)
-        F = f_ver[:, None] * Z - f_lat[:, None] * lat - f_roll[:, None] * u
-        return dict(F=F, sc=sc, F_ver=f_ver, F_lat=f_lat, F_roll=f_roll, alpha=alpha,
-                    saturated=saturated.astype(float), deflection=defl, v=v, u=u,
-                    speed=speed)  # fmt: skip
+        """:meth:`state` at every output of ``states`` (:class:`mbsim.core.States`): the same
+        quantities with a leading time axis (F, sc, v, u (nt, 3); the rest (nt,)); copies,
+        as in :meth:`state`."""
+        s = self.group.at_many(states)
+        return {key: value[:, self.k].copy() for key, value in s.items()}
 
     def loads_many(self, states, t, F, n_local):
         """:meth:`apply` at every output: adds to F, n_local (nt, nb, 3)."""
-        s = self.state_many(states, t)
-        b = self.b
-        F[:, b] += s["F"]
-        n_local[:, b] += np.cross(s["sc"], np.einsum("tji,tj->ti", states.A[:, b], s["F"]))
+        s, b, k = self.group.at_many(states), self.b, self.k
+        F[:, b] += s["F"][:, k]
+        n_local[:, b] += s["n_local"][:, k]
 
     def potential_many(self, states):
         d = self.radius - (states.r[:, self.b, 2] + states.A[:, self.b, 2] @ self.s)
@@ -207,3 +152,112 @@ class Tire(_Element):
             "speed": (s["speed"], "m/s"),
             "force": (s["F"], "N"),
         }
+
+
+_SCALARS = ("F_ver", "F_lat", "F_roll", "alpha", "saturated", "deflection", "speed")
+
+
+class TireGroup:
+    """All tires of a model, evaluated together: the tire law (module doc) once per state
+    on arrays over the tires, instead of once per tire on 3-vectors (the per-call cost of
+    small numpy operations is most of a tire's cost; the vehicle's four tires per state cost
+    about a quarter of them together).
+
+    Constant arrays, built once per model (:meth:`Tire.bind`): ``b`` (ne,) body of each tire,
+    ``s`` (ne, 3) spindle point and ``fwd`` (ne, 3) unit forward axis in body frames, ``kt``,
+    ``radius``, ``c``, ``c_alpha``, ``mu``, ``rolling``, ``v_min`` (ne,).
+
+    :meth:`at` (one state) and :meth:`at_many` (the outputs' states) keep their last result
+    with the state object it was computed for: the tires of a model are asked one after the
+    other at the same state (``apply`` of each), and the first one computes for all.  A state
+    is a snapshot (:class:`mbsim.core.State` computes A at construction), never changed in
+    place, so the object identifies the values."""
+
+    PARAMS = ("kt", "radius", "c", "c_alpha", "mu", "rolling", "v_min")
+
+    def __init__(self, tires):
+        self.b = np.array([el.b for el in tires], dtype=np.intp)
+        self.s = np.array([el.s for el in tires], dtype=float).reshape(-1, 3)
+        self.fwd = np.array([el.fwd for el in tires], dtype=float).reshape(-1, 3)
+        for name in self.PARAMS:
+            setattr(self, name, np.array([getattr(el, name) for el in tires], dtype=float))
+        self._one = (None, None)  # (state, result) of the last at()
+        self._many = (None, None)  # (states, result) of the last at_many()
+
+    def at(self, st) -> dict:
+        """The law at one state: every quantity of :meth:`Tire.state` with a leading tire
+        axis (F, sc, v, u, n_local (ne, 3); the rest (ne,))."""
+        if self._one[0] is not st:
+            b = self.b
+            self._one = (st, tire_law(self, st.A[b], st.r[b], st.rd[b], st.omega_local[b]))
+        return self._one[1]
+
+    def at_many(self, states) -> dict:
+        """:meth:`at` at every output of ``states`` (:class:`mbsim.core.States`): time first,
+        then tires (F ... (nt, ne, 3); the rest (nt, ne))."""
+        if self._many[0] is not states:
+            b = self.b
+            self._many = (
+                states,
+                tire_law(
+                    self, states.A[:, b], states.r[:, b], states.rd[:, b], states.omega_local[:, b]
+                ),
+            )
+        return self._many[1]
+
+
+_Y = np.array([0.0, 1.0])  # the heading of a tire whose forward axis stands vertical
+# Levi-Civita symbol: (a x b)_i = eps_ijk a_j b_k, one einsum (np.cross costs ~10 numpy calls)
+_EPS = np.zeros((3, 3, 3))
+_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
+_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
+
+
+def _cross(a, b):
+    """a x b over the last axis (..., 3)."""
+    return np.einsum("ijk,...j,...k->...i", _EPS, a, b)
+
+
+def tire_law(g, A, r, rd, omega_local) -> dict:
+    """The tire law (module doc; Haug Eqs. 12.5.1-12.5.3) on arrays of any leading shape
+    (..., ne) ending in the tires of group ``g`` (its parameters (ne,), s and fwd (ne, 3)).
+
+    A (..., ne, 3, 3) rotation matrices, r, rd (..., ne, 3) origin and its velocity (global),
+    omega_local (..., ne, 3) angular velocity (body frame) of each tire's body.  Returns
+    F (..., ne, 3) the global force at the contact point C, n_local (..., ne, 3) its moment
+    about the body origin in the body frame (sc x A^T F), sc (contact point, body frame),
+    v (velocity of the body point at C), u (unit heading on the road), and F_ver, F_lat,
+    F_roll, alpha, saturated (1.0 or 0.0), deflection, speed (..., ne)."""
+    P = r + np.einsum("...ij,...j->...i", A, g.s)
+    h = P[..., 2]
+    Ph = P.copy()
+    Ph[..., 2] = 0.0  # P - h z
+    sc = np.einsum("...ji,...j->...i", A, Ph - r)  # contact point, body frame
+    v = rd - np.einsum("...ij,...j->...i", A, _cross(sc, omega_local))  # w x s = -s x w
+    uh = np.einsum("...ij,...j->...i", A[..., :2, :], g.fwd)  # heading before normalising
+    un = np.hypot(uh[..., 0], uh[..., 1])
+    ok = (un > 1e-12)[..., None]
+    u = np.zeros(v.shape)
+    u[..., :2] = np.where(ok, uh / np.where(ok, un[..., None], 1.0), _Y)  # y' when upright
+    lat = np.zeros(v.shape)  # u x z
+    lat[..., 0], lat[..., 1] = u[..., 1], -u[..., 0]
+    v_fwd = u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1]
+    v_lat = lat[..., 0] * v[..., 0] + lat[..., 1] * v[..., 1]
+    alpha = np.arctan2(v_lat, np.abs(v_fwd))  # Eq. 12.5.1 in the heading frame
+    defl = g.radius - h
+    ground = defl > 0
+    f_ver = np.where(ground, np.maximum(0.0, g.kt * defl - g.c * v[..., 2]), 0.0)
+    limit = g.mu * f_ver
+    f_lin = g.c_alpha * alpha
+    saturated = ground & (f_lin != 0.0) & (np.abs(f_lin) >= limit)
+    speed = np.hypot(v_fwd, v_lat)
+    x = np.minimum(speed / g.v_min, 1.0)
+    w = x * x * (3.0 - 2.0 * x)  # smoothstep: C1 fade to 0 at standstill
+    f_lat = w * np.minimum(np.maximum(f_lin, -limit), limit)
+    f_roll = g.rolling * f_ver * np.minimum(np.maximum(v_fwd / g.v_min, -1.0), 1.0)
+    F = -f_lat[..., None] * lat - f_roll[..., None] * u
+    F[..., 2] += f_ver
+    n_local = _cross(sc, np.einsum("...ji,...j->...i", A, F))
+    return dict(F=F, n_local=n_local, sc=sc, v=v, u=u, F_ver=f_ver, F_lat=f_lat,
+                F_roll=f_roll, alpha=alpha, saturated=saturated.astype(float),
+                deflection=defl, speed=speed)  # fmt: skip

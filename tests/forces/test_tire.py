@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from mbsim.errors import DeckError
-from mbsim.forces.tire import slip_angle
 from mbsim.model import compile_model
 from mbsim.rotations import from_axis_angle, omega_local_to_pd
 from tests.forces.builders import force
+from tests.forces.tire_reference import slip_angle
 from tests.helpers import body, spec
 from tests.reference import equations as eq
 

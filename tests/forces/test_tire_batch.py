@@ -1,0 +1,187 @@
+"""The tires of a model evaluated together (mbsim/forces/tire.py: TireGroup, tire_law)
+against the tire law one tire at a time (tests/forces/tire_reference.py), on the states of a
+vehicle run that slides (the deck's scene ``circle``: 55 mph, every tire at mu F_ver for most
+of the run after the steer) and on states where the law's branches switch.
+
+Both compute the same floating-point operations up to their order (einsum sums against
+matmul, a x b with a Levi-Civita einsum against skew(a) b), so they agree to a few ulps of
+the largest term: 1e-12 of the force scale (the largest |F| of the states compared) for the
+forces, 1e-12 of the force scale times the lever (about the wheel radius, < 1 m) for the
+moments, 1e-12 for the angles and dimensionless quantities at O(1)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mbsim import core
+from mbsim.api import load_model, run_model
+from mbsim.rotations import omega_local_to_pd
+from tests.forces.tire_reference import tire_state
+
+DECK = Path(__file__).resolve().parents[2] / "models" / "vehicle.yaml"
+VECTORS = ("F", "n_local", "sc", "v", "u")
+SCALARS = ("F_ver", "F_lat", "F_roll", "alpha", "saturated", "deflection", "speed")
+REL = 1e-12
+
+
+@pytest.fixture(scope="module")
+def circle_run():
+    """(model, t (nt,), q, qd (nt, nq), result) of the circle scene to 3 s (the tires
+    saturate from about 1.7 s)."""
+    spec, model = load_model(DECK, scene="circle")
+    res = run_model(model, "dynamic", {"t_end": 3.0}, deck=spec)
+    assert res.status == "complete", res.message
+    t = np.asarray(res.t)
+    q, qd = [], []
+    for name in model.body_names:
+        r, p, rd, om = (
+            res.channels[f"bodies/{name}/{key}"].data for key in ("r", "p", "rd", "omega_local")
+        )
+        pd = np.array([omega_local_to_pd(pk, wk) for pk, wk in zip(p, om)])
+        q.append(np.concatenate([r, p], axis=1))
+        qd.append(np.concatenate([rd, pd], axis=1))
+    return model, t, np.concatenate(q, axis=1), np.concatenate(qd, axis=1), res
+
+
+def tires_of(model):
+    return [el for el in model.forces if el.type == "tire"]
+
+
+def reference(model, q, qd):
+    """{quantity: (nt, ne, ...)} from the one-tire-at-a-time law."""
+    rows = []
+    for qk, vk in zip(q, qd):
+        st = core.State(model, qk, vk)
+        rows.append([tire_state(el, st) for el in tires_of(model)])
+    return {
+        key: np.array([[np.asarray(s[key], float) for s in row] for row in rows])
+        for key in VECTORS + SCALARS
+    }
+
+
+def assert_matches(batch, ref):
+    scale = np.abs(ref["F"]).max()
+    lever = max(1.0, np.abs(ref["sc"]).max())
+    bounds = {"F": scale, "F_ver": scale, "F_lat": scale, "F_roll": scale,
+              "n_local": scale * lever}  # fmt: skip
+    for key in VECTORS + SCALARS:
+        bound = REL * bounds.get(key, 1.0)
+        err = np.abs(np.asarray(batch[key]) - ref[key]).max()
+        assert err <= bound, f"{key}: batch - reference = {err:.3g} > {bound:.3g}"
+
+
+def test_circle_run_covers_the_linear_and_the_saturated_law(circle_run):
+    """The states compared cover the saturated branch and the linear one."""
+    model, t, q, qd, _ = circle_run
+    sat = reference(model, q, qd)["saturated"]
+    assert 0 < sat.mean() < 1
+
+
+def test_group_at_each_state_matches_the_one_tire_law(circle_run):
+    model, t, q, qd, _ = circle_run
+    tires = tires_of(model)
+    assert len({id(el.group) for el in tires}) == 1  # one group per model (Tire.bind)
+    rows = []
+    for qk, vk in zip(q, qd):
+        st = core.State(model, qk, vk)
+        rows.append([el.state(st, 0.0) for el in tires])
+    batch = {
+        key: np.array([[np.asarray(s[key], float) for s in row] for row in rows])
+        for key in VECTORS[:1] + VECTORS[2:] + SCALARS
+    }
+    st0 = core.State(model, q[0], qd[0])
+    batch["n_local"] = np.array(
+        [
+            [tires[0].group.at(core.State(model, qk, vk))["n_local"][k] for k in range(len(tires))]
+            for qk, vk in zip(q, qd)
+        ]
+    )
+    assert tires[0].group.at(st0) is tires[0].group.at(st0)  # computed once per state
+    assert_matches(batch, reference(model, q, qd))
+
+
+def test_loads_match_the_one_tire_law(circle_run):
+    """apply (the dynamic path) and loads_many (the outputs) add F and s_C x A^T F."""
+    model, t, q, qd, _ = circle_run
+    ref = reference(model, q, qd)
+    nt, nb = len(t), model.nb
+    F, n = np.zeros((nt, nb, 3)), np.zeros((nt, nb, 3))
+    F_ref, n_ref = np.zeros((nt, nb, 3)), np.zeros((nt, nb, 3))
+    Fm, nm = np.zeros((nt, nb, 3)), np.zeros((nt, nb, 3))
+    states = core.States(model, q, qd)
+    for k, el in enumerate(tires_of(model)):
+        el.loads_many(states, t, Fm, nm)
+        for i in range(nt):
+            el.apply(core.State(model, q[i], qd[i]), t[i], F[i], n[i])
+            F_ref[i, el.b] += ref["F"][i, k]
+            n_ref[i, el.b] += ref["n_local"][i, k]
+    scale = np.abs(ref["F"]).max()
+    for got in (F, Fm):
+        assert np.abs(got - F_ref).max() <= REL * scale
+    for got in (n, nm):
+        assert np.abs(got - n_ref).max() <= REL * scale * max(1.0, np.abs(ref["sc"]).max())
+
+
+def test_channels_match_the_one_tire_law(circle_run):
+    """channels_many (what a run records: every output at once) and channels (one state)."""
+    model, t, q, qd, _ = circle_run
+    ref = reference(model, q, qd)
+    scale = np.abs(ref["F"]).max()
+    bounds = {"F_ver": scale, "F_lat": scale, "force": scale}
+    heading = np.arctan2(-ref["u"][..., 0], ref["u"][..., 1])
+    states = core.States(model, q, qd)
+    for k, el in enumerate(tires_of(model)):
+        many = el.channels_many(states, t)
+        one = el.channels(core.State(model, q[-1], qd[-1]), t[-1])
+        expected = {
+            key: ref[key][:, k]
+            for key in ("F_ver", "F_lat", "alpha", "saturated", "deflection", "speed")
+        }
+        expected["heading"], expected["force"] = heading[:, k], ref["F"][:, k]
+        assert set(many) == set(one) == set(expected)
+        for key, want in expected.items():
+            bound = REL * bounds.get(key, 1.0)
+            assert np.abs(many[key][0] - want).max() <= bound, (el.name, key)
+            assert np.abs(np.asarray(one[key][0]) - want[-1]).max() <= bound, (el.name, key)
+            assert many[key][1] == one[key][1]  # units
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_branches_match_the_one_tire_law(circle_run, seed):
+    """Random states about the run's: tires off the ground, in reverse, at standstill speed,
+    beyond the limit, turned on their side (the forward axis vertical: u falls back to y)."""
+    model, t, q, qd, _ = circle_run
+    rng = np.random.default_rng(seed)
+    nt = 40
+    qs = q[rng.integers(0, len(t), nt)].copy()
+    vs = qd[rng.integers(0, len(t), nt)].copy() * rng.choice([-1.0, 0.0, 0.01, 1.0], (nt, 1))
+    qs[:, 2::7] += rng.uniform(-0.05, 0.05, (nt, model.nb))  # heights: some tires lift
+    vs += rng.normal(scale=0.5, size=vs.shape)
+    side = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0])  # 90 deg about x
+    qs[: nt // 4, 3:7] = side  # the chassis on its side (its p: forward y' along z)
+    for el in tires_of(model):
+        qs[: nt // 4, 7 * el.b + 3 : 7 * el.b + 7] = side
+    for k in range(nt):  # renormalise p (the random steps keep |p| = 1 only roughly)
+        for b in range(model.nb):
+            p = qs[k, 7 * b + 3 : 7 * b + 7]
+            qs[k, 7 * b + 3 : 7 * b + 7] = p / np.linalg.norm(p)
+    tires = tires_of(model)
+    states = core.States(model, qs, vs)
+    batch = tires[0].group.at_many(states)
+    assert_matches(batch, reference(model, qs, vs))
+    ref = reference(model, qs, vs)
+    assert ref["F_ver"].min() == 0.0 and ref["F_ver"].max() > 0.0
+
+
+def test_a_changed_state_result_leaves_the_other_tires_alone(circle_run):
+    """state() returns copies: the group's shared result (read by every tire's apply at the
+    same state) cannot be changed through it."""
+    model, t, q, qd, _ = circle_run
+    tires = tires_of(model)
+    st = core.State(model, q[-1], qd[-1])
+    before = tires[1].group.at(st)["F"].copy()
+    tires[0].state(st, t[-1])["F"][:] = 0.0
+    assert np.array_equal(tires[1].group.at(st)["F"], before)
