@@ -110,6 +110,12 @@ class System:
         self.hybrid = tuple(el for el in self.py_forces if getattr(el, "hybrid", False))
         self.modes = dict(modes or {})
         self.reaction_loop = any(getattr(el, "reactions", False) for el in self.hybrid)
+        # elements evaluated together at a state (``group`` with apply(st, t, F, n_local):
+        # the tires of mbsim.forces.tire): one call per group, then the elements alone
+        plain = [el for el in self.py_forces if el not in self.hybrid]
+        self._py_groups = tuple({id(el.group): el.group for el in plain
+                                 if getattr(el, "group", None) is not None}.values())
+        self._py_alone = tuple(el for el in plain if getattr(el, "group", None) is None)
         self._lam_known = None  # (m,) multipliers on all rows, the loop's last iterate
         self.family = None  # the run (Stepper) that builds systems for other modes
         # the symbolic analysis of S (order, envelope, products): once per row set
@@ -172,11 +178,12 @@ class System:
         first; hybrid elements in this system's modes, with the multipliers of the last
         accelerations (the reaction loop's iterate)."""
         loads[:] = 0.0
-        for el in self.py_forces:
-            if el in self.hybrid:
-                el.apply_in(self.modes.get(el.name), st, t, self._lam_known, loads[0], loads[1])
-            else:
-                el.apply(st, t, loads[0], loads[1])
+        for el in self.hybrid:
+            el.apply_in(self.modes.get(el.name), st, t, self._lam_known, loads[0], loads[1])
+        for group in self._py_groups:
+            group.apply(st, t, loads[0], loads[1])
+        for el in self._py_alone:
+            el.apply(st, t, loads[0], loads[1])
 
     def applied_forces(self, st, t) -> np.ndarray:
         """Q (nq,) at the state st (:class:`mbsim.core.State`) as

@@ -79,7 +79,10 @@ class Tire(_Element):
             raise DeckError("the forward axis must not be the zero vector", where.child("forward"))
         el.fwd = fwd / np.linalg.norm(fwd)
         el.fwd.setflags(write=False)
-        el.group, el.k = TireGroup((el,)), 0  # until bind(): a group of its own
+        # own: this tire alone (its state, channels and loads); group: every tire of the
+        # model, which System.apply_python calls once per state (Tire.bind)
+        el.own = el.group = TireGroup((el,))
+        el.k = 0
         return el
 
     def bind(self, model):
@@ -93,17 +96,16 @@ class Tire(_Element):
 
     def state(self, st, t) -> dict:
         """Everything the tire computes at one state (see the module doc for the symbols):
-        F, sc, v, u (3,), the rest floats (copies: the group's result is shared)."""
-        s = self.group.at(st)
-        k = self.k
-        out = {key: s[key][k].copy() for key in ("F", "sc", "v", "u")}
-        out.update({key: float(s[key][k]) for key in _SCALARS})
+        F, sc, v, u (3,), the rest floats."""
+        s = self.own.at(st)
+        out = {key: s[key][0] for key in ("F", "sc", "v", "u")}
+        out.update({key: float(s[key][0]) for key in _SCALARS})
         return out
 
     def apply(self, st, t, F, n_local):
-        s, b, k = self.group.at(st), self.b, self.k
-        F[b] += s["F"][k]
-        n_local[b] += s["n_local"][k]
+        """This tire's load alone (a System applies the model's tires together:
+        :meth:`TireGroup.apply`)."""
+        self.own.apply(st, t, F, n_local)
 
     def potential(self, st):
         """k_t d^2 / 2 on the ground (the damping, lateral and rolling forces are not counted)."""
@@ -112,16 +114,14 @@ class Tire(_Element):
 
     def state_many(self, states, t) -> dict:
         """:meth:`state` at every output of ``states`` (:class:`mbsim.core.States`): the same
-        quantities with a leading time axis (F, sc, v, u (nt, 3); the rest (nt,)); copies,
-        as in :meth:`state`."""
-        s = self.group.at_many(states)
-        return {key: value[:, self.k].copy() for key, value in s.items()}
+        quantities with a leading time axis (F, sc, v, u (nt, 3); the rest (nt,))."""
+        return {key: value[:, 0] for key, value in self.own.at_many(states).items()}
 
     def loads_many(self, states, t, F, n_local):
         """:meth:`apply` at every output: adds to F, n_local (nt, nb, 3)."""
-        s, b, k = self.group.at_many(states), self.b, self.k
-        F[:, b] += s["F"][:, k]
-        n_local[:, b] += s["n_local"][:, k]
+        s, b = self.own.at_many(states), self.b
+        F[:, b] += s["F"][:, 0]
+        n_local[:, b] += s["n_local"][:, 0]
 
     def potential_many(self, states):
         d = self.radius - (states.r[:, self.b, 2] + states.A[:, self.b, 2] @ self.s)
@@ -167,11 +167,9 @@ class TireGroup:
     ``s`` (ne, 3) spindle point and ``fwd`` (ne, 3) unit forward axis in body frames, ``kt``,
     ``radius``, ``c``, ``c_alpha``, ``mu``, ``rolling``, ``v_min`` (ne,).
 
-    :meth:`at` (one state) and :meth:`at_many` (the outputs' states) keep their last result
-    with the state object it was computed for: the tires of a model are asked one after the
-    other at the same state (``apply`` of each), and the first one computes for all.  A state
-    is a snapshot (:class:`mbsim.core.State` computes A at construction), never changed in
-    place, so the object identifies the values."""
+    :meth:`apply` adds the loads of every tire of the group at one state: the System calls
+    it once per state for all the tires of a model (mbsim/fast/dynamics.py apply_python).
+    Each tire's own state and channels come from its own group of one (``Tire.own``)."""
 
     PARAMS = ("kt", "radius", "c", "c_alpha", "mu", "rolling", "v_min")
 
@@ -181,29 +179,26 @@ class TireGroup:
         self.fwd = np.array([el.fwd for el in tires], dtype=float).reshape(-1, 3)
         for name in self.PARAMS:
             setattr(self, name, np.array([getattr(el, name) for el in tires], dtype=float))
-        self._one = (None, None)  # (state, result) of the last at()
-        self._many = (None, None)  # (states, result) of the last at_many()
 
     def at(self, st) -> dict:
         """The law at one state: every quantity of :meth:`Tire.state` with a leading tire
         axis (F, sc, v, u, n_local (ne, 3); the rest (ne,))."""
-        if self._one[0] is not st:
-            b = self.b
-            self._one = (st, tire_law(self, st.A[b], st.r[b], st.rd[b], st.omega_local[b]))
-        return self._one[1]
+        b = self.b
+        return tire_law(self, st.A[b], st.r[b], st.rd[b], st.omega_local[b])
 
     def at_many(self, states) -> dict:
         """:meth:`at` at every output of ``states`` (:class:`mbsim.core.States`): time first,
         then tires (F ... (nt, ne, 3); the rest (nt, ne))."""
-        if self._many[0] is not states:
-            b = self.b
-            self._many = (
-                states,
-                tire_law(
-                    self, states.A[:, b], states.r[:, b], states.rd[:, b], states.omega_local[:, b]
-                ),
-            )
-        return self._many[1]
+        b = self.b
+        return tire_law(self, states.A[:, b], states.r[:, b], states.rd[:, b],
+                        states.omega_local[:, b])
+
+    def apply(self, st, t, F, n_local):
+        """Adds every tire's force F and body torque n_local at ``st`` (ForceElement.apply
+        for the whole group; two tires may share a body)."""
+        s = self.at(st)
+        np.add.at(F, self.b, s["F"])
+        np.add.at(n_local, self.b, s["n_local"])
 
 
 _Y = np.array([0.0, 1.0])  # the heading of a tire whose forward axis stands vertical

@@ -92,14 +92,12 @@ def test_group_at_each_state_matches_the_one_tire_law(circle_run):
         key: np.array([[np.asarray(s[key], float) for s in row] for row in rows])
         for key in VECTORS[:1] + VECTORS[2:] + SCALARS
     }
-    st0 = core.State(model, q[0], qd[0])
     batch["n_local"] = np.array(
         [
             [tires[0].group.at(core.State(model, qk, vk))["n_local"][k] for k in range(len(tires))]
             for qk, vk in zip(q, qd)
         ]
     )
-    assert tires[0].group.at(st0) is tires[0].group.at(st0)  # computed once per state
     assert_matches(batch, reference(model, q, qd))
 
 
@@ -176,12 +174,20 @@ def test_branches_match_the_one_tire_law(circle_run, seed):
     assert ref["F_ver"].min() == 0.0 and ref["F_ver"].max() > 0.0
 
 
-def test_a_changed_state_result_leaves_the_other_tires_alone(circle_run):
-    """state() returns copies: the group's shared result (read by every tire's apply at the
-    same state) cannot be changed through it."""
+def test_a_system_applies_the_group_once_with_the_loads_of_each_tire(circle_run):
+    """System.apply_python calls the model's tire group once per state; the loads equal the
+    sum of each tire's own apply (two tires on one body add up)."""
+    from mbsim.fast.dynamics import System
+
     model, t, q, qd, _ = circle_run
     tires = tires_of(model)
+    system = System(model)
+    assert len(system._py_groups) == 1 and not any(el in system._py_alone for el in tires)
     st = core.State(model, q[-1], qd[-1])
-    before = tires[1].group.at(st)["F"].copy()
-    tires[0].state(st, t[-1])["F"][:] = 0.0
-    assert np.array_equal(tires[1].group.at(st)["F"], before)
+    got = np.zeros((2, model.nb, 3))
+    system.apply_python(st, t[-1], got)
+    want = np.zeros((2, model.nb, 3))
+    for el in tires + list(system._py_alone):
+        el.apply(st, t[-1], want[0], want[1])
+    scale = np.abs(want).max()
+    assert np.abs(got - want).max() <= 1e-13 * scale
