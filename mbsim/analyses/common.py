@@ -82,16 +82,35 @@ def rank_and_redundant(model, J, tol=1e-9, lapack=True):
             return J.shape[0], np.zeros(0, int)
         J = J.toarray()
     if lapack:
-        import scipy.linalg as la
-
-        R, piv = la.qr(J.T, mode="r", pivoting=True)
+        d, piv = _geqp3_pivots(J.T)
     else:
         R, piv = qr_pivoted_r(J.T)  # numpy alone: scipy.linalg costs ~0.4 s to import
-    d = np.abs(np.diag(R))
+        d = np.abs(np.diag(R))
     if d.size == 0 or d[0] == 0:
         return 0, np.arange(J.shape[0])
     rank = int(np.sum(d > tol * d[0]))
     return rank, np.sort(piv[rank:])
+
+
+_GEQP3 = {}  # dtype char -> scipy's LAPACK dgeqp3 wrapper, looked up once
+
+
+def _geqp3_pivots(a):
+    """(|diag R| (min(n, m),), piv (m,) 0-based) of LAPACK's QR with column pivoting of ``a``
+    (n, m): the call ``scipy.linalg.qr(a, mode="r", pivoting=True)`` makes (the same
+    routine, the same workspace size from its query, so the same numbers to the bit),
+    without that function's wrappers (a quarter of a 4-link chain run's set-up)."""
+    a = np.asarray_chkfinite(a)  # as scipy.linalg.qr: NaN or inf is a ValueError
+    geqp3 = _GEQP3.get(a.dtype.char)
+    if geqp3 is None:
+        from scipy.linalg.lapack import get_lapack_funcs
+
+        geqp3 = _GEQP3[a.dtype.char] = get_lapack_funcs(("geqp3",), (a,))[0]
+    lwork = geqp3(a, lwork=-1)[-2][0].real.astype(np.int_)
+    qr, piv, _, _, info = geqp3(a, lwork=lwork)
+    if info < 0:
+        raise ValueError(f"illegal value in {-info}th argument of internal geqp3")
+    return np.abs(np.diag(qr)), piv - 1
 
 
 def require_dof_zero(model, dof: int, what: str) -> None:
@@ -267,10 +286,14 @@ class Recorder:
         refs = [sel.replace(".", "/").strip("/") for m in measures.values()
                 if m.type == "expression" for sel in m.data["channels"].values()]
 
-        def needed(path):
-            return ms.selected(path, patterns) or any(
-                r == path or r.startswith(path + "/") or r.startswith(path + "[")
-                for r in refs)
+        if patterns is None:  # every channel (no ``only:``): no test per channel
+            def needed(path):
+                return True
+        else:
+            def needed(path):
+                return ms.selected(path, patterns) or any(
+                    r == path or r.startswith(path + "/") or r.startswith(path + "[")
+                    for r in refs)
 
         kin = self.kinematics()
         for b, name in enumerate(model.body_names):

@@ -369,7 +369,7 @@ def build_result(model, prep, opt, tr, span):
         from mbsim.analyses.common import kinetic_energies, potential_energies
 
         kin = rec.kinematics()
-        V = potential_energies(model, rec.q, kin, rec.states())
+        V = potential_energies(model, rec.q, kin, rec.states() if model.forces else None)
         energy = kinetic_energies(model, kin) + V
         res.add("monitors/position_violation", pos, "", "max |Phi| over all rows")
         res.add("monitors/velocity_violation", vel, "", "max |Phi_q qd - nu|")

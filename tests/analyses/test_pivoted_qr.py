@@ -21,7 +21,7 @@ import scipy.linalg as la
 
 from mbsim import core
 from mbsim.analyses.assembly import assemble
-from mbsim.analyses.common import DENSE_NQ, rank_and_redundant
+from mbsim.analyses.common import DENSE_NQ, _geqp3_pivots, rank_and_redundant
 from mbsim.analyses.pivoted_qr import qr_pivoted_r
 from mbsim.api import load_model
 from mbsim.options import deck_context
@@ -104,3 +104,28 @@ def test_the_first_of_exactly_equal_columns_is_taken():
     a = np.zeros((4, 3))
     a[0, 1] = a[1, 2] = 2.0
     assert list(qr_pivoted_r(a)[1]) == [1, 2, 0]
+
+
+@pytest.mark.parametrize("deck", DECKS, ids=lambda p: p.name)
+def test_the_runs_rank_check_is_scipys_qr_to_the_bit_on_every_deck(deck):
+    """rank_and_redundant(lapack=True) calls LAPACK's dgeqp3 directly
+    (common._geqp3_pivots): the routine and workspace size scipy.linalg.qr uses, so |diag R|
+    and the pivots equal scipy's bit for bit (a run's rows must not depend on the shortcut),
+    and the rank and redundant rows are those of scipy's R at the test's tolerance."""
+    spec, model = load_model(deck)
+    hold = deck_context(spec, shapes=False).hold
+    for q in (model.q0, assemble(model, hold=hold).q):
+        J = core.phi_q(model, None, q, 0.0, sparse=False)
+        d, piv = _geqp3_pivots(J.T)
+        R_ref, piv_ref = la.qr(J.T, mode="r", pivoting=True)
+        d_ref = np.abs(np.diag(R_ref))
+        assert np.array_equal(d, d_ref) and np.array_equal(piv, piv_ref)
+        rank, red = rank_and_redundant(model, J)
+        assert rank == int(np.sum(d_ref > TOL * d_ref[0]))
+        assert list(red) == sorted(piv_ref[rank:])
+
+
+def test_the_runs_rank_check_rejects_what_scipy_rejects():
+    """A Jacobian with NaN is a ValueError, as in scipy.linalg.qr (check_finite)."""
+    with pytest.raises(ValueError):
+        _geqp3_pivots(np.array([[1.0, np.nan], [0.0, 1.0]]))
