@@ -32,6 +32,27 @@ CONTAINER_TAGS = ("tag:yaml.org,2002:seq", "tag:yaml.org,2002:map")
 LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
+class _ComposeLoader(LOADER):  # type: ignore[misc, valid-type]
+    """LOADER whose tag resolution (a Python call per scalar, through YAML 1.1's regexes)
+    is remembered per (kind, text, implicit): a deck repeats its numbers and names (the
+    governor's 900 scalars have 300 distinct texts), and the tag depends on nothing else
+    (the safe loader has no path resolvers).  At most RESOLVED_KEPT texts are kept."""
+
+    resolved: dict = {}
+
+    def resolve(self, kind, value, implicit):
+        key = (kind, value, implicit)
+        tag = self.resolved.get(key)
+        if tag is None:
+            tag = super().resolve(kind, value, implicit)
+            if len(self.resolved) < RESOLVED_KEPT:
+                self.resolved[key] = tag
+        return tag
+
+
+RESOLVED_KEPT = 20_000
+
+
 @dataclass(eq=False, slots=True)
 class Node:
     """One YAML value.
@@ -67,7 +88,7 @@ def compose(text: str, file: str, origin: str | None = None) -> Node | None:
         if over is not None:
             message, path, line = over
             raise DeckError(message, Where(file, path, line if origin is None else None))
-        root = yaml.compose(text, Loader=LOADER)
+        root = yaml.compose(text, Loader=_ComposeLoader)
     except RecursionError:  # pragma: no cover - the depth check comes first
         raise DeckError(limits.DEPTH.exceeded(), Where(file)) from None
     except yaml.MarkedYAMLError as exc:
