@@ -178,7 +178,8 @@ def _within_limits(text: str) -> bool:
         return False
     brackets = _NOT_BRACKET.sub("", text)
     opens = brackets.count("[") + brackets.count("{")
-    if opens > _SCREEN_BRACKETS or n + 3 * (colons + dashes + marks) + opens + 1 > limits.NODES.value:
+    values = n + 3 * (colons + dashes + marks) + opens + 1
+    if opens > _SCREEN_BRACKETS or values > limits.NODES.value:
         return False
     flow = depth = 0
     for c in brackets:
