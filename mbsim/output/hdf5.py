@@ -524,7 +524,8 @@ def _attr_str(attrs: h5py.AttributeManager, key: str, default: str = "") -> str:
 
 
 def layout_version(f: h5py.File) -> int:
-    """The file's layout: 2 (channels as columns of /values), 1 (a dataset per channel)."""
+    """The file's layout: 3 (channels as columns of /values, tables as compound datasets),
+    2 (the same with a dataset per table column), 1 (a dataset per channel)."""
     return int(f.attrs.get("layout_version", 1))
 
 
