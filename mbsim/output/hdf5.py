@@ -63,15 +63,19 @@ LAYOUT_VERSION = 3  # root attribute layout_version; files without it are versio
 JSON_DATASETS = ("settings", "counters", "summary")  # scalar JSON strings (attributes in v1)
 EXTRA_ATTRS = ("stable", "stability", "error_estimate", "error_estimate_reason")  # Result.attrs
 STACKED = ("shapes",)  # arrays <group>/<item>/<leaf> stored one dataset per leaf for all items
-COMPRESS_MIN_SIZE = 1000  # arrays (shapes/...) with more elements are chunked and compressed
+COMPRESS_MIN_SIZE = 100_000  # arrays (shapes/...) with more elements are chunked, compressed
 GZIP_LEVEL = 4
 CHUNK_ELEMENTS = 65536  # target elements per chunk (chunks span whole rows)
 """/time and /values are stored contiguous and uncompressed: gzip (level 4, shuffle) made
 them only 1.2-1.4x smaller (simulated float64 series) and cost 8 of a governor run's 17 ms of
-writing, 36 of the vehicle's 48 (benchmarks/user_run.py); the meshes of ``shapes/``
-compress 2.6x (faces, constant colours) and keep it."""
+writing, 36 of the vehicle's 48 (benchmarks/user_run.py).  The meshes of ``shapes/``
+compress 2.6x (faces, constant colours), but a chunked, filtered dataset costs about 0.5 ms
+to create whatever its size: the governor's three (8 000 to 14 000 elements, 190 kB) cost
+1.8 ms compressed against 0.3 ms stored as they are, so only meshes above
+COMPRESS_MIN_SIZE (800 kB of float64: chains of hundreds of links) are compressed."""
 
 _STR = h5py.string_dtype("utf-8")
+_VSTR_FILE, _VSTR_MEMORY = h5py.h5t.py_create(_STR, logical=True), h5py.h5t.py_create(_STR)
 
 
 # --------------------------------------------------------------------------- JSON helpers
@@ -183,6 +187,25 @@ def _strings(group: h5py.File | h5py.Group, name: str, items) -> h5py.Dataset:
     return h5py.Dataset(ds)
 
 
+def _set_attrs(obj: h5py.File | h5py.Group | h5py.Dataset, items: dict[str, Any]) -> None:
+    """``obj.attrs.update(items)`` with the types h5py gives them (str: a variable-length UTF-8
+    scalar, float and int: float64 and int64 scalars; anything else through h5py), written
+    with HDF5's own calls: a fifth of the cost of ``attrs[key] = value`` (0.03 against 0.14
+    ms each; a run's file has about twelve)."""
+    for key, value in items.items():
+        if isinstance(value, str):
+            data, ftype, mtype = np.array(value, dtype=_STR), _VSTR_FILE, _VSTR_MEMORY
+        elif isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(
+                value, (bool, np.bool_)):  # fmt: skip
+            data = np.asarray(value)
+            ftype = mtype = h5py.h5t.py_create(data.dtype)
+        else:
+            obj.attrs[key] = value
+            continue
+        attr = h5py.h5a.create(obj.id, key.encode(), ftype, h5py.h5s.create_simple(()))
+        attr.write(data, mtype=mtype)
+
+
 def _string_type(size: int) -> h5py.h5t.TypeStringID:
     """HDF5's fixed-length, null-padded UTF-8 string of ``size`` bytes."""
     tid = h5py.h5t.TypeStringID.copy(h5py.h5t.C_S1)
@@ -282,8 +305,7 @@ def _write_arrays(f: h5py.File, arrays: dict[str, tuple[np.ndarray, dict]]) -> N
             single.append(path)
             ds = f.create_dataset(path, data=data.astype(_STR) if data.dtype.kind in "US"
                                   else data)
-            for k, v in attrs.items():
-                ds.attrs[k] = v
+            _set_attrs(ds, attrs)
         else:
             stacks.setdefault((key[0], key[2]), []).append((key[1], data, attrs))
     index: dict[str, dict[str, list]] = {}  # group -> the columns of its index table
@@ -296,8 +318,7 @@ def _write_arrays(f: h5py.File, arrays: dict[str, tuple[np.ndarray, dict]]) -> N
         data = np.concatenate([d for _, d, _ in members])
         options = _dataset_options(data.shape)
         ds = g.create_dataset(leaf, data=data, **options) if options else _put(g, leaf, data)
-        for k, v in members[0][2].items():
-            ds.attrs[k] = v
+        _set_attrs(ds, members[0][2])
         stop = np.cumsum([len(d) for _, d, _ in members])
         cols = index.setdefault(group, {"leaf": [], "item": [], "start": [], "stop": []})
         cols["leaf"] += [leaf] * len(members)
@@ -314,28 +335,23 @@ def _write_arrays(f: h5py.File, arrays: dict[str, tuple[np.ndarray, dict]]) -> N
 def _write_file(f: h5py.File, result: Result, paths: list[str]) -> None:
     from mbsim import __version__
 
-    a = f.attrs
-    a["layout_version"] = LAYOUT_VERSION
-    a["mbsim_version"] = __version__
-    a["mode"] = result.mode
-    a["status"] = result.status
-    a["message"] = result.message
-    a["deck_file"] = str(result.deck_file)
-    a["wall_time_s"] = float(result.wall_time)
-    a["created"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    for key, value in result.attrs.items():  # e.g. 'stable' (bool) of a linear analysis
-        a[key] = value
+    _set_attrs(f, {
+        "layout_version": LAYOUT_VERSION, "mbsim_version": __version__, "mode": result.mode,
+        "status": result.status, "message": result.message, "deck_file": str(result.deck_file),
+        "wall_time_s": float(result.wall_time),
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        **result.attrs})  # e.g. 'stable' (bool) of a linear analysis
     _strings(f, "deck", result.deck_text or "")
     for key in JSON_DATASETS:
         _strings(f, key, to_json(getattr(result, key)))
-    _put(f, "time", np.asarray(result.t, dtype=np.float64).reshape(-1)).attrs["unit"] = "s"
+    _set_attrs(_put(f, "time", np.asarray(result.t, dtype=np.float64).reshape(-1)), {"unit": "s"})
     values, table = _channel_table(result, paths)
     _put(f, "values", values)  # contiguous, uncompressed (see CHUNK_ELEMENTS)
     _table(f, "channels", table)
     kinds = list(result.names)
     names = _table(f, "names", {"kind": [k for k in kinds for _ in result.names[k]],
                                 "name": [n for k in kinds for n in result.names[k]]})
-    names.attrs["kinds"] = json.dumps(kinds)  # every kind, also those without items
+    _set_attrs(names, {"kinds": json.dumps(kinds)})  # every kind, also those without items
     _write_arrays(f, result.arrays)
 
 

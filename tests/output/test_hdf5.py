@@ -129,11 +129,25 @@ def test_shapes_are_one_dataset_per_leaf_and_an_index(tmp_path):
                 zip(index["leaf"], index["item"], index["start"], index["stop"])]
         assert rows == [("vertices", "crank", 0, 4), ("vertices", "rod", 4, 6),
                         ("faces", "crank", 0, 3), ("faces", "rod", 3, 4)]
+        assert f["shapes/vertices"].compression is None  # small: stored as it is
     back = read_result(path)
     assert set(back.arrays) == set(r.arrays)
     np.testing.assert_array_equal(back.arrays["shapes/rod/vertices"][0], np.full((2, 3), 2.0))
     assert back.arrays["shapes/rod/vertices"][1] == {"unit": "m"}
     assert back.arrays["shapes/rod/faces"][0].dtype == np.int32
+
+
+def test_large_meshes_are_compressed(tmp_path):
+    """Meshes above hdf5.COMPRESS_MIN_SIZE elements are chunked and gzip-compressed, and
+    read back unchanged."""
+    r = make_result(nt=3)
+    n = hdf5.COMPRESS_MIN_SIZE // 3 + 1
+    verts = np.repeat(np.arange(n, dtype=float)[:, None] % 7, 3, axis=1)
+    r.arrays["shapes/hull/vertices"] = (verts, {"unit": "m"})
+    path = write_result(r, tmp_path / "big_mesh.h5")
+    with h5py.File(path) as f:
+        assert f["shapes/vertices"].compression == "gzip"
+    np.testing.assert_array_equal(read_result(path).arrays["shapes/hull/vertices"][0], verts)
 
 
 def test_a_governor_run_writes_fifteen_objects(tmp_path):
