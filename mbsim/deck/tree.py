@@ -35,8 +35,9 @@ LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 class _ComposeLoader(LOADER):  # type: ignore[misc, valid-type]
     """LOADER whose tag resolution (a Python call per scalar, through YAML 1.1's regexes)
     is remembered per (kind, text, implicit): a deck repeats its numbers and names (the
-    governor's 900 scalars have 300 distinct texts), and the tag depends on nothing else
-    (the safe loader has no path resolvers).  At most RESOLVED_KEPT texts are kept."""
+    governor's 900 scalars have 217 distinct texts), and the tag depends on nothing else
+    (the safe loader has no path resolvers).  At most RESOLVED_KEPT texts are kept, each of
+    at most RESOLVED_CHARS characters."""
 
     resolved: dict = {}
 
@@ -45,12 +46,13 @@ class _ComposeLoader(LOADER):  # type: ignore[misc, valid-type]
         tag = self.resolved.get(key)
         if tag is None:
             tag = super().resolve(kind, value, implicit)
-            if len(self.resolved) < RESOLVED_KEPT:
+            if len(self.resolved) < RESOLVED_KEPT and (value is None or
+                                                       len(value) <= RESOLVED_CHARS):
                 self.resolved[key] = tag
         return tag
 
 
-RESOLVED_KEPT = 20_000
+RESOLVED_KEPT, RESOLVED_CHARS = 20_000, 100
 
 
 @dataclass(eq=False, slots=True)
@@ -363,8 +365,8 @@ class _Converter:
             return self.done[key]
         if key in self.active:
             raise self.fail(ynode, "recursive YAML alias")
-        if depth > self.max_depth:
-            raise self.fail(ynode, limits.DEPTH.exceeded(depth))
+        if depth >= self.max_depth:  # as _over_limit: a container at depth max_depth is too deep
+            raise self.fail(ynode, limits.DEPTH.exceeded(), path)
         if not isinstance(ynode, yaml.ScalarNode):
             if ynode.tag not in CONTAINER_TAGS:
                 raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}", path)
