@@ -18,7 +18,11 @@ CPU per run in ms, median of --repeats [min-max]:
 - ``write``: :func:`mbsim.output.hdf5.write_result` (in memory, then written and synced);
 - ``rest``: the user run less the phases above (option merging, the result's bookkeeping);
 - ``bare``: the same integration with one output and no estimate (its own run), and the
-  ratio user / bare, which ``benchmarks/peers.py --cases user`` also prints.
+  ratio user / bare, which ``benchmarks/peers.py --cases user`` also prints;
+- ``load``: :func:`mbsim.api.load_model` of the deck as ``mbsim run`` loads it (its
+  ``studies:`` left to ``mbsim check`` where the checkout's load_model can), outside the
+  user run (a figure of its own: ms per load, median of the repeats);
+- the number of HDF5 objects (groups and datasets) in the run's file (a figure).
 
 Phases are timed by wrapping the named functions where the run looks them up (the wrappers'
 own cost, ~1 us a call, is in the phases).  Figures (``phases: ...``, so that
@@ -29,11 +33,13 @@ before_after.py's table keeps them apart from peers.py's): user run / bare, and 
 from __future__ import annotations
 
 import argparse
+import inspect
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 # common.ROOT: the checkout measured ($MBSIM_ROOT, set by before_after.py for each side,
@@ -69,7 +75,9 @@ def measure(deck, scene, repeats, tmp):
     from mbsim.api import load_model
     from mbsim.output import hdf5
 
-    spec, model = load_model(ROOT / "models" / f"{deck}.yaml", scene=scene)
+    path = ROOT / "models" / f"{deck}.yaml"
+    for_run = {"studies": False} if "studies" in inspect.signature(load_model).parameters else {}
+    spec, model = load_model(path, scene=scene, **for_run)
     opts = dict(spec.analysis.get("dynamic", {}))
     bare = dict(opts, error_estimate=False,
                 step=float(opts.get("t_end", 1.0)) - float(opts.get("t_start", 0.0)))
@@ -80,7 +88,7 @@ def measure(deck, scene, repeats, tmp):
                (dyn, "estimate", "estimate"), (dyn, "build_result", "outputs"),
                (geometry, "scene_arrays", "shapes")]
     originals = [(m, n, timed(m, n, k, spent)) for m, n, k in wrapped]
-    got = {k: [] for k in (*PHASES, "rest", "user run", "bare")}
+    got = {k: [] for k in (*PHASES, "rest", "user run", "bare", "load")}
     try:
         for _ in range(repeats):
             for k in spent:
@@ -98,11 +106,16 @@ def measure(deck, scene, repeats, tmp):
             got["user run"].append(1e3 * (c2 - c0))
             got["rest"].append(1e3 * (c2 - c0) - sum(got[k][-1] for k in PHASES))
             got["bare"].append(1e3 * (c3 - c2))
+            load_model(path, scene=scene, **for_run)
+            got["load"].append(1e3 * (time.process_time() - c3))
     finally:
         for m, n, f in originals:
             setattr(m, n, f)
     t_span = float(opts.get("t_end", 1.0)) - float(opts.get("t_start", 0.0))
-    return got, t_span, len(res.t)
+    with h5py.File(out, "r") as f:
+        objects: list[str] = []
+        f.visit(objects.append)
+    return got, t_span, len(res.t), len(objects)
 
 
 def main(argv=None):
@@ -113,11 +126,12 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as tmp:
         for item in a.decks.split(","):
             deck, _, scene = item.partition(":")
-            got, t_span, nt = measure(deck, scene or None, max(1, a.repeats), tmp)
+            got, t_span, nt, objects = measure(deck, scene or None, max(1, a.repeats), tmp)
             label = f"{deck}{' (' + scene + ')' if scene else ''}"
             print(f"\n=== {label}: {t_span:g} s, {nt} outputs; process CPU ms per run, median "
                   f"of {a.repeats} [min-max] ===")
             user = np.median(got["user run"])
+            print(f"    HDF5 objects in the file: {objects}")
             for k, v in got.items():
                 med = np.median(v)
                 print(f"    {k:<12} {med:8.2f} [{min(v):.2f}-{max(v):.2f}]  "
@@ -127,6 +141,9 @@ def main(argv=None):
             figure(f"phases: estimate / run without it, shapes and file, {label}",
                    [e / (u - e - s - w) for u, e, s, w in
                     zip(got["user run"], got["estimate"], got["shapes"], got["write"])], "x")
+            figure(f"phases: load_model, {label}", got["load"], "ms")
+            figure(f"phases: write, {label}", got["write"], "ms")
+            figure(f"phases: HDF5 objects in the file, {label}", [objects], "objects")
 
 
 if __name__ == "__main__":

@@ -39,12 +39,13 @@ ANALYSES: dict[str, tuple[str, str, str]] = {
 }
 
 
-def load_model(path, overrides=None, scene=None):
-    """Load and validate a deck, compile it; returns (spec, model)."""
+def load_model(path, overrides=None, scene=None, studies=True):
+    """Load and validate a deck, compile it; returns (spec, model).  ``studies=False``
+    skips validating the deck's ``studies:`` (see :func:`mbsim.deck.load_deck`)."""
     from mbsim.deck import load_deck
     from mbsim.model import compile_model
 
-    spec = load_deck(path, overrides=overrides, scene=scene)
+    spec = load_deck(path, overrides=overrides, scene=scene, studies=studies)
     return spec, compile_model(spec)
 
 

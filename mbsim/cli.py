@@ -95,10 +95,10 @@ def _parse_sets(sets: tuple[str, ...]) -> dict[str, str]:
     return out
 
 
-def _load(deck, sets=(), scene=None):
+def _load(deck, sets=(), scene=None, studies=True):
     from mbsim.api import load_model
 
-    spec, model = load_model(deck, overrides=_parse_sets(sets), scene=scene)
+    spec, model = load_model(deck, overrides=_parse_sets(sets), scene=scene, studies=studies)
     _warn(spec.warnings)
     return spec, model
 
@@ -288,7 +288,7 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
 
     lock = None
     try:
-        spec, model = _load(deck, sets, scene)
+        spec, model = _load(deck, sets, scene, studies=False)  # `mbsim check` validates them
         out = output_path(output, deck, mode, spec.parameters, scene)
         opts = settings_of(locals())
         opts = {k: v for k, v in opts.items() if v is not None}

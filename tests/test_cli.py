@@ -103,8 +103,9 @@ def test_plot_compare_export(tmp_path):
     assert r.exit_code == 2 and "did you mean" in r.output
     assert run("compare", a, b, "--rtol", "0", "--atol", "0").exit_code == 0
     with h5py.File(b, "r+") as f:  # one element of bodies/slider/r (layout: docs/hdf5.md)
-        k = list(f["channels/name"].asstr()[()]).index("bodies/slider/r")
-        col = f["channels/column"][k]
+        ch = f["channels"][()]
+        k = list(ch["name"]).index(b"bodies/slider/r")
+        col = ch["column"][k]
         f["values"][5, col] = f["values"][5, col] * (1 + 1e-6)
     r = run("compare", a, b, "--rtol", "1e-9")
     assert r.exit_code == 1 and "bodies.slider.r" in r.output

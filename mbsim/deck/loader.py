@@ -51,8 +51,9 @@ from mbsim.options import HOLD_COORDS, resolve_options
 
 
 def load_deck(
-    path: str | Path, overrides: Mapping[str, str] | None = None, scene: str | None = None
-) -> DeckSpec:
+    path: str | Path, overrides: Mapping[str, str] | None = None, scene: str | None = None,
+    studies: bool = True,
+) -> DeckSpec:  # fmt: skip
     """Read and validate the deck file at ``path``.
 
     Parameters
@@ -60,8 +61,10 @@ def load_deck(
     path : deck file (YAML).
     overrides : {key path: value} from ``mbsim run --set PATH=VALUE``; values are YAML text.
     scene : name of an entry of the deck's ``scenes:`` to apply before the overrides.
+    studies : False: leave the ``studies:`` section unvalidated (``DeckSpec.studies`` empty),
+        for a run that does not use it (``mbsim run``; ``mbsim check`` validates it).
     """
-    return parse_deck(path, scene).spec(scene, overrides)
+    return parse_deck(path, scene).spec(scene, overrides, studies=studies)
 
 
 def parse_deck(path: str | Path, scene: str | None = None) -> ParsedDeck:

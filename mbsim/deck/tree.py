@@ -32,6 +32,29 @@ CONTAINER_TAGS = ("tag:yaml.org,2002:seq", "tag:yaml.org,2002:map")
 LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
+class _ComposeLoader(LOADER):  # type: ignore[misc, valid-type]
+    """LOADER whose tag resolution (a Python call per scalar, through YAML 1.1's regexes)
+    is remembered per (kind, text, implicit): a deck repeats its numbers and names (the
+    governor's 900 scalars have 217 distinct texts), and the tag depends on nothing else
+    (the safe loader has no path resolvers).  At most RESOLVED_KEPT texts are kept, each of
+    at most RESOLVED_CHARS characters."""
+
+    resolved: dict = {}
+
+    def resolve(self, kind, value, implicit):
+        key = (kind, value, implicit)
+        tag = self.resolved.get(key)
+        if tag is None:
+            tag = super().resolve(kind, value, implicit)
+            if len(self.resolved) < RESOLVED_KEPT and (value is None or
+                                                       len(value) <= RESOLVED_CHARS):
+                self.resolved[key] = tag
+        return tag
+
+
+RESOLVED_KEPT, RESOLVED_CHARS = 20_000, 100
+
+
 @dataclass(eq=False, slots=True)
 class Node:
     """One YAML value.
@@ -63,11 +86,11 @@ def compose(text: str, file: str, origin: str | None = None) -> Node | None:
         # it stops at the first event past a limit, before anything is composed, so a 10^6-
         # point table or a 10^5-deep list costs a fraction of a second, and the message is
         # mbsim's own whatever the YAML library's version.
-        over = _over_limit(text)
+        over = None if _within_limits(text) else _over_limit(text)
         if over is not None:
             message, path, line = over
             raise DeckError(message, Where(file, path, line if origin is None else None))
-        root = yaml.compose(text, Loader=LOADER)
+        root = yaml.compose(text, Loader=_ComposeLoader)
     except RecursionError:  # pragma: no cover - the depth check comes first
         raise DeckError(limits.DEPTH.exceeded(), Where(file)) from None
     except yaml.MarkedYAMLError as exc:
@@ -113,6 +136,63 @@ def _indent_hint(text: str, row: int) -> str:
         return ""
     return (f"; check the indentation of lines {prev + 1} and {row + 1} ({indent(prev)} and "
             f"{indent(row)} spaces): keys of one mapping start in the same column")
+
+
+# A block container's first entry starts at a line's indentation or after one of the compact
+# indicators and node properties before it on that line (``- - a``, ``- ? a``, ``--- - a``,
+# ``- &anchor key: v``): the ends of these groups are the columns block nesting can use.
+_BLOCK_PREFIX = re.compile(r"^[ \t]*(?:(?:---|[-?:]|[&!][^ \t\n]*)[ \t]+)*", re.MULTILINE)
+_PREFIX_GROUP = re.compile(r"(?:---|[-?:]|[&!][^ \t\n]*)[ \t]+")
+_NOT_BRACKET = re.compile(r"[^\[\]{}]+")
+# Flow brackets the screen lets through to the composer: libyaml's composer recurses in C,
+# once per level (10^4 levels compose in 0.3 s, 10^5 overflow the stack), and brackets in
+# comments or quotes may hide some of the depth from the screen.
+_SCREEN_BRACKETS = 2000
+
+
+def _within_limits(text: str) -> bool:
+    """True when counts of characters prove ``text`` within the byte, depth, entry and value
+    limits, so that composing it cannot cost more than its size; False when they do not
+    (then :func:`_over_limit` walks the parser's events and finds the first place past one).
+
+    Bounds, each from C-speed string operations (``str.count``, one regex over the lines):
+
+    - entries of one list or mapping <= the ``,`` ``-`` ``:`` ``?`` in the text + 1 (a flow
+      entry follows a comma or opens its collection, a block entry has its ``-``, ``:`` or
+      ``?``);
+    - values <= the characters + 3 per indicator ``-`` ``:`` ``?`` + the ``[`` ``{`` + 1 (a
+      value is at least one character, an alias too, except an empty one after an indicator;
+      a container is a bracket or has an indicator);
+    - depth <= 2 C + B: block containers nest at columns that only grow, at most twice at one
+      column (a list under a key at the key's column), and C counts the columns where one
+      can start (the group ends of the lines' :data:`_BLOCK_PREFIX`, a line's indentation
+      first); flow collections sit below block ones and nest at most B,
+      the deepest running count of the brackets ``[ { ] }`` in the text.  Brackets inside
+      quotes or comments may make B too small; that is safe because the composed tree's
+      depth is checked again (:class:`_Converter`) and at most :data:`_SCREEN_BRACKETS`
+      brackets are let through.
+    """
+    n = len(text)
+    if n > limits.DECK_BYTES.value:
+        return False
+    colons, dashes, marks = text.count(":"), text.count("-"), text.count("?")
+    if text.count(",") + colons + dashes + marks + 1 > limits.ITEMS.value:
+        return False
+    brackets = _NOT_BRACKET.sub("", text)
+    opens = brackets.count("[") + brackets.count("{")
+    values = n + 3 * (colons + dashes + marks) + opens + 1
+    if opens > _SCREEN_BRACKETS or values > limits.NODES.value:
+        return False
+    flow = depth = 0
+    for c in brackets:
+        depth = depth + 1 if c in "[{" else max(0, depth - 1)
+        flow = max(flow, depth)
+    columns: set[int] = set()
+    for prefix in set(_BLOCK_PREFIX.findall(text)):  # a few dozen distinct prefixes
+        indent = len(prefix) - len(prefix.lstrip(" \t"))
+        columns.add(indent)
+        columns.update(m.end() for m in _PREFIX_GROUP.finditer(prefix, indent))
+    return 2 * len(columns) + flow <= limits.DEPTH.value
 
 
 def _over_limit(text: str) -> tuple[str, str, int | None] | None:
@@ -285,8 +365,8 @@ class _Converter:
             return self.done[key]
         if key in self.active:
             raise self.fail(ynode, "recursive YAML alias")
-        if depth > self.max_depth:
-            raise self.fail(ynode, limits.DEPTH.exceeded(depth))
+        if depth >= self.max_depth:  # as _over_limit: a container at depth max_depth is too deep
+            raise self.fail(ynode, limits.DEPTH.exceeded(), path)
         if not isinstance(ynode, yaml.ScalarNode):
             if ynode.tag not in CONTAINER_TAGS:
                 raise self.fail(ynode, f"unsupported YAML tag {quote(ynode.tag)}", path)

@@ -1,27 +1,30 @@
 """HDF5 storage of a :class:`~mbsim.result.Result`: one file per analysis run.
 
-Layout version 2 (root attribute ``layout_version``; ``docs/hdf5.md`` has the full table and
+Layout version 3 (root attribute ``layout_version``; ``docs/hdf5.md`` has the full table and
 an ``h5ls -r`` listing).  Channels are data, not one dataset each: every channel is a block
-of columns of one 2-D array, and a table of equal-length string and integer datasets says
-which, so no attribute or header grows with the model and the file is written in a few bulk
-writes whatever its size::
+of columns of one 2-D array, and one table (a compound dataset, a row per channel) says
+which, so no attribute or header grows with the model and the file is a few objects written
+in bulk whatever its size (a governor run: 15)::
 
-    /                 attrs: layout_version (2), mbsim_version, mode, status, message,
+    /                 attrs: layout_version (3), mbsim_version, mode, status, message,
                              deck_file, wall_time_s, created; Result.attrs (stable, ...)
     /deck, /settings, /counters, /summary   scalar UTF-8 strings (deck YAML; JSON)
     /time             (nt,) float64, attr unit = 's'
     /values           (nt, ncol) float64: every channel's columns side by side
-    /channels/name, unit, description, components (JSON list), shape (JSON, after time)
-                      (nch,) strings; /channels/column, width (nch,) int64: channel k is
+    /channels         (nch,) table: name, unit, description, components (JSON list), shape
+                      (JSON, after time) strings, column, width int64: channel k is
                       values[:, column[k]:column[k] + width[k]] reshaped to (nt, *shape[k])
-    /names/<kind>     (n,) UTF-8 strings: result.names[kind]
+    /names            (n,) table: kind, name (result.names); attr kinds: JSON list of kinds
     /arrays           (na,) strings: the Result.arrays stored at their own path (linear/...)
-    /shapes/<leaf>/data, item, start   shapes/<body>/<leaf> of every body stacked by rows
+    /shapes/<leaf>    shapes/<body>/<leaf> of every body stacked by rows; /shapes/index
+                      (table: leaf, item, start, stop) says whose rows are whose
 
-Version 1 (a dataset per channel at its slash path with attributes unit, description,
-components; settings, counters, summary and the list of channels as root attributes) is
-still read: it failed for large models ("object header message is too large", the root
-attribute listing 7000 channels) and cost about 1 ms per channel to write.
+Version 2 (the channel table and the names a dataset per field and per kind, shapes/<leaf>/
+data, item, start: 35 objects for a governor run) is still read, and so is version 1 (a
+dataset per channel at its slash path with attributes unit, description, components;
+settings, counters, summary and the list of channels as root attributes): version 1 failed
+for large models ("object header message is too large", the root attribute listing 7000
+channels) and cost about 1 ms per channel to write.
 
 Writes are atomic: the file is built in memory, written as ``.<name>.tmp-<pid>`` next to the
 target and moved onto it with :func:`os.replace` only once it is complete and closed; a failed
@@ -56,19 +59,23 @@ class OutputError(MbsimError):
     exit_code = 1
 
 RESERVED = ("time", "deck", "names", "linear", "shapes")  # names that channels may not start with
-LAYOUT_VERSION = 2  # root attribute layout_version; files without it are version 1
+LAYOUT_VERSION = 3  # root attribute layout_version; files without it are version 1
 JSON_DATASETS = ("settings", "counters", "summary")  # scalar JSON strings (attributes in v1)
 EXTRA_ATTRS = ("stable", "stability", "error_estimate", "error_estimate_reason")  # Result.attrs
 STACKED = ("shapes",)  # arrays <group>/<item>/<leaf> stored one dataset per leaf for all items
-COMPRESS_MIN_SIZE = 1000  # arrays (shapes/...) with more elements are chunked and compressed
+COMPRESS_MIN_SIZE = 100_000  # arrays (shapes/...) with more elements are chunked, compressed
 GZIP_LEVEL = 4
 CHUNK_ELEMENTS = 65536  # target elements per chunk (chunks span whole rows)
 """/time and /values are stored contiguous and uncompressed: gzip (level 4, shuffle) made
 them only 1.2-1.4x smaller (simulated float64 series) and cost 8 of a governor run's 17 ms of
-writing, 36 of the vehicle's 48 (benchmarks/user_run.py); the meshes of ``shapes/``
-compress 2.6x (faces, constant colours) and keep it."""
+writing, 36 of the vehicle's 48 (benchmarks/user_run.py).  The meshes of ``shapes/``
+compress 2.6x (faces, constant colours), but a chunked, filtered dataset costs about 0.5 ms
+to create whatever its size: the governor's three (8 000 to 14 000 elements, 190 kB) cost
+1.8 ms compressed against 0.3 ms stored as they are, so only meshes above
+COMPRESS_MIN_SIZE (800 kB of float64: chains of hundreds of links) are compressed."""
 
 _STR = h5py.string_dtype("utf-8")
+_VSTR_FILE, _VSTR_MEMORY = h5py.h5t.py_create(_STR, logical=True), h5py.h5t.py_create(_STR)
 
 
 # --------------------------------------------------------------------------- JSON helpers
@@ -170,16 +177,70 @@ def _strings(group: h5py.File | h5py.Group, name: str, items) -> h5py.Dataset:
     scalar = isinstance(items, str)
     raw = [str(s).encode() for s in ([items] if scalar else items)]
     size = max([len(b) for b in raw] + [1])
-    tid = h5py.h5t.TypeStringID.copy(h5py.h5t.C_S1)
-    tid.set_size(size)
-    tid.set_cset(h5py.h5t.CSET_UTF8)
-    tid.set_strpad(h5py.h5t.STR_NULLPAD)
+    tid = _string_type(size)
     data = np.array(raw[0] if scalar else raw, dtype=f"S{size}")
     space = (h5py.h5s.create(h5py.h5s.SCALAR) if scalar
              else h5py.h5s.create_simple(data.shape))
     ds = h5py.h5d.create(group.id, name.encode(), tid, space)
     if data.size:
         ds.write(h5py.h5s.ALL, h5py.h5s.ALL, data, mtype=tid)
+    return h5py.Dataset(ds)
+
+
+def _set_attrs(obj: h5py.File | h5py.Group | h5py.Dataset, items: dict[str, Any]) -> None:
+    """``obj.attrs.update(items)`` with the types h5py gives them (str: a variable-length UTF-8
+    scalar, float and int: float64 and int64 scalars; anything else through h5py), written
+    with HDF5's own calls: a fifth of the cost of ``attrs[key] = value`` (0.03 against 0.14
+    ms each; a run's file has about twelve)."""
+    for key, value in items.items():
+        if isinstance(value, str):
+            data, ftype, mtype = np.array(value, dtype=_STR), _VSTR_FILE, _VSTR_MEMORY
+        elif isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(
+                value, (bool, np.bool_)):  # fmt: skip
+            data = np.asarray(value)
+            ftype = mtype = h5py.h5t.py_create(data.dtype)
+        else:
+            obj.attrs[key] = value
+            continue
+        attr = h5py.h5a.create(obj.id, key.encode(), ftype, h5py.h5s.create_simple(()))
+        attr.write(data, mtype=mtype)
+
+
+def _string_type(size: int) -> h5py.h5t.TypeStringID:
+    """HDF5's fixed-length, null-padded UTF-8 string of ``size`` bytes."""
+    tid = h5py.h5t.TypeStringID.copy(h5py.h5t.C_S1)
+    tid.set_size(size)
+    tid.set_cset(h5py.h5t.CSET_UTF8)
+    tid.set_strpad(h5py.h5t.STR_NULLPAD)
+    return tid
+
+
+def _table(group: h5py.File | h5py.Group, name: str, columns: dict[str, Any]) -> h5py.Dataset:
+    """``name`` (no slash) in ``group``: one compound dataset (n,) with a field per entry of
+    ``columns`` (equal lengths), strings (lists of str) as fixed-length, null-padded UTF-8,
+    numbers (arrays) in their own type: a table of n rows is one HDF5 object, not one per
+    column.  Read back with :func:`_read_table` (or h5py: ``f[name][()]['field']``)."""
+    fields, tids, data = [], [], []
+    for key, items in columns.items():
+        if isinstance(items, np.ndarray):
+            arr = np.ascontiguousarray(items)
+            tid = h5py.h5t.py_create(arr.dtype)
+        else:
+            raw = [str(s).encode() for s in items]
+            arr = np.array(raw, dtype=f"S{max([len(b) for b in raw] + [1])}")
+            tid = _string_type(arr.dtype.itemsize)
+        fields.append((key, arr.dtype))
+        tids.append(tid)
+        data.append(arr)
+    rows = np.empty(len(data[0]) if data else 0, dtype=np.dtype(fields))
+    for (key, _), arr in zip(fields, data):
+        rows[key] = arr
+    ctid = h5py.h5t.create(h5py.h5t.COMPOUND, rows.dtype.itemsize)
+    for (key, _), tid in zip(fields, tids):
+        ctid.insert(key.encode(), rows.dtype.fields[key][1], tid)
+    ds = h5py.h5d.create(group.id, name.encode(), ctid, h5py.h5s.create_simple(rows.shape))
+    if rows.size:
+        ds.write(h5py.h5s.ALL, h5py.h5s.ALL, rows, mtype=ctid)
     return h5py.Dataset(ds)
 
 
@@ -232,8 +293,9 @@ def _stack_key(path: str) -> tuple[str, str, str] | None:
 
 def _write_arrays(f: h5py.File, arrays: dict[str, tuple[np.ndarray, dict]]) -> None:
     """Result.arrays (no time axis; complex kept complex): ``shapes/<body>/<leaf>`` stacked
-    per leaf (``/shapes/<leaf>/data`` rows of every body, ``item`` the bodies, ``start`` the
-    first row of each and the total), the others each at its own path, listed in ``/arrays``."""
+    per leaf (``/shapes/<leaf>`` the rows of every body; the table ``/shapes/index``: leaf,
+    item (the body), start, stop: its rows), the others each at its own path, listed in
+    ``/arrays``."""
     stacks: dict[tuple[str, str], list[tuple[str, np.ndarray, dict]]] = {}
     single = []
     for path, (data, attrs) in arrays.items():
@@ -243,56 +305,53 @@ def _write_arrays(f: h5py.File, arrays: dict[str, tuple[np.ndarray, dict]]) -> N
             single.append(path)
             ds = f.create_dataset(path, data=data.astype(_STR) if data.dtype.kind in "US"
                                   else data)
-            for k, v in attrs.items():
-                ds.attrs[k] = v
+            _set_attrs(ds, attrs)
         else:
             stacks.setdefault((key[0], key[2]), []).append((key[1], data, attrs))
+    index: dict[str, dict[str, list]] = {}  # group -> the columns of its index table
     for (group, leaf), members in stacks.items():
         first = members[0][1]
         if any(d.shape[1:] != first.shape[1:] or d.dtype != first.dtype or a != members[0][2]
                for _, d, a in members):
             raise ValueError(f"arrays {group}/*/{leaf} differ in shape, type or attributes")
-        g = f.create_group(f"{group}/{leaf}")
+        g = f.require_group(group)
         data = np.concatenate([d for _, d, _ in members])
         options = _dataset_options(data.shape)
-        ds = g.create_dataset("data", data=data, **options) if options else _put(g, "data", data)
-        for k, v in members[0][2].items():
-            ds.attrs[k] = v
-        _strings(g, "item", [m[0] for m in members])
-        _put(g, "start", np.concatenate(
-            [[0], np.cumsum([len(d) for _, d, _ in members])]).astype(np.int64))
+        ds = g.create_dataset(leaf, data=data, **options) if options else _put(g, leaf, data)
+        _set_attrs(ds, members[0][2])
+        stop = np.cumsum([len(d) for _, d, _ in members])
+        cols = index.setdefault(group, {"leaf": [], "item": [], "start": [], "stop": []})
+        cols["leaf"] += [leaf] * len(members)
+        cols["item"] += [m[0] for m in members]
+        cols["start"] += [0, *stop[:-1].tolist()]
+        cols["stop"] += stop.tolist()
+    for group, cols in index.items():
+        _table(f[group], "index", {"leaf": cols["leaf"], "item": cols["item"],
+                                   "start": np.asarray(cols["start"], dtype=np.int64),
+                                   "stop": np.asarray(cols["stop"], dtype=np.int64)})
     _strings(f, "arrays", single)
 
 
 def _write_file(f: h5py.File, result: Result, paths: list[str]) -> None:
     from mbsim import __version__
 
-    a = f.attrs
-    a["layout_version"] = LAYOUT_VERSION
-    a["mbsim_version"] = __version__
-    a["mode"] = result.mode
-    a["status"] = result.status
-    a["message"] = result.message
-    a["deck_file"] = str(result.deck_file)
-    a["wall_time_s"] = float(result.wall_time)
-    a["created"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    for key, value in result.attrs.items():  # e.g. 'stable' (bool) of a linear analysis
-        a[key] = value
+    _set_attrs(f, {
+        "layout_version": LAYOUT_VERSION, "mbsim_version": __version__, "mode": result.mode,
+        "status": result.status, "message": result.message, "deck_file": str(result.deck_file),
+        "wall_time_s": float(result.wall_time),
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        **result.attrs})  # e.g. 'stable' (bool) of a linear analysis
     _strings(f, "deck", result.deck_text or "")
     for key in JSON_DATASETS:
         _strings(f, key, to_json(getattr(result, key)))
-    _put(f, "time", np.asarray(result.t, dtype=np.float64).reshape(-1)).attrs["unit"] = "s"
+    _set_attrs(_put(f, "time", np.asarray(result.t, dtype=np.float64).reshape(-1)), {"unit": "s"})
     values, table = _channel_table(result, paths)
     _put(f, "values", values)  # contiguous, uncompressed (see CHUNK_ELEMENTS)
-    g = f.create_group("channels")
-    for key, items in table.items():
-        if isinstance(items, np.ndarray):
-            _put(g, key, items)
-        else:
-            _strings(g, key, items)
-    names = f.create_group("names")
-    for kind, items in result.names.items():
-        _strings(names, kind, items)
+    _table(f, "channels", table)
+    kinds = list(result.names)
+    names = _table(f, "names", {"kind": [k for k in kinds for _ in result.names[k]],
+                                "name": [n for k in kinds for n in result.names[k]]})
+    _set_attrs(names, {"kinds": json.dumps(kinds)})  # every kind, also those without items
     _write_arrays(f, result.arrays)
 
 
@@ -481,12 +540,22 @@ def _attr_str(attrs: h5py.AttributeManager, key: str, default: str = "") -> str:
 
 
 def layout_version(f: h5py.File) -> int:
-    """The file's layout: 2 (channels as columns of /values), 1 (a dataset per channel)."""
+    """The file's layout: 3 (channels as columns of /values, tables as compound datasets),
+    2 (the same with a dataset per table column), 1 (a dataset per channel)."""
     return int(f.attrs.get("layout_version", 1))
 
 
 def _str_list(ds: h5py.Dataset) -> list[str]:
     return [str(s) for s in ds.asstr()[()]]
+
+
+def _read_table(ds: h5py.Dataset) -> dict[str, Any]:
+    """The columns of a table written by :func:`_table`: strings as lists of str, numbers as
+    arrays."""
+    rows = ds[()]
+    return {key: ([b.decode() for b in rows[key]] if rows.dtype[key].kind == "S"
+                  else np.asarray(rows[key]))
+            for key in rows.dtype.names}  # fmt: skip
 
 
 def json_document(f: h5py.File, key: str) -> Any:
@@ -511,6 +580,12 @@ class ChannelTable:
 
 def channel_table(f: h5py.File) -> ChannelTable:
     """The channels of an open result file, without their data, in written order."""
+    if layout_version(f) >= 3:
+        t = _read_table(f["channels"])
+        return ChannelTable(
+            t["name"], t["unit"], t["description"],
+            [tuple(json.loads(c)) for c in t["components"]],
+            np.asarray(t["column"], dtype=np.int64), [tuple(json.loads(s)) for s in t["shape"]])
     if layout_version(f) >= 2:
         g = f["channels"]
         return ChannelTable(
@@ -579,6 +654,16 @@ def _read_arrays(f: h5py.File) -> dict[str, tuple[np.ndarray, dict]]:
     for group in STACKED:
         if layout_version(f) < 2 or group not in f:
             continue
+        if layout_version(f) >= 3:
+            if "index" not in f[group]:
+                continue
+            t = _read_table(f[group]["index"])
+            leaves = {leaf: (read(f[group][leaf]), dict(f[group][leaf].attrs))
+                      for leaf in dict.fromkeys(t["leaf"])}  # fmt: skip
+            for leaf, item, start, stop in zip(t["leaf"], t["item"], t["start"], t["stop"]):
+                data, attrs = leaves[leaf]
+                arrays[f"{group}/{item}/{leaf}"] = (data[start:stop], dict(attrs))
+            continue
         for leaf, g in f[group].items():
             if not (isinstance(g, h5py.Group) and {"data", "item", "start"} <= set(g)):
                 continue
@@ -610,8 +695,13 @@ def read_result(path: str | Path) -> Result:
         t = np.asarray(f["time"][()], dtype=np.float64)
         channels = _read_channels(f, len(t))
         extra = {k: a[k] for k in EXTRA_ATTRS if k in a}
-        names = {}
-        if "names" in f:
+        names: dict[str, list[str]] = {}
+        if "names" in f and isinstance(f["names"], h5py.Dataset):  # v3: a table (kind, name)
+            names = {kind: [] for kind in json.loads(_attr_str(f["names"].attrs, "kinds", "[]"))}
+            table = _read_table(f["names"])
+            for kind, name in zip(table["kind"], table["name"]):
+                names.setdefault(kind, []).append(name)
+        elif "names" in f:
             for kind, ds in f["names"].items():
                 names[kind] = _str_list(ds)
         return Result(

@@ -351,3 +351,27 @@ def test_the_settings_table_lists_every_default_of_every_analysis():
     for mode in ANALYSES:
         missing = set(analysis_defaults(mode)) - set(ANALYSIS_SETTINGS[mode])
         assert not missing, (mode, missing)
+
+
+def test_a_run_leaves_the_studies_to_check(tmp_path):
+    """load_deck(studies=False) (what `mbsim run` loads) does not read `studies:`; the whole
+    deck (`mbsim check`, load_deck()) still refuses a study that names no scene."""
+    from click.testing import CliRunner
+
+    from mbsim.cli import main
+
+    text = (Path(__file__).resolve().parents[2] / "models" / "governor.yaml").read_text()
+    bad = text.replace("mode: dynamic, scene: governed,\n         set: {parameters.k: 2000}",
+                       "mode: dynamic, scene: governd,\n         set: {parameters.k: 2000}", 1)
+    assert bad != text
+    deck = tmp_path / "governor.yaml"
+    deck.write_text(bad)
+    spec = load_deck(deck, studies=False)
+    assert spec.studies == {} and "spring" in spec.forces
+    with pytest.raises(DeckError, match="studies.spring_rate.cases"):
+        load_deck(deck)
+    res = CliRunner().invoke(main, ["check", str(deck)])
+    assert res.exit_code == 2 and "governd" in res.output
+    res = CliRunner().invoke(main, ["run", str(deck), "--mode", "dynamic", "--t-end", "0.02",
+                                    "-o", str(tmp_path / "g.h5"), "-q"])
+    assert res.exit_code == 0, res.output

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 import mbsim
 from mbsim.output import export, hdf5
@@ -74,30 +76,93 @@ def test_round_trip(tmp_path):
 
 
 def test_layout(tmp_path):
-    """Layout version 2 (docs/hdf5.md): the channels are columns of /values, named by the
-    table under /channels; settings, counters and summary are JSON datasets."""
-    path = write_result(make_result(), tmp_path / "out.h5")
+    """Layout version 3 (docs/hdf5.md): the channels are columns of /values, named by the
+    table /channels (one compound dataset); the names one table (kind, name); settings,
+    counters and summary are JSON datasets."""
+    r = make_result()
+    r.names = {"bodies": ["crank"], "joints": ["REV1", "REV2"], "drivers": []}
+    path = write_result(r, tmp_path / "out.h5")
     with h5py.File(path) as f:
-        assert f.attrs["layout_version"] == 2
+        assert f.attrs["layout_version"] == 3
         assert f.attrs["mbsim_version"] == mbsim.__version__
         assert f.attrs["status"] == "complete"
         assert json.loads(f["counters"].asstr()[()]) == {"steps": 200, "newton_iterations": 612}
         assert "T" in f.attrs["created"]
         assert f["time"].attrs["unit"] == "s"
-        names = list(f["channels/name"].asstr()[()])
+        ch = f["channels"][()]
+        assert ch.dtype.names == ("name", "unit", "description", "components", "column",
+                                  "width", "shape")
+        assert f["channels"].id.get_type().get_member_type(0).get_cset() == h5py.h5t.CSET_UTF8
+        names = [n.decode() for n in ch["name"]]
         assert names == ["bodies/crank/r", "drivers/crank/torque", "joints/REV1/force"]
-        assert list(f["channels/column"][()]) == [0, 3, 4]
-        assert list(f["channels/width"][()]) == [3, 1, 3]
-        assert list(f["channels/shape"].asstr()[()]) == ["[3]", "[]", "[3]"]
-        assert json.loads(f["channels/components"].asstr()[0]) == ["x", "y", "z"]
-        assert list(f["channels/unit"].asstr()[()]) == ["m", "N m", "N"]
+        assert list(ch["column"]) == [0, 3, 4]
+        assert list(ch["width"]) == [3, 1, 3]
+        assert [s.decode() for s in ch["shape"]] == ["[3]", "[]", "[3]"]
+        assert json.loads(ch["components"][0]) == ["x", "y", "z"]
+        assert [u.decode() for u in ch["unit"]] == ["m", "N m", "N"]
         values = f["values"]
         assert values.dtype == np.float64 and values.shape == (2001, 7)
         assert values.compression is None and values.chunks is None  # contiguous (docs)
         assert "µ" in f["deck"].asstr()[()]
-        assert list(f["names/joints"].asstr()[()]) == ["REV1", "REV2"]
+        nm = f["names"][()]
+        assert [(k.decode(), n.decode()) for k, n in zip(nm["kind"], nm["name"])] == [
+            ("bodies", "crank"), ("joints", "REV1"), ("joints", "REV2")]
+        assert json.loads(f["names"].attrs["kinds"]) == ["bodies", "joints", "drivers"]
         assert set(f.attrs) == {"layout_version", "mbsim_version", "mode", "status", "message",
                                 "deck_file", "wall_time_s", "created"}
+    assert read_result(path).names == r.names  # a kind without items comes back empty
+
+
+def test_shapes_are_one_dataset_per_leaf_and_an_index(tmp_path):
+    """/shapes/<leaf> holds the rows of every body, /shapes/index (leaf, item, start, stop)
+    says whose; read back per body with the leaf's attributes."""
+    r = make_result(nt=5)
+    for body, n in (("crank", 4), ("rod", 2)):
+        r.arrays[f"shapes/{body}/vertices"] = (np.full((n, 3), float(n)), {"unit": "m"})
+        r.arrays[f"shapes/{body}/faces"] = (np.zeros((n - 1, 3), dtype=np.int32), {})
+    r.arrays["shapes/layout"] = (np.array(["{}"]), {"format": "JSON"})
+    path = write_result(r, tmp_path / "s.h5")
+    with h5py.File(path) as f:
+        assert f["shapes/vertices"].shape == (6, 3) and f["shapes/faces"].shape == (4, 3)
+        index = f["shapes/index"][()]
+        rows = [(a.decode(), b.decode(), int(c), int(d)) for a, b, c, d in
+                zip(index["leaf"], index["item"], index["start"], index["stop"])]
+        assert rows == [("vertices", "crank", 0, 4), ("vertices", "rod", 4, 6),
+                        ("faces", "crank", 0, 3), ("faces", "rod", 3, 4)]
+        assert f["shapes/vertices"].compression is None  # small: stored as it is
+    back = read_result(path)
+    assert set(back.arrays) == set(r.arrays)
+    np.testing.assert_array_equal(back.arrays["shapes/rod/vertices"][0], np.full((2, 3), 2.0))
+    assert back.arrays["shapes/rod/vertices"][1] == {"unit": "m"}
+    assert back.arrays["shapes/rod/faces"][0].dtype == np.int32
+
+
+def test_large_meshes_are_compressed(tmp_path):
+    """Meshes above hdf5.COMPRESS_MIN_SIZE elements are chunked and gzip-compressed, and
+    read back unchanged."""
+    r = make_result(nt=3)
+    n = hdf5.COMPRESS_MIN_SIZE // 3 + 1
+    verts = np.repeat(np.arange(n, dtype=float)[:, None] % 7, 3, axis=1)
+    r.arrays["shapes/hull/vertices"] = (verts, {"unit": "m"})
+    path = write_result(r, tmp_path / "big_mesh.h5")
+    with h5py.File(path) as f:
+        assert f["shapes/vertices"].compression == "gzip"
+    np.testing.assert_array_equal(read_result(path).arrays["shapes/hull/vertices"][0], verts)
+
+
+def test_a_governor_run_writes_fifteen_objects(tmp_path):
+    """A default governor run's file: 15 HDF5 objects (35 in layout version 2: a dataset
+    per column of the channel table, per kind of names, three per leaf of the shapes)."""
+    from mbsim.cli import main
+
+    out = tmp_path / "governor.h5"
+    deck = Path(__file__).resolve().parents[2] / "models" / "governor.yaml"
+    assert CliRunner().invoke(main, ["run", str(deck), "--mode", "dynamic", "--t-end", "0.1",
+                                     "-o", str(out), "-q"]).exit_code == 0
+    with h5py.File(out) as f:
+        found: list[str] = []
+        f.visit(found.append)
+    assert len(found) == 15, found
 
 
 def test_h5py_recipe_of_the_docs(tmp_path):
@@ -105,11 +170,11 @@ def test_h5py_recipe_of_the_docs(tmp_path):
     r = make_result(nt=20)
     path = write_result(r, tmp_path / "slider_crank.h5")
     with h5py.File(path, "r") as f:
-        names = list(f["channels/name"].asstr()[()])
-        k = names.index("bodies/crank/r")
-        start, width = f["channels/column"][k], f["channels/width"][k]
-        x = f["values"][:, start:start + width]  # (nt, 3) m
-        unit = f["channels/unit"].asstr()[k]
+        ch = f["channels"][()]  # the channel table: one row per channel
+        k = list(ch["name"]).index(b"bodies/crank/r")
+        start, width = ch["column"][k], ch["width"][k]
+        x = f["values"][:, start:start + width]  # (nt, 3), unit ch["unit"][k].decode()
+        unit = ch["unit"][k].decode()
     np.testing.assert_array_equal(x, r.channels["bodies/crank/r"].data)
     assert unit == "m"
 
@@ -161,6 +226,26 @@ def test_files_of_layout_version_1_are_read(tmp_path):
     info = hdf5.read_info(path)
     assert info["layout_version"] == 1 and info["counters"]["steps"] == 200
     assert info["channels"] == list(r.channels)
+
+
+def test_files_of_layout_version_2_are_read(tmp_path):
+    """A file of layout version 2 (old_layout.write_v2: the channel table and the names a
+    dataset per column and per kind, shapes/<leaf>/data, item, start) reads back into the
+    same Result."""
+    from tests.output.old_layout import write_v2
+
+    r = make_result(nt=9)
+    r.names = {"bodies": ["crank", "rod"], "drivers": []}
+    r.arrays["shapes/crank/vertices"] = (np.ones((4, 3)), {"unit": "m", "frame": "body"})
+    r.arrays["shapes/rod/vertices"] = (np.zeros((2, 3)), {"unit": "m", "frame": "body"})
+    path = write_v2(r, tmp_path / "v2.h5")
+    back = read_result(path)
+    assert_same(back, r)
+    assert back.names == r.names
+    assert set(back.arrays) == set(r.arrays)
+    np.testing.assert_array_equal(back.arrays["shapes/rod/vertices"][0], np.zeros((2, 3)))
+    assert list_channels(path) == list_channels(write_result(r, tmp_path / "v3.h5"))
+    assert hdf5.read_info(path)["layout_version"] == 2
 
 
 def test_list_channels(tmp_path):
