@@ -14,8 +14,9 @@ steps, CPU s (time.process_time, the analysis alone: no error estimate).
 its largest value: the end value alone is a noisy measure (the error oscillates along the run).
 --fixed: each adaptive run is followed by a fixed-step run of the same family with as many
 steps (h = 0.03 s / steps): at equal work, does the step control place its steps better than
-a uniform grid?  (HHT at rtol 1e-11: adaptive 2.27e-10 m, fixed 1.10e-10 m; docs/benchmarks.md,
-"genalpha and HHT: tolerance proportionality below rtol 1e-6".)
+a uniform grid?  (HHT at rtol 1e-11 before GeneralizedAlpha._shifted_a: adaptive 2.27e-10 m,
+fixed 1.10e-10 m; docs/benchmarks.md, "genalpha and HHT: tolerance proportionality below rtol
+1e-6".)
 """
 
 from __future__ import annotations
