@@ -40,11 +40,16 @@ the tolerance, the tightened tolerance stops at that step's round-off floor
 noise, and with atol at 1e-13 f = 3e-16 m Andrews' squeezer at rtol 1e-11 rejected 6359
 steps and ended 4.8e-9 m off.  Measured on Andrews' squeezer (benchmarks/andrews.py):
 error 3.5e-11 m at rtol 1e-10 (before 5.6e-10), 3.7e-11 m at rtol = atol = 3e-11 (before
-9.0e-10), at 4.6x and 5.7x the steps; at rtol 1e-11 the atol clamp holds the positions'
-tolerance near 9e-15 m and the error stays where it was (6.8e-11 m genalpha, 3.9x the
-steps): there the error of the adaptive runs no longer falls with the tolerance (per-step
-control at rtol 3e-12 and 1e-12 ended 9.7e-11 and 1.6e-10 m off), although fixed steps
-converge as h^2 (HHT at h = 4.7e-7 and 2.3e-7 s: 1.68e-9 and 4.21e-10 m).
+9.0e-10), at 4.6x and 5.7x the steps.  Variable steps: the acceleration-like a_n
+approximates qdd(t_n + (am - af) h_n), an offset proportional to the step that made it, so
+a step h after a step h_last first rescales that offset to h (:meth:`_shifted_a`); without
+it every change of step size left an error of order |h - h_last| h^2 qddd in q that the
+local error estimate does not see, and below rtol 1e-10 (where the controller changes h at
+every step by small factors over 1e5-2.5e5 steps) the error stopped falling: HHT on
+Andrews' squeezer ended 2.27e-10 m off at rtol 1e-11 (largest along the run 2.65e-10 m),
+worse than a uniform grid of as many steps (1.10e-10 m); with it 1.7e-11 m (largest 5.5e-11
+m) at the same 249827 steps (docs/benchmarks.md, "genalpha and HHT: tolerance
+proportionality below rtol 1e-6").
 """
 
 from __future__ import annotations
@@ -208,9 +213,10 @@ class GeneralizedAlpha(Integrator):
         n = s.nq
         qdd = self.qdd.copy()
         lam = self.lam.copy()
-        a1 = (af * self.qdd - am * self.a + (1 - af) * qdd) / (1 - am)
-        q = self.q + h * self.qd + h * h * ((0.5 - beta) * self.a + beta * a1)
-        qd = self.qd + h * ((1 - gam) * self.a + gam * a1)
+        a = self._shifted_a(h)
+        a1 = (af * self.qdd - am * a + (1 - af) * qdd) / (1 - am)
+        q = self.q + h * self.qd + h * h * ((0.5 - beta) * a + beta * a1)
+        qd = self.qd + h * ((1 - gam) * a + gam * a1)
         bp = (1 - am) / (beta * h * h * (1 - af))
         gp = gam / (beta * h)
         prev = np.inf
@@ -256,8 +262,26 @@ class GeneralizedAlpha(Integrator):
         else:
             return None
         power = float(Q @ qd) - (float(lam @ T.nu) if s.rheonomic else 0.0)
-        a1 = (af * self.qdd - am * self.a + (1 - af) * qdd) / (1 - am)
+        a1 = (af * self.qdd - am * a + (1 - af) * qdd) / (1 - am)
         return q, qd, qdd, lam, a1, power
+
+    def _shifted_a(self, h):
+        """(nq,) the acceleration-like variable for a step h after a step h_last.
+
+        a_n = qdd(t_n + (am - af) h_last) + O(h^2) (Arnold & Bruls 2007): its offset from
+        qdd_n is proportional to the step that made it, and the step equations assume the
+        offset of the step they take.  After a change of step size the offset is rescaled
+        to h: a = qdd_n + (a_n - qdd_n) h / h_last (a_n - qdd_n = (am - af) h_last qddd +
+        O(h^2)); unchanged at a fixed step.  Without it each change of h costs an error of
+        order |h - h_last| h^2 qddd in q that the local error estimate does not see (module
+        doc).  Steps of a prescribed mesh (``h_fixed``: the fixed-step runs, the coarse
+        companion of the error estimate, whose mesh takes every other step of the run) keep
+        a_n as they are: there the rescaled offset carried the index-3 oscillation of a_n
+        into the predictor and the slider-crank's coarse companion at rtol 1e-3 stopped
+        (Newton at h = 0.0185 s)."""
+        if self.h_fixed is not None or not self.h_last or h == self.h_last:
+            return self.a
+        return self.qdd + (self.a - self.qdd) * (h / self.h_last)
 
     @staticmethod
     def _mass_scale(Mb):
