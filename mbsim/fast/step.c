@@ -148,6 +148,22 @@ static double phi_max(const mb_model *M)
     return r;
 }
 
+/* The projection's correction dq for the right-hand side in M->rhs: on the Schur factor
+ * already computed at this q when factored (and not kkt), else factored here.  Returns 0,
+ * or the kernels' failure code (also left in R->out[O_CODE]). */
+static int projection_solve(const mb_model *M, mb_rk *R, int factored)
+{
+    if (factored && !R->kkt) {
+        mb_project_factored(M);
+        return 0;
+    }
+    R->count[C_FACT]++;
+    int code = mb_project(M, (int)R->kkt);
+    if (code)
+        R->out[O_CODE] = code;
+    return code;
+}
+
 /* Mass-weighted Newton projection of q onto Phi(q, t) = 0 (System.project_positions):
  * q updated in place; *res the last max |Phi|; returns 1 converged, 0 not, or -ST_* on
  * a failure.  *factored (in and out): 1 when the model's Phi, Phi_q and, unless kkt, its
@@ -173,16 +189,8 @@ static int project_positions(const mb_model *M, mb_rk *R, double t, double *q, i
         R->count[C_NEWTON]++;
         for (idx k = 0; k < M->ma; k++)
             M->rhs[k] = M->phi[M->rows[k]];
-        if (*factored && !R->kkt) {
-            mb_project_factored(M);
-        } else {
-            R->count[C_FACT]++;
-            int code = mb_project(M, (int)R->kkt);
-            if (code) {
-                R->out[O_CODE] = code;
-                return -ST_SOLVE;
-            }
-        }
+        if (projection_solve(M, R, *factored))
+            return -ST_SOLVE;
         *factored = 0; /* q moves: its Phi, Phi_q and factor are evaluated next */
         for (idx i = 0; i < n; i++)
             q[i] -= M->dq[i];
@@ -203,16 +211,8 @@ static int project_velocities(const mb_model *M, mb_rk *R, double t, const doubl
         idx r = M->rows[k];
         M->rhs[k] = R->vm[r] - M->nu[r];
     }
-    if (factored && !R->kkt) {
-        mb_project_factored(M);
-    } else {
-        R->count[C_FACT]++;
-        int code = mb_project(M, (int)R->kkt);
-        if (code) {
-            R->out[O_CODE] = code;
-            return ST_SOLVE;
-        }
-    }
+    if (projection_solve(M, R, factored))
+        return ST_SOLVE;
     for (idx i = 0; i < R->nq; i++)
         qd[i] = M->qd[i] - M->dq[i];
     return ST_ACCEPTED;
