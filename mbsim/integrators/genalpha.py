@@ -206,14 +206,14 @@ class GeneralizedAlpha(Integrator):
         return lambda b: la.lu_solve(lu, b, check_finite=False)
 
     # -- one step ---------------------------------------------------------------------------
-    def _newton(self, h):
+    def _newton(self, h, shift=True):
         s = self.system
         am, af, gam, beta = self.coef
         t1 = self.t + h
         n = s.nq
         qdd = self.qdd.copy()
         lam = self.lam.copy()
-        a = self._shifted_a(h)
+        a = self._shifted_a(h) if shift else self.a
         a1 = (af * self.qdd - am * a + (1 - af) * qdd) / (1 - am)
         q = self.q + h * self.qd + h * h * ((0.5 - beta) * a + beta * a1)
         qd = self.qd + h * ((1 - gam) * a + gam * a1)
@@ -278,7 +278,11 @@ class GeneralizedAlpha(Integrator):
         companion of the error estimate, whose mesh takes every other step of the run) keep
         a_n as they are: there the rescaled offset carried the index-3 oscillation of a_n
         into the predictor and the slider-crank's coarse companion at rtol 1e-3 stopped
-        (Newton at h = 0.0185 s)."""
+        (Newton at h = 0.0185 s).  So does the retry of a rejected step (``_newton``'s
+        ``shift``): the rescale mixes qdd_n into the predictor, and next to a singular
+        position qdd_n carries the Newton's round-off eps / sigma_min(Phi_q), which a
+        rejection there is a sign of (under OpenBLAS Prescott genalpha on the four cranks
+        at rtol 1e-10 cut its retries to h_min at the first flat position)."""
         if self.h_fixed is not None or not self.h_last or h == self.h_last:
             return self.a
         return self.qdd + (self.a - self.qdd) * (h / self.h_last)
@@ -311,7 +315,7 @@ class GeneralizedAlpha(Integrator):
             rejects += 1
             if self.use_fd and self.KC is None:
                 self.KC = self._tangent(self.q, self.qd, self.qdd, self.lam, self.t)
-            res = self._newton(h)
+            res = self._newton(h, shift=not rejected)
             if res is None:
                 self.counters["rejected_steps"] += 1
                 if self.use_fd and not refreshed:
