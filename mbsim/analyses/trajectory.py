@@ -223,6 +223,8 @@ def output_targets(fc, t):
     """(nt, nf, 3): the time targets of the driven rows (FastConstraints.targets) at every
     output time ``t`` (nt,), each function once for all outputs where it takes an array,
     else output by output; None without driven rows."""
+    from mbsim.fast.constraints import target
+
     if not fc.funcs:
         return None
     nt = len(t)
@@ -233,10 +235,7 @@ def output_targets(fc, t):
                          for g in (f, f.d1, f.d2))
         except Exception:  # noqa: BLE001 - a scalar-only function: one output at a time
             v, d1, d2 = (np.array([float(g(x)) for x in t]) for g in (f, f.d1, f.d2))
-        if sq:  # (f^2)' = 2 f f', (f^2)'' = 2 (f'^2 + f f'') (FastConstraints.targets)
-            d1, d2 = 2.0 * v * d1, 2.0 * (d1 * d1 + v * d2)
-        tv[:, n, 0] = v * v if sq else v
-        tv[:, n, 1], tv[:, n, 2] = d1, d2
+        tv[:, n, 0], tv[:, n, 1], tv[:, n, 2] = target(v, d1, d2, sq)
     return tv
 
 
@@ -276,14 +275,11 @@ def output_rows(system, t, q, qd, loads=None):
 
 def bulk_outputs(tr, n, loads):
     """:func:`output_rows` of the first n outputs of ``tr`` when they allow it (one system,
-    no hybrid elements, no multiplier-dependent loads, the Python loads known, and the
-    system's own ``accelerations``: one replaced on the instance, a wrapper such as a test's
-    injected failure, is called output by output), else None."""
+    no hybrid elements, no multiplier-dependent loads, the Python loads known), else None."""
     if n == 0:
         return None
     system = tr.systems[0]
     if (system.hybrid or system.reaction_loop or (system.py_forces and loads is None)
-            or "accelerations" in vars(system)
             or any(s is not system for s in tr.systems[:n])):
         return None
     return output_rows(system, tr.t[:n], np.array(tr.q[:n]), np.array(tr.qd[:n]), loads)
@@ -732,12 +728,13 @@ def integrate(run, times, record, max_steps, record_many=None):
             j = int(np.searchsorted(times, t_end + eps, side="right"))
             Q, QD, W, failure = step_outputs(solver, times[k:j])
             try:
-                if record_many is not None and len(W):
+                if record_many is None:
+                    for i in range(len(W)):
+                        record(times[k], Q[i], QD[i], W[i], solver.h_last)
+                        k += 1
+                elif len(W):
                     record_many(times[k:k + len(W)], Q, QD, W, solver.h_last)
                     k += len(W)
-                for i in range(len(W) if record_many is None else 0):
-                    record(times[k], Q[i], QD[i], W[i], solver.h_last)
-                    k += 1
             except NUMERICAL_ERRORS as exc:  # the output's own accelerations, energies
                 return STATUS_INCOMPLETE, (f"t = {times[k]:.6g} s: evaluating the outputs "
                                            f"failed: {exc}")

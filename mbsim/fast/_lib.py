@@ -265,16 +265,24 @@ class Model:
 
     def zeros(self, **shapes):
         """``set`` of zero float64 arrays of the given shapes (int or tuple of ints), carved
-        from one allocation, each pointer by offset (``ctypes.data`` costs microseconds per
-        array, and a System has some thirty); returns the arrays in order."""
-        shapes = {k: v if isinstance(v, tuple) else (v,) for k, v in shapes.items()}
-        sizes = [math.prod(shape) for shape in shapes.values()]
-        block = np.zeros(max(1, sum(sizes)))
-        base, off, out = block.ctypes.data, 0, []
-        for (name, shape), size in zip(shapes.items(), sizes):
-            arr = block[off : off + size].reshape(shape)
+        from one allocation (:func:`carve`); returns the arrays in order."""
+        out = []
+        for name, (arr, address) in carve(**shapes).items():
             self.a[name] = arr
-            setattr(self.s, name, base + 8 * off)
-            off += size
+            setattr(self.s, name, address)
             out.append(arr)
         return out
+
+
+def carve(**shapes):
+    """{name: (zero float64 array of that shape (int or tuple of ints), its address)}, all
+    views of one allocation, each address by offset (``ctypes.data`` costs microseconds per
+    array, and a System has some thirty buffers); the views keep the block alive."""
+    shapes = {k: v if isinstance(v, tuple) else (v,) for k, v in shapes.items()}
+    sizes = [math.prod(shape) for shape in shapes.values()]
+    block = np.zeros(max(1, sum(sizes)))
+    base, off, out = block.ctypes.data, 0, {}
+    for (name, shape), size in zip(shapes.items(), sizes):
+        out[name] = (block[off : off + size].reshape(shape), base + 8 * off)
+        off += size
+    return out

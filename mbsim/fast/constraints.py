@@ -90,11 +90,9 @@ class FastConstraints:
         for n, (f, sq) in enumerate(self.funcs):
             v = float(f(t))
             if derivatives:
-                d1, d2 = float(f.d1(t)), float(f.d2(t))
-                if sq:  # (f^2)' = 2 f f', (f^2)'' = 2 (f'^2 + f f'')
-                    d1, d2 = 2.0 * v * d1, 2.0 * (d1 * d1 + v * d2)
-                tv[n, 1], tv[n, 2] = d1, d2
-            tv[n, 0] = v * v if sq else v
+                tv[n] = target(v, float(f.d1(t)), float(f.d2(t)), sq)
+            else:
+                tv[n, 0] = v * v if sq else v
         return tv
 
     # -- evaluation ------------------------------------------------------------------------
@@ -180,6 +178,14 @@ class FastConstraints:
             dpos, data = self.c.set(dpos=dpos, data=np.zeros(indices.size))
             self._csr = (indptr.astype(np.int32), indices, dpos, data)
         return self._csr
+
+
+def target(v, d1, d2, sq):
+    """(c, c', c'') of a driven row from its function's f, f', f'' (floats or arrays); a
+    squared target is f^2: (f^2)' = 2 f f', (f^2)'' = 2 (f'^2 + f f'')."""
+    if sq:
+        return v * v, 2.0 * v * d1, 2.0 * (d1 * d1 + v * d2)
+    return v, d1, d2
 
 
 class _TableCache(dict):

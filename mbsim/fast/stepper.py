@@ -122,17 +122,12 @@ class CompiledStep:
         for name, a in self._keep.items():
             setattr(r, name, a.ctypes.data)
         # the buffers, from one allocation (one pointer each by offset)
-        sizes = {"y": ny, "f": ny, "y_new": ny, "y_acc": ny, "f_acc": ny, "ys": ny, "qw": ny,
-                 "K": N_K * ny, "vm": system.model.m, "Fd": 7 * ny, "out": 5}
-        self._buffers = block = np.zeros(sum(sizes.values()))
-        base, off, view = block.ctypes.data, 0, {}
-        for name, size in sizes.items():
-            view[name] = block[off : off + size]
-            setattr(r, name, base + 8 * off)
-            off += size
-        self.y, self.f, self.y_new, self.y_acc, self.f_acc = (
-            view[k] for k in ("y", "f", "y_new", "y_acc", "f_acc"))
-        self.K, self.out = view["K"].reshape(N_K, ny), view["out"]
+        self._buffers = _lib.carve(y=ny, f=ny, y_new=ny, y_acc=ny, f_acc=ny, ys=ny, qw=ny,
+                                   K=(N_K, ny), vm=system.model.m, Fd=7 * ny, out=5)
+        for name, (_, address) in self._buffers.items():
+            setattr(r, name, address)
+        self.y, self.f, self.y_new, self.y_acc, self.f_acc, self.K, self.out = (
+            self._buffers[k][0] for k in ("y", "f", "y_new", "y_acc", "f_acc", "K", "out"))
         self.count = np.zeros(4, dtype=np.int64)
         r.count = self.count.ctypes.data
         self._pending = []  # a KeyboardInterrupt (or SystemExit) met in the callback

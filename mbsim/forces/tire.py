@@ -82,7 +82,6 @@ class Tire(_Element):
         # own: this tire alone (its state, channels and loads); group: every tire of the
         # model, which System.apply_python calls once per state (Tire.bind)
         el.own = el.group = TireGroup((el,))
-        el.k = 0
         return el
 
     def bind(self, model):
@@ -91,8 +90,8 @@ class Tire(_Element):
         if self.group.b.size == len(tires) > 1:
             return  # bound with its siblings by the first tire's call
         group = TireGroup(tires)
-        for k, el in enumerate(tires):
-            el.group, el.k = group, k
+        for el in tires:
+            el.group = group
 
     def state(self, st, t) -> dict:
         """Everything the tire computes at one state (see the module doc for the symbols):

@@ -175,10 +175,8 @@ def _strings(group: h5py.File | h5py.Group, name: str, items) -> h5py.Dataset:
     HDF5 string (``.asstr()``); written in about a fifth of the time of variable-length
     strings, which h5py converts one by one."""
     scalar = isinstance(items, str)
-    raw = [str(s).encode() for s in ([items] if scalar else items)]
-    size = max([len(b) for b in raw] + [1])
-    tid = _string_type(size)
-    data = np.array(raw[0] if scalar else raw, dtype=f"S{size}")
+    data, tid = _fixed_strings([items] if scalar else items)
+    data = data.reshape(()) if scalar else data
     space = (h5py.h5s.create(h5py.h5s.SCALAR) if scalar
              else h5py.h5s.create_simple(data.shape))
     ds = h5py.h5d.create(group.id, name.encode(), tid, space)
@@ -206,6 +204,14 @@ def _set_attrs(obj: h5py.File | h5py.Group | h5py.Dataset, items: dict[str, Any]
         attr.write(data, mtype=mtype)
 
 
+def _fixed_strings(items) -> tuple[np.ndarray, h5py.h5t.TypeStringID]:
+    """(bytes array (n,), its HDF5 type): ``items`` as UTF-8, fixed-length at the longest's
+    length in bytes (at least 1)."""
+    raw = [str(s).encode() for s in items]
+    data = np.array(raw, dtype=f"S{max([len(b) for b in raw] + [1])}")
+    return data, _string_type(data.dtype.itemsize)
+
+
 def _string_type(size: int) -> h5py.h5t.TypeStringID:
     """HDF5's fixed-length, null-padded UTF-8 string of ``size`` bytes."""
     tid = h5py.h5t.TypeStringID.copy(h5py.h5t.C_S1)
@@ -226,9 +232,7 @@ def _table(group: h5py.File | h5py.Group, name: str, columns: dict[str, Any]) ->
             arr = np.ascontiguousarray(items)
             tid = h5py.h5t.py_create(arr.dtype)
         else:
-            raw = [str(s).encode() for s in items]
-            arr = np.array(raw, dtype=f"S{max([len(b) for b in raw] + [1])}")
-            tid = _string_type(arr.dtype.itemsize)
+            arr, tid = _fixed_strings(items)
         fields.append((key, arr.dtype))
         tids.append(tid)
         data.append(arr)
