@@ -261,6 +261,11 @@ def coarse_estimate(model, prep, opt, tr, near=None):
     try:
         comp = CoarseStepper(model, cls, opt, t0, prep.q0.copy(), prep.qd0.copy(),
                              float(mesh[-1]), prep.rows, mesh, system)
+        if (system is not None and not (system.hybrid or system.reaction_loop)
+                and isinstance(comp.solver, GeneralizedAlpha)):
+            # the run's finite-difference tangent at the common start, not computed again
+            # (GeneralizedAlpha.offer_tangent compares the inputs)
+            comp.solver.offer_tangent(getattr(run.solver, "first_tangent", None))
         while k < n:
             if steps > 2 * mesh.size + 100:
                 return None, "the coarse companion took more steps than its mesh has"

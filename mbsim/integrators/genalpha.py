@@ -117,6 +117,10 @@ class GeneralizedAlpha(Integrator):
         jac = self.options.get("jacobian", "auto")
         self.use_fd = (jac == "fd") or (jac == "auto" and s.nq <= self.FD_MAX_NQ)
         self.KC = None  # (K, C) finite-difference residual Jacobians
+        # (t, q, qd, qdd, lam, K, C): the first tangent of this run, and one another run of
+        # the same system offered at the same start (:meth:`start_tangent`, :meth:`offer`)
+        self.first_tangent = None
+        self._offered = None
         self.counters["jacobian_evaluations"] = 0
         b, i, j = np.meshgrid(np.arange(s.nb), np.arange(7), np.arange(7), indexing="ij")
         self._bi, self._bj = (7 * b + i).reshape(-1), (7 * b + j).reshape(-1)  # block scatter
@@ -154,7 +158,36 @@ class GeneralizedAlpha(Integrator):
         r = np.einsum("bij,bj->bi", Mb, qdd.reshape(-1, 7)).reshape(-1) + T.jac.T @ lam - Q
         return r, T, Q, Mb
 
+    def offer_tangent(self, tangent):
+        """Take ``tangent`` (another run's :attr:`first_tangent`, None: nothing) as this
+        run's first tangent where it was computed at this run's first state.
+
+        K and C are a function of (q, qd, qdd, lam, t) and the system only (forward
+        differences with steps fixed by q and qd), so at equal inputs on the same system
+        they are the same to the bit: the error estimate's coarse companion, which starts
+        where the run started (mbsim.analyses.estimate.coarse_estimate), takes the run's
+        instead of repeating its 2 nq residual evaluations.  The caller shares the system
+        (no hybrid elements or multiplier-dependent loads: their loads depend on more
+        than the state); the inputs are compared here."""
+        self._offered = tangent
+
     def _tangent(self, q, qd, qdd, lam, t):
+        """K = dr/dq, C = dr/dqd by forward differences (non-ground coordinates); the
+        first one kept as :attr:`first_tangent`, or taken from :meth:`offer_tangent`."""
+        key = (t, q, qd, qdd, lam)
+        if self.first_tangent is None:
+            given = self._offered
+            self._offered = None
+            if given is not None and given[0] == t and all(
+                    np.array_equal(a, b) for a, b in zip(given[1:5], key[1:])):
+                self.first_tangent = given
+                return given[5], given[6]
+            K, C = self._tangent_fd(q, qd, qdd, lam, t)
+            self.first_tangent = (t, q.copy(), qd.copy(), qdd.copy(), lam.copy(), K, C)
+            return K, C
+        return self._tangent_fd(q, qd, qdd, lam, t)
+
+    def _tangent_fd(self, q, qd, qdd, lam, t):
         """K = dr/dq, C = dr/dqd by forward differences (non-ground coordinates)."""
         self.counters["jacobian_evaluations"] += 1
         n = q.size
