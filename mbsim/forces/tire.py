@@ -38,6 +38,7 @@ contact point, m/s), ``force`` (global).
 from __future__ import annotations
 
 import math
+import weakref
 
 import numpy as np
 
@@ -79,9 +80,11 @@ class Tire(_Element):
             raise DeckError("the forward axis must not be the zero vector", where.child("forward"))
         el.fwd = fwd / np.linalg.norm(fwd)
         el.fwd.setflags(write=False)
-        # own: this tire alone (its state, channels and loads); group: every tire of the
-        # model, which System.apply_python calls once per state (Tire.bind)
+        # own: this tire alone (its state at one state); group: every tire of the model,
+        # which System.apply_python calls once per state and the outputs once for all
+        # (Tire.bind); slot: this tire's index in its group
         el.own = el.group = TireGroup((el,))
+        el.slot = 0
         return el
 
     def bind(self, model):
@@ -90,8 +93,8 @@ class Tire(_Element):
         if self.group.b.size == len(tires) > 1:
             return  # bound with its siblings by the first tire's call
         group = TireGroup(tires)
-        for el in tires:
-            el.group = group
+        for slot, el in enumerate(tires):
+            el.group, el.slot = group, slot
 
     def state(self, st, t) -> dict:
         """Everything the tire computes at one state (see the module doc for the symbols):
@@ -113,14 +116,17 @@ class Tire(_Element):
 
     def state_many(self, states, t) -> dict:
         """:meth:`state` at every output of ``states`` (:class:`mbsim.core.States`): the same
-        quantities with a leading time axis (F, sc, v, u (nt, 3); the rest (nt,))."""
-        return {key: value[:, 0] for key, value in self.own.at_many(states).items()}
+        quantities with a leading time axis (F, sc, v, u (nt, 3); the rest (nt,)); this
+        tire's column of its group's evaluation (:meth:`TireGroup.at_many`: once per
+        ``states`` for all the tires)."""
+        k = self.slot
+        return {key: value[:, k].copy() for key, value in self.group.at_many(states).items()}
 
     def loads_many(self, states, t, F, n_local):
         """:meth:`apply` at every output: adds to F, n_local (nt, nb, 3)."""
-        s, b = self.own.at_many(states), self.b
-        F[:, b] += s["F"][:, 0]
-        n_local[:, b] += s["n_local"][:, 0]
+        s, b, k = self.group.at_many(states), self.b, self.slot
+        F[:, b] += s["F"][:, k]
+        n_local[:, b] += s["n_local"][:, k]
 
     def potential_many(self, states):
         d = self.radius - (states.r[:, self.b, 2] + states.A[:, self.b, 2] @ self.s)
@@ -178,6 +184,10 @@ class TireGroup:
         self.fwd = np.array([el.fwd for el in tires], dtype=float).reshape(-1, 3)
         for name in self.PARAMS:
             setattr(self, name, np.array([getattr(el, name) for el in tires], dtype=float))
+        # at_many's results, one per States object while it lives: the outputs' loads and
+        # each tire's channels read one evaluation of the group (States are not changed
+        # after they are built: mbsim.core.States)
+        self._many = weakref.WeakKeyDictionary()
 
     def at(self, st) -> dict:
         """The law at one state: every quantity of :meth:`Tire.state` with a leading tire
@@ -187,10 +197,15 @@ class TireGroup:
 
     def at_many(self, states) -> dict:
         """:meth:`at` at every output of ``states`` (:class:`mbsim.core.States`): time first,
-        then tires (F ... (nt, ne, 3); the rest (nt, ne))."""
-        b = self.b
-        return tire_law(self, states.A[:, b], states.r[:, b], states.rd[:, b],
-                        states.omega_local[:, b])
+        then tires (F ... (nt, ne, 3); the rest (nt, ne)).  Evaluated once per ``states``
+        (kept while it lives): the arrays returned are shared, not to be written."""
+        out = self._many.get(states)
+        if out is None:
+            b = self.b
+            out = tire_law(self, states.A[:, b], states.r[:, b], states.rd[:, b],
+                           states.omega_local[:, b])
+            self._many[states] = out
+        return out
 
     def apply(self, st, t, F, n_local):
         """Adds every tire's force F and body torque n_local at ``st`` (ForceElement.apply

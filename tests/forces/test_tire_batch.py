@@ -191,3 +191,38 @@ def test_a_system_applies_the_group_once_with_the_loads_of_each_tire(circle_run)
         el.apply(st, t[-1], want[0], want[1])
     scale = np.abs(want).max()
     assert np.abs(got - want).max() <= 1e-13 * scale
+
+
+def test_outputs_evaluate_the_group_once_per_states(circle_run, monkeypatch):
+    """Every tire's loads_many and channels_many at one States read one evaluation of the
+    group (TireGroup.at_many), and each tire's column equals its own group of one to
+    round-off (REL of the force scale: einsum over a tire axis of 4 or of 1)."""
+    from mbsim.forces import tire as tire_module
+
+    model, t, q, qd, _ = circle_run
+    tires = tires_of(model)
+    states = core.States(model, q, qd)
+    alone = {el.name: el.own.at_many(states) for el in tires}  # before counting
+    calls = []
+    law = tire_module.tire_law
+    monkeypatch.setattr(tire_module, "tire_law", lambda *a: calls.append(1) or law(*a))
+    F, n = np.zeros((len(t), model.nb, 3)), np.zeros((len(t), model.nb, 3))
+    channels = {}
+    for el in tires:
+        el.loads_many(states, t, F, n)
+        channels[el.name] = el.channels_many(states, t)
+    assert len(calls) == 1
+    scale = np.abs(alone[tires[0].name]["F"]).max()
+    F_alone, n_alone = np.zeros_like(F), np.zeros_like(n)
+    for el in tires:
+        own = alone[el.name]
+        F_alone[:, el.b] += own["F"][:, 0]
+        n_alone[:, el.b] += own["n_local"][:, 0]
+        for key in ("F_ver", "F_lat", "alpha", "deflection", "speed"):
+            bound = REL * (scale if key.startswith("F") else 1.0)
+            assert np.abs(channels[el.name][key][0] - own[key][:, 0]).max() <= bound, key
+        assert np.abs(channels[el.name]["force"][0] - own["F"][:, 0]).max() <= REL * scale
+    assert np.abs(F - F_alone).max() <= REL * scale
+    assert np.abs(n - n_alone).max() <= REL * scale  # levers < 1 m (module doc)
+    tires[0].channels_many(core.States(model, q, qd), t)  # a new States: evaluated again
+    assert len(calls) == 2
