@@ -59,7 +59,8 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from mbsim.integrators.base import MAX_REJECTS, ROUNDOFF_ULPS, Integrator, hermite, rms_norm
+from mbsim.integrators.base import (MAX_REJECTS, ROUNDOFF_ULPS, Integrator, IntegratorFailure,
+                                    hermite, rms_norm)
 
 KKT_REG = 1e-10  # relative regularisation of the Newton matrix's zero block (see below)
 REFERENCE_RTOL = 1e-6  # below it the local tolerance shrinks as rtol^(3/2) (module doc)
@@ -444,6 +445,27 @@ class GeneralizedAlpha(Integrator):
             return self.q + tau * self.qd + (0.5 * tau * tau) * self.qdd
         tp, qp, vp = self._prev
         return hermite(tp, self.t, qp, self.q, vp, self.qd)(t)
+
+    def dense_output_many(self, times):
+        """(Q (k, nq), QD (k, nq), W (k,)) at all of ``times`` in the last step at once:
+        :meth:`_dense_output_impl`'s cubic Hermite polynomials evaluated on a column of
+        times (the same operations output by output, so the same values), the accepted
+        state at t itself, and the failure of :meth:`Integrator.dense_output_many` at the
+        first output whose state is not finite (the outputs before it kept)."""
+        times = np.asarray(times, dtype=float)
+        if self._dense is None or times.ndim != 1:
+            return super().dense_output_many(times)
+        Q, QD, W = self._dense_output_impl()(times[:, None])
+        W = W[:, 0]
+        at_end = times == self.t
+        Q[at_end], QD[at_end], W[at_end] = self.q, self.qd, self.w
+        bad = ~(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise IntegratorFailure(
+                f"t = {times[i]:.6g} s: the state is not finite (NaN or inf)",
+                (Q[:i], QD[:i], W[:i]))
+        return Q, QD, W
 
     def _dense_output_impl(self):
         t0, t1, q0, q1, v0, v1, a0, a1, w0 = self._dense
