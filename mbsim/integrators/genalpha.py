@@ -59,8 +59,14 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from mbsim.integrators.base import (MAX_REJECTS, ROUNDOFF_ULPS, Integrator, IntegratorFailure,
-                                    hermite, rms_norm)
+from mbsim.integrators.base import (
+    MAX_REJECTS,
+    ROUNDOFF_ULPS,
+    Integrator,
+    IntegratorFailure,
+    hermite,
+    rms_norm,
+)
 
 KKT_REG = 1e-10  # relative regularisation of the Newton matrix's zero block (see below)
 REFERENCE_RTOL = 1e-6  # below it the local tolerance shrinks as rtol^(3/2) (module doc)
