@@ -222,9 +222,23 @@ _EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
 _EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
 
 
+_CROSS_EINSUM_MAX = 48  # a x b of at most this many numbers: one einsum, else by components
+
+
 def _cross(a, b):
-    """a x b over the last axis (..., 3)."""
-    return np.einsum("ijk,...j,...k->...i", _EPS, a, b)
+    """a x b over the last axis (..., 3).  Either way each component is a_j b_k - a_k b_j
+    rounded once (the einsum's other terms are exact zeros), so the two agree to the bit:
+    one einsum for a few vectors (the tires at one state: 2.8 us against 6 us), the
+    components for many (the tires at every output: 2404 vectors in 40 us against 330 us)."""
+    if a.size <= _CROSS_EINSUM_MAX:
+        return np.einsum("ijk,...j,...k->...i", _EPS, a, b)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
 
 
 def tire_law(g, A, r, rd, omega_local) -> dict:
@@ -237,13 +251,17 @@ def tire_law(g, A, r, rd, omega_local) -> dict:
     about the body origin in the body frame (sc x A^T F), sc (contact point, body frame),
     v (velocity of the body point at C), u (unit heading on the road), and F_ver, F_lat,
     F_roll, alpha, saturated (1.0 or 0.0), deflection, speed (..., ne)."""
-    P = r + np.einsum("...ij,...j->...i", A, g.s)
+    # the tire constants spread over the leading axes once, contiguous: einsum's loop over a
+    # broadcast operand is 5x slower at many outputs (the same products, the same values)
+    s = np.ascontiguousarray(np.broadcast_to(g.s, r.shape))
+    fwd = np.ascontiguousarray(np.broadcast_to(g.fwd, r.shape))
+    P = r + np.einsum("...ij,...j->...i", A, s)
     h = P[..., 2]
     Ph = P.copy()
     Ph[..., 2] = 0.0  # P - h z
     sc = np.einsum("...ji,...j->...i", A, Ph - r)  # contact point, body frame
     v = rd - np.einsum("...ij,...j->...i", A, _cross(sc, omega_local))  # w x s = -s x w
-    uh = np.einsum("...ij,...j->...i", A[..., :2, :], g.fwd)  # heading before normalising
+    uh = np.einsum("...ij,...j->...i", A[..., :2, :], fwd)  # heading before normalising
     un = np.hypot(uh[..., 0], uh[..., 1])
     ok = (un > 1e-12)[..., None]
     u = np.zeros(v.shape)
