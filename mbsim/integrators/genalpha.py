@@ -454,15 +454,14 @@ class GeneralizedAlpha(Integrator):
 
     def dense_output_many(self, times):
         """(Q (k, nq), QD (k, nq), W (k,)) at all of ``times`` in the last step at once:
-        :meth:`_dense_output_impl`'s cubic Hermite polynomials evaluated on a column of
-        times (the same operations output by output, so the same values), the accepted
+        :meth:`_dense_output_impl`'s cubic Hermite polynomials at all the times together
+        (one product of the (k, 4) weights with the step's end values), the accepted
         state at t itself, and the failure of :meth:`Integrator.dense_output_many` at the
         first output whose state is not finite (the outputs before it kept)."""
         times = np.asarray(times, dtype=float)
         if self._dense is None or times.ndim != 1:
             return super().dense_output_many(times)
-        Q, QD, W = self._dense_output_impl()(times[:, None])
-        W = W[:, 0]
+        Q, QD, W = self._dense_output_impl()(times)
         at_end = times == self.t
         Q[at_end], QD[at_end], W[at_end] = self.q, self.qd, self.w
         bad = ~(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1))
@@ -474,14 +473,23 @@ class GeneralizedAlpha(Integrator):
         return Q, QD, W
 
     def _dense_output_impl(self):
+        """``f(t) -> (q, qd, w)`` over the last step: cubic Hermite interpolation of q from
+        (q, qd) and of qd from (qd, qdd) at both ends (:func:`~mbsim.integrators.base.hermite`),
+        w linear; t a time (results (nq,)) or a 1-D array or column of k times (results
+        (k, nq)): the weights (k, 4) times the end values (4, nq), one product for all the
+        step's outputs (to a few ulp of hermite's sum of four products)."""
         t0, t1, q0, q1, v0, v1, a0, a1, w0 = self._dense
-        gq = hermite(t0, t1, q0, q1, v0, v1)
-        gv = hermite(t0, t1, v0, v1, a0, a1)
+        h = t1 - t0
+        ends = np.stack([q0, v0, q1, v1, v0, a0, v1, a1]).reshape(2, 4, -1)
         w1 = self.w
 
         def out(t):
-            x = (t - t0) / (t1 - t0)
-            return gq(t), gv(t), (1 - x) * w0 + x * w1
+            t = np.asarray(t, dtype=float)
+            x = ((t.reshape(-1) if t.ndim == 2 else t) - t0) / h
+            xm = 1.0 - x
+            wq = np.stack([(1.0 + 2.0 * x) * xm * xm, h * x * xm * xm, x * x * (3.0 - 2.0 * x),
+                           h * x * x * (x - 1.0)], axis=-1)  # h00, h h10, h01, h h11
+            return wq @ ends[0], wq @ ends[1], xm * w0 + x * w1
 
         return out
 
