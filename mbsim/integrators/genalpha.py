@@ -462,10 +462,11 @@ class GeneralizedAlpha(Integrator):
         if self._dense is None or times.ndim != 1:
             return super().dense_output_many(times)
         Q, QD, W = self._dense_output_impl()(times)
-        at_end = times == self.t
-        Q[at_end], QD[at_end], W[at_end] = self.q, self.qd, self.w
-        bad = ~(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1))
-        if bad.any():
+        if times.size and times[-1] == self.t:  # (ascending: only the last ones can be t)
+            at_end = times == self.t
+            Q[at_end], QD[at_end], W[at_end] = self.q, self.qd, self.w
+        if not (np.isfinite(Q).all() and np.isfinite(QD).all()):
+            bad = ~(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1))
             i = int(np.argmax(bad))
             raise IntegratorFailure(
                 f"t = {times[i]:.6g} s: the state is not finite (NaN or inf)",
