@@ -200,8 +200,8 @@ def interpolant_many(solver, times):
         if status == stepper.ST_ACCEPTED:
             return Q, QD
     dense = interpolant(solver)
-    if isinstance(solver, GeneralizedAlpha):  # cubic Hermite in q and qd: on a column of t
-        Q, QD, _ = dense(np.asarray(times, dtype=float)[:, None])
+    if isinstance(solver, GeneralizedAlpha):  # cubic Hermite in q and qd: all times at once
+        Q, QD, _ = dense(np.asarray(times, dtype=float))
         return Q, QD
     Q, QD = np.empty((len(times), solver.q.size)), np.empty((len(times), solver.q.size))
     for i, t in enumerate(times):
@@ -576,36 +576,61 @@ def error_channels(est, nt, n):
 def state_differences(model, Q, QD, Qc, QDc):
     """Per output time (nt,): max over bodies and output points of |r - r_c| (position, m),
     the rotation angle between the orientations (rad), |velocity differences| (m/s) and
-    |omega - omega_c| (rad/s).  Q, QD, Qc, QDc: (nt, nq)."""
+    |omega - omega_c| (rad/s).  Q, QD, Qc, QDc: (nt, nq).
+
+    Cross products, norms and omega = 2 E(p) pd are written out by components: on the
+    (nt, nb) arrays of a run np.cross and building E cost ~10 numpy calls each.  The same
+    values but omega's sum of four products, whose order einsum's loop chooses (even by
+    the arrays' alignment): |omega - omega_c| to round-off of omega."""
     from mbsim.rotations import A as rot_A
-    from mbsim.rotations import E as rot_E
 
     nt, nb = Q.shape[0], model.nb
     X, V = Q.reshape(nt, nb, 7), QD.reshape(nt, nb, 7)
     Xc, Vc = Qc.reshape(nt, nb, 7), QDc.reshape(nt, nb, 7)
     r, p, rc, pc = X[..., :3], X[..., 3:], Xc[..., :3], Xc[..., 3:]
-    pos = np.linalg.norm(r - rc, axis=2).max(axis=1)
+    pos = _norm(r - rc).max(axis=1)
     # rotation from the companion's orientation to the run's: vector part of conj(pc) (x) p
-    vec = (pc[..., :1] * p[..., 1:] - p[..., :1] * pc[..., 1:]
-           - np.cross(pc[..., 1:], p[..., 1:]))
-    s = np.linalg.norm(vec, axis=2) / np.maximum(
-        np.linalg.norm(p, axis=2) * np.linalg.norm(pc, axis=2), 1e-300)
+    vec = pc[..., :1] * p[..., 1:] - p[..., :1] * pc[..., 1:] - _cross(pc[..., 1:], p[..., 1:])
+    s = _norm(vec) / np.maximum(np.linalg.norm(p, axis=2) * np.linalg.norm(pc, axis=2), 1e-300)
     ori = (2 * np.arcsin(np.clip(s, 0.0, 1.0))).max(axis=1)
-    pf, pcf = p.reshape(-1, 4), pc.reshape(-1, 4)
-    w = 2 * np.einsum("kij,kj->ki", rot_E(pf), V[..., 3:].reshape(-1, 4)).reshape(nt, nb, 3)
-    wc = 2 * np.einsum("kij,kj->ki", rot_E(pcf), Vc[..., 3:].reshape(-1, 4)).reshape(nt, nb, 3)
-    vel = np.linalg.norm(V[..., :3] - Vc[..., :3], axis=2).max(axis=1)
-    angv = np.linalg.norm(w - wc, axis=2).max(axis=1)
+    w, wc = _omega(p, V[..., 3:]), _omega(pc, Vc[..., 3:])
+    vel = _norm(V[..., :3] - Vc[..., :3]).max(axis=1)
+    angv = _norm(w - wc).max(axis=1)
     if model.outputs:
-        A = rot_A(pf).reshape(nt, nb, 3, 3)
-        Ac = rot_A(pcf).reshape(nt, nb, 3, 3)
         for _, b, sl in model.outputs:
-            sg, sgc = A[:, b] @ sl, Ac[:, b] @ sl
-            pos = np.maximum(pos, np.linalg.norm(r[:, b] + sg - rc[:, b] - sgc, axis=1))
-            vp = V[:, b, :3] + np.cross(w[:, b], sg)
-            vpc = Vc[:, b, :3] + np.cross(wc[:, b], sgc)
-            vel = np.maximum(vel, np.linalg.norm(vp - vpc, axis=1))
+            A, Ac = rot_A(p[:, b]), rot_A(pc[:, b])
+            sg = A[..., 0] * sl[0] + A[..., 1] * sl[1] + A[..., 2] * sl[2]  # A s'
+            sgc = Ac[..., 0] * sl[0] + Ac[..., 1] * sl[1] + Ac[..., 2] * sl[2]
+            pos = np.maximum(pos, _norm(r[:, b] + sg - rc[:, b] - sgc))
+            vp = V[:, b, :3] + _cross(w[:, b], sg)
+            vpc = Vc[:, b, :3] + _cross(wc[:, b], sgc)
+            vel = np.maximum(vel, _norm(vp - vpc))
     return {"position": pos, "orientation": ori, "velocity": vel, "angular_velocity": angv}
+
+
+def _norm(x):
+    """|x| over the last axis of length 3 (..., 3)."""
+    return np.sqrt(x[..., 0] * x[..., 0] + x[..., 1] * x[..., 1] + x[..., 2] * x[..., 2])
+
+
+def _cross(a, b):
+    """a x b over the last axis (..., 3)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def _omega(p, pd):
+    """omega = 2 E(p) pd (..., 3), E = [-e, e~ + e0 I] (Haug eq. 6.3.17)."""
+    e0, e1, e2, e3 = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    d0, d1, d2, d3 = pd[..., 0], pd[..., 1], pd[..., 2], pd[..., 3]
+    out = np.empty(p.shape[:-1] + (3,))
+    out[..., 0] = 2 * (-e1 * d0 + e0 * d1 - e3 * d2 + e2 * d3)
+    out[..., 1] = 2 * (-e2 * d0 + e3 * d1 + e0 * d2 - e1 * d3)
+    out[..., 2] = 2 * (-e3 * d0 - e2 * d1 + e1 * d2 + e0 * d3)
+    return out
 
 
 def attach_estimate(model, res, est, nt, span):
