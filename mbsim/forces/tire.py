@@ -253,8 +253,10 @@ def tire_law(g, A, r, rd, omega_local) -> dict:
     F_roll, alpha, saturated (1.0 or 0.0), deflection, speed (..., ne)."""
     # the tire constants spread over the leading axes once, contiguous: einsum's loop over a
     # broadcast operand is 5x slower at many outputs (the same products, the same values)
-    s = np.ascontiguousarray(np.broadcast_to(g.s, r.shape))
-    fwd = np.ascontiguousarray(np.broadcast_to(g.fwd, r.shape))
+    s, fwd = g.s, g.fwd
+    if r.shape != s.shape:
+        s = np.ascontiguousarray(np.broadcast_to(s, r.shape))
+        fwd = np.ascontiguousarray(np.broadcast_to(fwd, r.shape))
     P = r + np.einsum("...ij,...j->...i", A, s)
     h = P[..., 2]
     Ph = P.copy()
