@@ -189,6 +189,13 @@ class TireGroup:
         # after they are built: mbsim.core.States)
         self._many = weakref.WeakKeyDictionary()
 
+    def __getstate__(self):  # the memo (weak references) is not part of the group's state
+        return {k: v for k, v in self.__dict__.items() if k != "_many"}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._many = weakref.WeakKeyDictionary()
+
     def at(self, st) -> dict:
         """The law at one state: every quantity of :meth:`Tire.state` with a leading tire
         axis (F, sc, v, u, n_local (ne, 3); the rest (ne,))."""
