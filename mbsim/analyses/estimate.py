@@ -162,7 +162,11 @@ class CoarseStepper(Stepper):
 
     def __init__(self, model, cls, opt, t0, q, qd, t1, rows, mesh, system=None):
         self.mesh = np.asarray(mesh, float)
-        opt = dict(opt, h=float(self.mesh[1] - self.mesh[0]), h0=None)
+        # newton_contraction: generalized-alpha stops its Newton iteration on the remaining
+        # error (GeneralizedAlpha._newton): the companion is compared, not kept, and its
+        # doubled steps often meet the tolerance on what is left one iteration before the
+        # correction itself falls below it
+        opt = dict(opt, h=float(self.mesh[1] - self.mesh[0]), h0=None, newton_contraction=True)
         super().__init__(model, cls, opt, t0, q, qd, t1, rows, system)
 
     def step(self):

@@ -132,6 +132,9 @@ class GeneralizedAlpha(Integrator):
         b, i, j = np.meshgrid(np.arange(s.nb), np.arange(7), np.arange(7), indexing="ij")
         self._bi, self._bj = (7 * b + i).reshape(-1), (7 * b + j).reshape(-1)  # block scatter
         self.newton_tol = float(self.options.get("newton_tol", 1e-3))
+        # stop Newton on its remaining error, not on its last correction (the coarse
+        # companion of the error estimate: :meth:`_newton`)
+        self.newton_contraction = bool(self.options.get("newton_contraction", False))
         # the tolerances a step is held to: f (atol, rtol) (module doc)
         self.tol_factor = f = self.tolerance_factor(self.rtol)
         # the tightened atol stops at NOISE_MARGIN x the round-off of q (ROUNDOFF_ULPS ulp of
@@ -247,6 +250,17 @@ class GeneralizedAlpha(Integrator):
 
     # -- one step ---------------------------------------------------------------------------
     def _newton(self, h, shift=True):
+        """(q, qd, qdd, lam, a1, power) of the step h, or None where Newton fails.
+
+        Stopping tests on the scaled correction err_k = |dq_k| (rms over atol + rtol |q|):
+        err_k <= newton_tol, the run's test; with ``newton_contraction`` (the option the
+        coarse companion of the error estimate sets, mbsim.analyses.estimate.CoarseStepper)
+        also the remaining error bound theta/(1 - theta) err_k <= newton_tol, theta =
+        err_k / err_(k-1) the observed contraction (Hairer & Wanner II, Sec. IV.8, eq.
+        (8.10)).  The first bounds the error before the last correction, the second the
+        error after it: the same tolerance on what is left.  Measured on the vehicle's
+        companion (steps of 2 h): err_1 median 2e-3 above newton_tol in 19 of 29 steps,
+        where err_2 was <= 5e-6; the run's own steps meet err_1 <= newton_tol."""
         s = self.system
         am, af, gam, beta = self.coef
         t1 = self.t + h
@@ -292,6 +306,9 @@ class GeneralizedAlpha(Integrator):
             err = rms_norm(dq, self.atol + self.rtol * np.abs(q))
             if err <= self.newton_tol:
                 break
+            if self.newton_contraction and prev < np.inf and err < prev and (
+                    err * err / (prev - err) <= self.newton_tol):
+                break  # the remaining error theta/(1 - theta) err is below newton_tol
             # corrections at round-off of q (tight tolerances near a singular position):
             # converged as far as double precision allows
             if np.abs(dq).max(initial=0.0) <= 64 * np.finfo(float).eps * max(1.0, np.abs(q).max()):

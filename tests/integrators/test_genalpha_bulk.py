@@ -77,3 +77,42 @@ def test_coarse_companion_takes_the_runs_start_tangent(name, monkeypatch):
     for key in ("position", "orientation", "velocity", "angular_velocity"):
         a, b = shared.channels[f"error/{key}"].data, alone.channels[f"error/{key}"].data
         assert np.array_equal(a, b), key
+
+
+@pytest.mark.parametrize("name", ["genalpha", "hht"])
+def test_companion_stops_newton_on_its_remaining_error(name, monkeypatch):
+    """The coarse companion's Newton stops on theta/(1 - theta) err <= newton_tol
+    (``newton_contraction``): fewer iterations than on the correction alone, and an
+    estimate that differs by at most what the looser stop may leave in each companion step,
+    newton_tol (atol + rtol max|q|), summed over its steps and divided by 2^p - 1 (p = 2)."""
+    pb = M.reference_problem("slider_crank")
+    rtol, atol, newton_tol = 1e-4, 1e-6, 1e-3
+    companion = []  # the companion's factorizations (its steps have a fixed size)
+    matrix = GeneralizedAlpha._iteration_matrix
+
+    def counted(self, *args):
+        if self.h_fixed is not None:
+            companion.append(1)
+        return matrix(self, *args)
+
+    monkeypatch.setattr(GeneralizedAlpha, "_iteration_matrix", counted)
+    fast = run(pb, name, rtol=rtol, atol=atol)
+    n_fast = len(companion)
+    init = GeneralizedAlpha.__init__
+
+    def correction_only(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        self.newton_contraction = False
+
+    monkeypatch.setattr(GeneralizedAlpha, "__init__", correction_only)
+    companion.clear()
+    slow = run(pb, name, rtol=rtol, atol=atol)
+    assert fast.complete and slow.complete
+    assert "coarsened by 2" in fast.summary["error_estimate"]["method"]
+    assert 0 < n_fast < len(companion)
+    qmax = max(np.abs(ch.data).max() for path, ch in fast.channels.items()
+               if path.startswith("bodies/") and path.endswith("/r"))
+    steps = fast.summary["error_estimate"]["steps"]
+    bound = steps * newton_tol * (atol + rtol * max(1.0, qmax)) / (2**2 - 1)
+    diff = np.abs(fast.channels["error/position"].data - slow.channels["error/position"].data)
+    assert diff.max() <= bound, (diff.max(), bound)
