@@ -124,8 +124,8 @@ class GeneralizedAlpha(Integrator):
         jac = self.options.get("jacobian", "auto")
         self.use_fd = (jac == "fd") or (jac == "auto" and s.nq <= self.FD_MAX_NQ)
         self.KC = None  # (K, C) finite-difference residual Jacobians
-        # (t, q, qd, qdd, lam, K, C): the first tangent of this run, and one another run of
-        # the same system offered at the same start (:meth:`start_tangent`, :meth:`offer`)
+        # (t, q, qd, qdd, lam, K, C): the first tangent of this run, and the one another run
+        # of the same system offers for the same start (:meth:`offer_tangent`)
         self.first_tangent = None
         self._offered = None
         self.counters["jacobian_evaluations"] = 0
