@@ -173,8 +173,10 @@ class TireGroup:
     ``radius``, ``c``, ``c_alpha``, ``mu``, ``rolling``, ``v_min`` (ne,).
 
     :meth:`apply` adds the loads of every tire of the group at one state: the System calls
-    it once per state for all the tires of a model (mbsim/fast/dynamics.py apply_python).
-    Each tire's own state and channels come from its own group of one (``Tire.own``)."""
+    it once per state for all the tires of a model (mbsim/fast/dynamics.py apply_python);
+    :meth:`at_many` evaluates them at every output of a run once, and each tire's loads and
+    channels there read its column (``Tire.slot``).  A tire's state at one state comes from
+    its own group of one (``Tire.own``)."""
 
     PARAMS = ("kt", "radius", "c", "c_alpha", "mu", "rolling", "v_min")
 
