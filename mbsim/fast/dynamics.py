@@ -124,7 +124,7 @@ class System:
         # the symbolic analysis of S (order, envelope, products): once per row set
         self.sidx, self.inc, self.pairs = model_table(
             model, ("schur", self.rows.tobytes()), schur_structure, self.fc.rb, self.rows, nb,
-            column_masks(self.fc.ci, model.m))
+            self.fc.ci)
         # the model's struct (shared with self.fc) gets the dynamics tables and buffers
         c = self.c = self.fc.c
         nenv = _env_size(self.sidx)
@@ -510,12 +510,13 @@ def pair_code(mask_u, mask_v):
     return -1 - mask
 
 
-def schur_structure(rb, rows, nb, masks=None):
+def schur_structure(rb, rows, nb, ci=None):
     """(sidx (4, m_a), inc (ninc, 3), pairs (np, 4)) of the Schur matrix on ``rows`` (module
     doc): reverse Cuthill-McKee order, envelope, incidences (row, column offset, body) and
-    the products that fill the envelope, with the columns they need (``masks``: (m, 2) from
-    ``column_masks``; None: every column)."""
+    the products that fill the envelope, with the columns they need (``pair_code`` of the
+    kernels' columns, ``column_masks(ci)``; without ``ci`` every column)."""
     ma = rows.size
+    masks = None if ci is None else column_masks(ci, rb.shape[0])
     inc = [(u, 7 * s, rb[r, s]) for u, r in enumerate(rows) for s in range(2) if rb[r, s] >= 0]
     inc = np.array(sorted(inc, key=lambda x: (x[2], x[0], x[1])), dtype=np.int64).reshape(-1, 3)
     cols = (np.full(len(inc), ALL_COLUMNS, dtype=np.int64) if masks is None else
