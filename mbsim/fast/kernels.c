@@ -803,6 +803,34 @@ static void rhs_terms(const mb_model *M, const double *Jc)
         }
 }
 
+/* y (nq,) += sign (Phi_q Mt^-1)^T lam (sign +-1): incidence by incidence in the order of
+ * `inc`, y[c] += x[c] h or y[c] -= x[c] h (x = XG[g], h = lam of its row), each component's
+ * sum in that order.  `inc` is grouped by body, so a body's 7 components stay in registers
+ * over its run of incidences instead of a store and a load between two incidences (the same
+ * operations in the same order: the same bits). */
+static void add_incidences(const mb_model *M, const double *lam, double sign, double *y)
+{
+    const idx *inc = M->inc;
+    for (idx k = 0; k < M->ninc;) {
+        idx b = inc[3 * k + 2];
+        double *yb = y + 7 * b, a[7];
+        for (int c = 0; c < 7; c++)
+            a[c] = yb[c];
+        for (; k < M->ninc && inc[3 * k + 2] == b; k++) {
+            const double *x = M->XG + 8 * k;
+            double h = lam[inc[3 * k]];
+            if (sign < 0.0)
+                for (int c = 0; c < 7; c++)
+                    a[c] -= x[c] * h;
+            else
+                for (int c = 0; c < 7; c++)
+                    a[c] += x[c] * h;
+        }
+        for (int c = 0; c < 7; c++)
+            yb[c] = a[c];
+    }
+}
+
 /* lam = S^-1 (Phi_q Mt^-1 Qt - g), qdd = Mt^-1 (Qt - Phi_q^T lam); factored: Mi, XG and
  * the factor of S are already those of Jc at M->q (the last mb_project, unit 0). */
 static int solve_schur(const mb_model *M, const double *Jc, int factored)
@@ -826,12 +854,7 @@ static int solve_schur(const mb_model *M, const double *Jc, int factored)
     schur_solve(M, rhs, M->lam);
     for (idx b = 0; b < M->nb; b++)
         apply_minv(M, 0, b, M->Qt + 7 * b, M->qdd + 7 * b);
-    for (idx k = 0; k < M->ninc; k++) { /* - (Phi_q Mt^-1)^T lam */
-        const double *x = M->XG + 8 * k;
-        double *y = M->qdd + 7 * inc[3 * k + 2], h = M->lam[inc[3 * k]];
-        for (int c = 0; c < 7; c++)
-            y[c] -= x[c] * h;
-    }
+    add_incidences(M, M->lam, -1.0, M->qdd); /* - (Phi_q Mt^-1)^T lam */
     return STATUS_OK;
 }
 
@@ -988,12 +1011,7 @@ void mb_project_factored(const mb_model *M)
 {
     schur_solve(M, M->rhs, M->lam);
     memset(M->dq, 0, (size_t)M->nq * sizeof(double));
-    for (idx k = 0; k < M->ninc; k++) {
-        const double *x = M->XG + 8 * k;
-        double *y = M->dq + 7 * M->inc[3 * k + 2], h = M->lam[M->inc[3 * k]];
-        for (int c = 0; c < 7; c++)
-            y[c] += x[c] * h;
-    }
+    add_incidences(M, M->lam, 1.0, M->dq);
 }
 
 /* -- kinematic analysis: Phi = 0, Phi_q qd = nu, Phi_q qdd = gamma on one LU --------------- */
