@@ -3,7 +3,7 @@ second at a given error, each code at its best, plus the costs around mbsim's in
 
     python benchmarks/peers.py [--cases governor,slider_crank,chain,fourbar40,user,share,startup]
                                [--sizes 4,16,64,256,1024] [--repeats 3] [--max-cpu 30]
-                               [--quick] [--json OUT]
+                               [--refine 10] [--quick] [--json OUT]
 
 Cases (``--cases``; default all):
 
@@ -27,8 +27,12 @@ Fairness (the project's standard for peer figures):
 - each code runs a ladder of settings (mbsim: rtol, atol = rtol/100, every integrator of
   ``--integrators``; Exudyn: the number of fixed steps, or the tolerance of its adaptive
   explicit methods) and its cost at each target error is interpolated log-log along the
-  ladder (common.cost_at); the best over its methods is its figure.  A cost past a ladder's
-  end is extrapolated, printed as an estimate, and never turned into a ratio;
+  ladder (common.cost_at); the best over its methods is its figure.  On the chains mbsim's
+  ladder is refined to ``--refine`` rungs per decade between a target's last miss and first
+  hit (refined_rtols: its error is a jagged function of rtol, and the cheapest rtol that
+  meets the target is what a user's --accuracy search finds; Exudyn's fixed-step explicit
+  ladders, its best there, are smooth in h).  A cost past a ladder's end is extrapolated,
+  printed as an estimate, and never turned into a ratio;
 - Exudyn runs every solver and model type it offers for the problem: generalized-alpha and
   TrapezoidalIndex2 on the Cartesian twin (common.exudyn_rigid_system; its explicit solvers
   refuse constrained systems, which the script checks and prints), and for the chains also
@@ -107,6 +111,9 @@ ADAPTIVE_TOLS = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11)
 REFERENCE = {"integrator": "projection-dop853", "rtol": 1e-12, "atol": 1e-14}
 CHAIN_REFERENCE = {"integrator": "projection-dop853", "rtol": 1e-11, "atol": 1e-13}
 CHAIN_T_END = 2.0
+REFINE = 10
+"""Chains: mbsim's ladder refined to this many rungs per decade between the last rtol that
+misses a target and the first that meets it (refined_rtols; ``--refine``)."""
 KT_MAX_LINKS = 256  # ObjectKinematicTree: dense O(n^3) mass matrix; 1024 links = 3072 coords
 KT_IMPLICIT_MAX_LINKS = 16
 """ObjectKinematicTree under Exudyn's implicit solvers only up to this size: at N = 4 and 16
@@ -148,8 +155,24 @@ def run_ladder(run, settings, repeats, max_cpu, label, t_end, show=True):
     return points
 
 
+def refined_rtols(points, per_decade):
+    """The rtols `per_decade` to a decade (10^(-k / per_decade) steps) strictly between each
+    target's last missing rung and the next, the first that meets it (an adaptive method's
+    error is a jagged function of rtol, so the cheapest run that meets a target can lie
+    between two rungs: what a user's --accuracy search would find); none when
+    per_decade < 2 or no rung pair brackets a target."""
+    out = []
+    for target in TARGETS:
+        for p0, p1 in zip(points, points[1:]):
+            if not (p0["error"] > target >= p1["error"]) or p0["note"] or p1["note"]:
+                continue
+            steps = round(per_decade * math.log10(p0["setting"] / p1["setting"]))
+            out += [p0["setting"] * 10.0 ** (-k / per_decade) for k in range(1, steps)]
+    return sorted(set(out), reverse=True)
+
+
 def fmt_setting(s):
-    return f"{s:d} st" if isinstance(s, int) else f"{s:.0e}"
+    return f"{s:d} st" if isinstance(s, int) else f"{s:.2g}"
 
 
 def ladder_cost(points, target):
@@ -307,11 +330,14 @@ def chain_case(n, a):
     title = f"spherical chain, N = {n}, {CHAIN_T_END:g} s"
     print(f"\n=== {title}; reference {CHAIN_REFERENCE['integrator']} rtol "
           f"{CHAIN_REFERENCE['rtol']:g} ({ref_cpu:.2f} s CPU) ===", flush=True)
-    mb = {f"mbsim {name}": run_ladder(
-        mbsim_runner(model, CHAIN_T_END, q, qd, name,
-                     lambda res: float(np.linalg.norm(chain_tip(res, n) - tip_ref))),
-        a.rtols, a.repeats, a.max_cpu, f"mbsim {name}", CHAIN_T_END)
-        for name in a.chain_integrators}
+    mb = {}
+    for name in a.chain_integrators:
+        run = mbsim_runner(model, CHAIN_T_END, q, qd, name,
+                           lambda res: float(np.linalg.norm(chain_tip(res, n) - tip_ref)))
+        points = run_ladder(run, a.rtols, a.repeats, a.max_cpu, f"mbsim {name}", CHAIN_T_END)
+        mb[f"mbsim {name}"] = points + run_ladder(
+            run, refined_rtols(points, a.refine), a.repeats, a.max_cpu,
+            f"mbsim {name} (refined)", CHAIN_T_END)
     ex, notes = {}, []
     if a.exudyn:
         import exudyn as exu
@@ -717,6 +743,9 @@ def main(argv=None):
     ap.add_argument("--integrators", default="projection-dop853,projection,gcp-dop853",
                     help="mbsim integrators for the governor and the slider-crank")
     ap.add_argument("--chain-integrators", default="projection-dop853")
+    ap.add_argument("--refine", type=int, default=REFINE,
+                    help="chains: mbsim rungs per decade between a target's last miss and "
+                         "first hit (0: the plain ladder)")
     ap.add_argument("--kt-max", type=int, default=KT_MAX_LINKS,
                     help="largest chain run as Exudyn's ObjectKinematicTree")
     ap.add_argument("--loops", type=int, default=40, help="four-bar loops (fourbar40)")
@@ -742,6 +771,7 @@ def main(argv=None):
         a.explicit_steps, a.adaptive_tols = (50, 200), (1e-5, 1e-8)
         a.fourbar_rtols = (1e-6,)
         a.integrators = a.integrators[:1]
+        a.refine = 0
     a.exudyn = exudyn_available() and not a.no_exudyn
     load_avg = os.getloadavg()
     print(f"peers: cases {', '.join(cases)}; medians of {a.repeats}; CPU s per simulated s; "

@@ -31,6 +31,7 @@ from mbsim import fast
 from mbsim.constraints import DRIVERS, JOINTS
 from mbsim.deck import load_deck, load_deck_text
 from mbsim.deck.loader import parse_deck, scene_names
+from mbsim.fast.dynamics import column_masks
 from mbsim.model import compile_model
 from tests.forces.builders import force, two_body_model
 from tests.helpers import body, joint, pts, spec
@@ -339,6 +340,54 @@ def test_rows_subset_and_bad_shapes():
         fast.System(model).accelerations(q[:-1], q, 0.0)
     with pytest.raises(ValueError, match="gamma needs the velocities"):
         fc.evaluate(q, gamma=True)
+
+
+# -- the Schur products' column masks (mbsim.fast.dynamics.column_masks, kernels.c pair_dot) --
+def _every_kernel_models():
+    """Every joint and driver type on two free bodies (the random specs above: every basic
+    kernel), every deck (ground bodies, the angle kernel, singular J') and a chain."""
+    models = [compile_model(spec(_two_bodies(), [_joint_spec(t)], gravity=(0, 0, -9.81)))
+              for t in sorted(JOINTS)]
+    for t in sorted(DRIVERS):
+        joints, drivers = _driver_specs(t)
+        models.append(compile_model(spec(_two_bodies(), joints, drivers, gravity=(0, -9.81, 0))))
+    models += [compile_model(load_deck(ROOT / "models" / f"{d}.yaml")) for d in DECKS]
+    return models + [_chain(4)]
+
+
+def test_column_masks_cover_every_entry_the_kernels_write():
+    """column_masks says where each kernel's rows of the compact Phi_q (Jc) can be nonzero;
+    the Schur products leave the other columns out as exact zeros, so every entry outside
+    the masks must be exactly 0 at any state (q off the manifold, |p| off 1, t past the
+    angle driver's wrap)."""
+    for model in _every_kernel_models():
+        fc = fast.FastConstraints(model)
+        masks = column_masks(fc.ci, model.m)
+        inside = ((masks[:, :, None] >> np.arange(7)) & 1).astype(bool).reshape(model.m, 14)
+        for t in (0.37, 2.9):
+            q = model.q0 + 0.3 * rng.normal(size=model.nq)
+            fc.compact(q, t, rng.normal(size=model.nq), gamma=True)
+            assert np.count_nonzero(fc.Jc[~inside]) == 0, model.title
+            assert np.count_nonzero(fc.Jc[inside]) > 0
+
+
+def test_schur_products_without_the_zero_columns_change_no_bit():
+    """The accelerations on the kernels' own Phi_q (Schur products over the masked columns)
+    equal, to the bit, those on the same Phi_q passed in by the caller (mb_accelerations'
+    JAC_CALLER: every column): skipping exact zeros changes no sum."""
+    for model in _every_kernel_models():
+        system = fast.System(model)
+        if system.kkt:  # (no Schur complement)
+            continue
+        for t in (0.37, 2.9):
+            q = model.q0 + 1e-2 * rng.normal(size=model.nq)
+            qd = rng.normal(size=model.nq)
+            jac = system.terms(q, t).jac
+            qdd_a, lam_a, power_a = system.accelerations(q, qd, t)
+            ratio_a = system.pivot_ratio
+            qdd_b, lam_b, power_b = system.accelerations(q, qd, t, jac=jac)
+            assert np.array_equal(qdd_a, qdd_b) and np.array_equal(lam_a, lam_b), model.title
+            assert power_a == power_b and ratio_a == system.pivot_ratio
 
 
 def test_tables_are_built_once_per_model_and_row_set():

@@ -40,8 +40,11 @@ Tables (besides the constraint tables of :mod:`mbsim.fast.constraints`), built o
   the envelope's first column ``fc`` and offset ``off`` per position;
 - ``inc`` (ninc, 3) int64: the incidences (active row u, column offset of the body in the
   row's compact Jacobian (0: body i, 7: body j), body), grouped by body;
-- ``pairs`` (np, 3) int64: one line per (incidence g_u, incidence g_v) of the same body
-  with pos(u) >= pos(v): envelope index of S[u, v], g_u, g_v.
+- ``pairs`` (np, 4) int64: one line per (incidence g_u, incidence g_v) of the same body
+  with pos(u) >= pos(v): envelope index of S[u, v], g_u, g_v, and the columns of the
+  product (Mt^-1 Phi_q^T)[g_u] . Phi_q[g_v] that can be nonzero (``pair_code``).  The
+  other products are exact zeros, which the C code skips (adding +-0 to a sum that starts
+  at +0 changes no bit).
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from __future__ import annotations
 import numpy as np
 
 from mbsim import core
-from mbsim.fast.constraints import FastConstraints, model_table
+from mbsim.fast.constraints import KERNEL_CODE, KERNELS, FastConstraints, model_table
 from mbsim.fast.ordering import reverse_cuthill_mckee, row_graph
 
 NB = 24
@@ -120,7 +123,8 @@ class System:
         self.family = None  # the run (Stepper) that builds systems for other modes
         # the symbolic analysis of S (order, envelope, products): once per row set
         self.sidx, self.inc, self.pairs = model_table(
-            model, ("schur", self.rows.tobytes()), schur_structure, self.fc.rb, self.rows, nb)
+            model, ("schur", self.rows.tobytes()), schur_structure, self.fc.rb, self.rows, nb,
+            self.fc.ci)
         # the model's struct (shared with self.fc) gets the dynamics tables and buffers
         c = self.c = self.fc.c
         nenv = _env_size(self.sidx)
@@ -463,13 +467,60 @@ def element_tables(forces):
     return ei, ef, tuple(py)
 
 
-def schur_structure(rb, rows, nb):
-    """(sidx (4, m_a), inc (ninc, 3), pairs (np, 3)) of the Schur matrix on ``rows`` (module
-    doc): reverse Cuthill-McKee order, envelope, incidences
-    (row, column offset, body) and the products that fill the envelope."""
+# Columns of one body's 7 (r: bits 0-2, p: bits 3-6) where a kernel's row of Phi_q can be
+# nonzero, by kernel code (mbsim/fast/kernels.c, its k_* functions): a function of the
+# equation e of the kernel and the side (0: body i, 1: body j) -> bit mask.  A kernel not
+# listed: every column.
+ALL_COLUMNS, P_COLUMNS = 0x7F, 0x78
+KERNEL_ROWS = dict(zip(range(len(KERNELS)), (1, 1, 3, 1, 1, 1, 6, 1)))  # kernels.c's NE
+KERNEL_COLUMNS = {
+    KERNEL_CODE["dot1"]: lambda e, side: P_COLUMNS,  # a_j^T B(p_i, a_i'): p only
+    KERNEL_CODE["spherical"]: lambda e, side: 1 << e | P_COLUMNS,  # [-+I, -+B]: r unit e
+    KERNEL_CODE["angle"]: lambda e, side: P_COLUMNS,
+    KERNEL_CODE["absolute"]: None,  # e_axis^T, B[axis]: the axis from ci (below)
+    KERNEL_CODE["ground"]: lambda e, side: 1 << e if e < 3 else 1 << (e + 1),  # r_e, e_(e-2)
+    KERNEL_CODE["normalization"]: lambda e, side: P_COLUMNS,  # 2 p^T
+}
+
+
+def column_masks(ci, m):
+    """(m, 2) int64: for each row and side of the compact Phi_q (Jc's columns 0-6, 7-13) the
+    bit mask of the columns the kernels can write (``KERNEL_COLUMNS``; every column for
+    the other kernels)."""
+    masks = np.full((m, 2), ALL_COLUMNS, dtype=np.int64)
+    for code, row, flag in ci[:, [0, 3, 4]]:  # kernel code, first row, flag (axis)
+        if code == KERNEL_CODE["absolute"]:
+            masks[row] = 1 << flag | P_COLUMNS
+        elif code in KERNEL_COLUMNS:
+            for e in range(KERNEL_ROWS[code]):
+                masks[row + e] = [KERNEL_COLUMNS[code](e, side) for side in (0, 1)]
+    return masks
+
+
+def pair_code(mask_u, mask_v):
+    """kernels.c's pair_dot code of the product (Mt^-1 Phi_q^T)[g_u] . Phi_q[g_v] of two
+    incidences on one body whose rows of Phi_q can be nonzero in the columns ``mask_u``,
+    ``mask_v`` (``column_masks``): it can be nonzero where g_v's row can, and, in the r
+    columns (where Mt^-1 is diagonal), where g_u's can too.  The r column (0-2, 7: none)
+    when that leaves at most one r column and all four p columns; else -1 - the mask."""
+    mask = int(mask_v) & (int(mask_u) | P_COLUMNS)
+    r = mask & ~P_COLUMNS
+    if mask & P_COLUMNS == P_COLUMNS and r in (0, 1, 2, 4):
+        return r.bit_length() - 1 if r else 7
+    return -1 - mask
+
+
+def schur_structure(rb, rows, nb, ci=None):
+    """(sidx (4, m_a), inc (ninc, 3), pairs (np, 4)) of the Schur matrix on ``rows`` (module
+    doc): reverse Cuthill-McKee order, envelope, incidences (row, column offset, body) and
+    the products that fill the envelope, with the columns they need (``pair_code`` of the
+    kernels' columns, ``column_masks(ci)``; without ``ci`` every column)."""
     ma = rows.size
+    masks = None if ci is None else column_masks(ci, rb.shape[0])
     inc = [(u, 7 * s, rb[r, s]) for u, r in enumerate(rows) for s in range(2) if rb[r, s] >= 0]
     inc = np.array(sorted(inc, key=lambda x: (x[2], x[0], x[1])), dtype=np.int64).reshape(-1, 3)
+    cols = (np.full(len(inc), ALL_COLUMNS, dtype=np.int64) if masks is None else
+            masks[np.asarray(rows)[inc[:, 0]], inc[:, 1] // 7])  # (ninc,) each incidence's
     indptr, indices = row_graph(inc, ma)  # numpy alone: `mbsim check` imports no scipy
     order = reverse_cuthill_mckee(indptr, indices)
     pos = np.empty(ma, dtype=np.int64)
@@ -486,7 +537,7 @@ def schur_structure(rb, rows, nb):
             for g2 in mine:
                 pv = pos[inc[g2, 0]]
                 if pu >= pv:
-                    pairs.append((off[pu] + pv - fc[pu], g1, g2))
-    pairs = np.array(pairs, dtype=np.int64).reshape(-1, 3)
+                    pairs.append((off[pu] + pv - fc[pu], g1, g2, pair_code(cols[g1], cols[g2])))
+    pairs = np.array(pairs, dtype=np.int64).reshape(-1, 4)
     sidx = np.ascontiguousarray(np.stack([np.asarray(rows, dtype=np.int64), order, fc, off]))
     return sidx, inc, pairs

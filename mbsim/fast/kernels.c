@@ -19,7 +19,9 @@
  *   ei (ne, 3) / ef (ne, 9): compiled force elements (EL_*), bodies b1, b2 and data;
  *   sidx (4, ma): active rows, Schur order (RCM), envelope first column fc, offset off;
  *   inc (ninc, 3): incidences (active row u, column offset 0/7, body), grouped by body;
- *   pairs (np, 3): envelope index of S[u, v], incidence g_u, incidence g_v.
+ *   pairs (np, 4): envelope index of S[u, v], incidence g_u, incidence g_v, and the bit
+ *                      columns where XG[g_u] * JG[g_v] can be nonzero for the kernels' Phi_q
+ *                      (pair_dot's code; mbsim/fast/dynamics.py: pair_code).
  * (mbsim/fast/constraints.py and dynamics.py build them; their module docs say more.)
  *
  * Equations: Haug, Computer-Aided Kinematics and Dynamics of Mechanical Systems (1989),
@@ -530,7 +532,8 @@ void mb_applied_forces(const mb_model *M)
     idx nb = M->nb;
     for (idx b = 0; b < nb; b++) {
         const double *p = q + 7 * b + 3, *pd = qd + 7 * b + 3;
-        rotation(p, A + 9 * b);
+        if (M->ne > 0) /* A: the compiled elements' alone */
+            rotation(p, A + 9 * b);
         gmat(p, G);
         for (int i = 0; i < 3; i++) {
             F[3 * b + i] = bt[NB * b + 20 + i] + M->loads[3 * b + i];
@@ -639,7 +642,8 @@ static void minv_blocks(const mb_model *M, int unit)
 }
 
 /* y[0..7) = (Mt^-1 block of body b) x[0..7). */
-static void apply_minv(const mb_model *M, int unit, idx b, const double *x, double *y)
+static inline void apply_minv(const mb_model *M, int unit, idx b, const double *x,
+                              double *y)
 {
     double im = unit ? 1.0 : M->bt[NB * b + 23];
     const double *Mi = M->Mi + 16 * b;
@@ -648,6 +652,37 @@ static void apply_minv(const mb_model *M, int unit, idx b, const double *x, doub
     for (int a = 0; a < 4; a++)
         y[3 + a] = Mi[4 * a] * x[3] + Mi[4 * a + 1] * x[4] + Mi[4 * a + 2] * x[5] +
                    Mi[4 * a + 3] * x[6];
+}
+
+/* x . y over one body's 7 columns (x = Mt^-1 times one row of Phi_q, y another row, both
+ * padded to 8 with a zero), in the order c = 0, 1, .., 6, with the products that are exact
+ * zeros left out (pairs' code, mbsim/fast/dynamics.py: pair_code): where y is an exact zero
+ * of the kernels' Phi_q, or, in the r columns, where Mt^-1 is diagonal, x is.  Adding a +-0
+ * product to a sum that starts at +0 changes no bit (the sum never becomes -0), so the
+ * result is the full sum's to the bit and the Schur matrix the same.  code >= 0: the r
+ * column code (7: none, the padding's 0 x 0) and the four p columns, a chain's every pair
+ * (a spherical joint's row has one r column, a normalisation row none): 5 products of 7;
+ * code < 0: the columns of the mask -1 - code (ALL_COLUMNS: every one).  (A non-finite x or
+ * y stays in the sum through the p columns, which no kernel with a non-constant r column
+ * leaves out.) */
+enum { ALL_COLUMNS = 0x7F };
+
+static inline double pair_dot(const double *x, const double *y, idx code)
+{
+    double s = 0.0;
+    if (code >= 0) {
+        s += x[code] * y[code];
+        s += x[3] * y[3];
+        s += x[4] * y[4];
+        s += x[5] * y[5];
+        s += x[6] * y[6];
+        return s;
+    }
+    idx mask = -1 - code;
+    for (int c = 0; c < 7; c++)
+        if (mask >> c & 1)
+            s += x[c] * y[c];
+    return s;
 }
 
 /* Factor the Schur matrix S = Phi_q Mt^-1 Phi_q^T of the active rows (Jc: compact Phi_q).
@@ -675,12 +710,10 @@ static int schur_factor(const mb_model *M, const double *Jc, int unit)
         apply_minv(M, unit, inc[3 * g + 2], JG + 8 * g, XG + 8 * g);
     }
     memset(env, 0, (size_t)M->nenv * sizeof(double));
+    int own = Jc == M->Jc; /* the kernels' Phi_q: the pairs' column masks hold (else Jg) */
     for (idx k = 0; k < M->npairs; k++) {
-        const double *x = XG + 8 * pairs[3 * k + 1], *y = JG + 8 * pairs[3 * k + 2];
-        double s = 0.0;
-        for (int c = 0; c < 8; c++)
-            s += x[c] * y[c];
-        env[pairs[3 * k]] += s;
+        const idx *pk = pairs + 4 * k;
+        env[pk[0]] += pair_dot(XG + 8 * pk[1], JG + 8 * pk[2], own ? pk[3] : -1 - ALL_COLUMNS);
     }
     double rmin = 1.0;
     for (idx i = 0; i < ma; i++) { /* envelope Cholesky, row by row (bordering) */
@@ -770,6 +803,34 @@ static void rhs_terms(const mb_model *M, const double *Jc)
         }
 }
 
+/* y (nq,) += sign (Phi_q Mt^-1)^T lam (sign +-1): incidence by incidence in the order of
+ * `inc`, y[c] += x[c] h or y[c] -= x[c] h (x = XG[g], h = lam of its row), each component's
+ * sum in that order.  `inc` is grouped by body, so a body's 7 components stay in registers
+ * over its run of incidences instead of a store and a load between two incidences (the same
+ * operations in the same order: the same bits). */
+static void add_incidences(const mb_model *M, const double *lam, double sign, double *y)
+{
+    const idx *inc = M->inc;
+    for (idx k = 0; k < M->ninc;) {
+        idx b = inc[3 * k + 2];
+        double *yb = y + 7 * b, a[7];
+        for (int c = 0; c < 7; c++)
+            a[c] = yb[c];
+        for (; k < M->ninc && inc[3 * k + 2] == b; k++) {
+            const double *x = M->XG + 8 * k;
+            double h = lam[inc[3 * k]];
+            if (sign < 0.0)
+                for (int c = 0; c < 7; c++)
+                    a[c] -= x[c] * h;
+            else
+                for (int c = 0; c < 7; c++)
+                    a[c] += x[c] * h;
+        }
+        for (int c = 0; c < 7; c++)
+            yb[c] = a[c];
+    }
+}
+
 /* lam = S^-1 (Phi_q Mt^-1 Qt - g), qdd = Mt^-1 (Qt - Phi_q^T lam); factored: Mi, XG and
  * the factor of S are already those of Jc at M->q (the last mb_project, unit 0). */
 static int solve_schur(const mb_model *M, const double *Jc, int factored)
@@ -793,12 +854,7 @@ static int solve_schur(const mb_model *M, const double *Jc, int factored)
     schur_solve(M, rhs, M->lam);
     for (idx b = 0; b < M->nb; b++)
         apply_minv(M, 0, b, M->Qt + 7 * b, M->qdd + 7 * b);
-    for (idx k = 0; k < M->ninc; k++) { /* - (Phi_q Mt^-1)^T lam */
-        const double *x = M->XG + 8 * k;
-        double *y = M->qdd + 7 * inc[3 * k + 2], h = M->lam[inc[3 * k]];
-        for (int c = 0; c < 7; c++)
-            y[c] -= x[c] * h;
-    }
+    add_incidences(M, M->lam, -1.0, M->qdd); /* - (Phi_q Mt^-1)^T lam */
     return STATUS_OK;
 }
 
@@ -955,12 +1011,7 @@ void mb_project_factored(const mb_model *M)
 {
     schur_solve(M, M->rhs, M->lam);
     memset(M->dq, 0, (size_t)M->nq * sizeof(double));
-    for (idx k = 0; k < M->ninc; k++) {
-        const double *x = M->XG + 8 * k;
-        double *y = M->dq + 7 * M->inc[3 * k + 2], h = M->lam[M->inc[3 * k]];
-        for (int c = 0; c < 7; c++)
-            y[c] += x[c] * h;
-    }
+    add_incidences(M, M->lam, 1.0, M->dq);
 }
 
 /* -- kinematic analysis: Phi = 0, Phi_q qd = nu, Phi_q qdd = gamma on one LU --------------- */

@@ -281,25 +281,44 @@ static double error_norm(const mb_rk *R, double h)
     return fabs(h) * e5 / sqrt((e5 + 0.01 * e3) * (double)n);
 }
 
-/* ys = y + h sum_{j < s} a[j] K[j] (a stage's state).  Stage by stage over contiguous rows
- * of K, each component summed in the order j = 0, 1, .. as a scalar loop over j would; the
- * tableau's zeros (a quarter of DOP853's) are skipped: adding their +-0 products to a sum
- * that starts at +0 changes no bit. */
+/* ys = y + h sum_{j < s} a[j] K[j] (a stage's state).  Each component summed in the order
+ * j = 0, 1, .. as a scalar loop over j would, from +0, the tableau's zeros (a quarter of
+ * DOP853's) skipped: adding their +-0 products to a sum that starts at +0 changes no bit.
+ * Four components at a time, their sums kept in registers over the stages (one load of K
+ * per product instead of a load and a store of ys as well): the same operations in the
+ * same order, so the same bits. */
 static void combine(const mb_rk *R, const double *y, const double *a, idx s, double h,
                     double *ys)
 {
-    idx ny = 2 * R->nq + 1;
-    for (idx i = 0; i < ny; i++)
-        ys[i] = 0.0;
-    for (idx j = 0; j < s; j++) {
-        const double *Kj = R->K + j * ny, aj = a[j];
-        if (aj == 0.0)
-            continue;
-        for (idx i = 0; i < ny; i++)
-            ys[i] += Kj[i] * aj;
+    idx ny = 2 * R->nq + 1, nz = 0;
+    const double *Ks[16];
+    double as[16];
+    for (idx j = 0; j < s; j++) /* s <= 15: K has 16 rows */
+        if (a[j] != 0.0) {
+            Ks[nz] = R->K + j * ny;
+            as[nz++] = a[j];
+        }
+    idx i = 0;
+    for (; i + 4 <= ny; i += 4) {
+        double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+        for (idx k = 0; k < nz; k++) {
+            const double *Kj = Ks[k] + i, aj = as[k];
+            s0 += Kj[0] * aj;
+            s1 += Kj[1] * aj;
+            s2 += Kj[2] * aj;
+            s3 += Kj[3] * aj;
+        }
+        ys[i] = y[i] + h * s0;
+        ys[i + 1] = y[i + 1] + h * s1;
+        ys[i + 2] = y[i + 2] + h * s2;
+        ys[i + 3] = y[i + 3] + h * s3;
     }
-    for (idx i = 0; i < ny; i++)
-        ys[i] = y[i] + h * ys[i];
+    for (; i < ny; i++) {
+        double s0 = 0.0;
+        for (idx k = 0; k < nz; k++)
+            s0 += Ks[k][i] * as[k];
+        ys[i] = y[i] + h * s0;
+    }
 }
 
 /* One trial step of size h from (t, y) with y' = f (rk.RungeKuttaIntegrator._trial, then
