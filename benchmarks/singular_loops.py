@@ -21,7 +21,9 @@ error against the exact reduction at the end (and L x that, the coupler's positi
 the energy monitor's change across each flat passage (outputs 2 before to 2 after the
 crossing of theta = k pi) and between passages, in units of the initial kinetic energy
 (median |jump|, largest, and the sums, whose total is the drift that turns into a phase
-error), and where the CPU goes: steps, evaluations, factorizations, tangent stages, CPU s.
+error), and where the CPU goes: steps, evaluations, factorizations, tangent stages, CPU s.  With
+--perturb N the runs from the perturbed starts follow: the spread of their errors is what the
+passages' round-off alone leaves.
 """
 
 from __future__ import annotations
@@ -62,19 +64,15 @@ def main(argv=None):
     rtols = [float(r) for r in a.rtols.split(",")]
     if a.passages:
         for name in a.integrators.split(","):
-            for r in rtols:
-                passages(pb, a.cranks, name, r, a.t_end)
+            for r, seed in ((r, s) for r in rtols for s in range(a.perturb + 1)):
+                passages(perturbed(pb, seed), a.cranks, name, r, a.t_end, seed)
         return
     print(f"{'method':18s} {'rtol':>7s} {'status':10s} {'error m':>9s} {'bound':>8s} "
           f"{'estimate':>9s} {'est/err':>7s} {'CPU s':>7s} {'x first':>7s}")
     for name in a.integrators.split(","):
         first = None
         for r, seed in ((r, s) for r in rtols for s in range(a.perturb + 1)):
-            p = pb
-            if seed:
-                signs = np.random.default_rng(seed).choice([-1.0, 1.0], pb.q0.size)
-                p = dataclasses.replace(pb, q0=pb.q0 + ROUNDOFF_ULPS * np.finfo(float).eps
-                                        * signs * np.maximum(1.0, np.abs(pb.q0)))
+            p = perturbed(pb, seed)
             c0 = time.process_time()
             res, err = run(name, r, p)
             cpu = time.process_time() - c0
@@ -88,7 +86,16 @@ def main(argv=None):
                   flush=True)
 
 
-def passages(pb, n, name, rtol, t_end):
+def perturbed(pb, seed):
+    """pb with q0 moved by ROUNDOFF_ULPS ulps, random signs (seed 0: pb itself)."""
+    if not seed:
+        return pb
+    signs = np.random.default_rng(seed).choice([-1.0, 1.0], pb.q0.size)
+    return dataclasses.replace(pb, q0=pb.q0 + ROUNDOFF_ULPS * np.finfo(float).eps * signs
+                               * np.maximum(1.0, np.abs(pb.q0)))
+
+
+def passages(pb, n, name, rtol, t_end, seed=0):
     """One run to t_end: error at the end, energy change across / between passages, cost."""
     from mbsim.analyses.dynamic import dynamic
 
@@ -112,7 +119,7 @@ def passages(pb, n, name, rtol, t_end):
     across = (energy[hi] - energy[lo]) / scale
     between = (energy[lo[1:]] - energy[hi[:-1]]) / scale
     c = res.counters
-    print(f"{name} rtol {rtol:.0e}: {res.status}, {t_end:g} s, {cross.size} passages; "
+    print(f"{name} rtol {rtol:.0e}{f' #{seed}' if seed else ''}: {res.status}, {t_end:g} s, {cross.size} passages; "
           f"theta error {abs(dth[-1]):.2e} rad (x L = {L * abs(dth[-1]):.2e} m); energy / T0: "
           f"drift {(energy[-1] - energy[0]) / scale:+.1e}, across each passage median "
           f"{np.median(np.abs(across)):.1e} largest {np.abs(across).max():.1e} sum "
