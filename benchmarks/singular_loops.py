@@ -119,7 +119,8 @@ def passages(pb, n, name, rtol, t_end, seed=0):
     across = (energy[hi] - energy[lo]) / scale
     between = (energy[lo[1:]] - energy[hi[:-1]]) / scale
     c = res.counters
-    print(f"{name} rtol {rtol:.0e}{f' #{seed}' if seed else ''}: {res.status}, {t_end:g} s, {cross.size} passages; "
+    tag = f" #{seed}" if seed else ""
+    print(f"{name} rtol {rtol:.0e}{tag}: {res.status}, {t_end:g} s, {cross.size} passages; "
           f"theta error {abs(dth[-1]):.2e} rad (x L = {L * abs(dth[-1]):.2e} m); energy / T0: "
           f"drift {(energy[-1] - energy[0]) / scale:+.1e}, across each passage median "
           f"{np.median(np.abs(across)):.1e} largest {np.abs(across).max():.1e} sum "
