@@ -39,7 +39,9 @@ Tables (besides the constraint tables of :mod:`mbsim.fast.constraints`), built o
   the Schur matrix (``order[k]``: the active row at position k, reverse Cuthill-McKee),
   the envelope's first column ``fc`` and offset ``off`` per position;
 - ``inc`` (ninc, 3) int64: the incidences (active row u, column offset of the body in the
-  row's compact Jacobian (0: body i, 7: body j), body), grouped by body;
+  row's compact Jacobian (0: body i, 7: body j), body), grouped by body; offset + ``CROSS``:
+  a row's incidence on a body held by its own rows (the ground), left out of S
+  (:func:`schur_structure`);
 - ``pairs`` (np, 3) int64: one line per (incidence g_u, incidence g_v) of the same body
   with pos(u) >= pos(v): envelope index of S[u, v], g_u, g_v.
 """
