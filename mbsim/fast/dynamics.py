@@ -39,7 +39,9 @@ Tables (besides the constraint tables of :mod:`mbsim.fast.constraints`), built o
   the Schur matrix (``order[k]``: the active row at position k, reverse Cuthill-McKee),
   the envelope's first column ``fc`` and offset ``off`` per position;
 - ``inc`` (ninc, 3) int64: the incidences (active row u, column offset of the body in the
-  row's compact Jacobian (0: body i, 7: body j), body), grouped by body;
+  row's compact Jacobian (0: body i, 7: body j), body), grouped by body; offset + ``CROSS``:
+  a row's incidence on a body held by its own rows (the ground), left out of S
+  (:func:`schur_structure`);
 - ``pairs`` (np, 4) int64: one line per (incidence g_u, incidence g_v) of the same body
   with pos(u) >= pos(v): envelope index of S[u, v], g_u, g_v, and the columns of the
   product (Mt^-1 Phi_q^T)[g_u] . Phi_q[g_v] that can be nonzero (``pair_code``).  The
@@ -121,10 +123,13 @@ class System:
         self._py_alone = tuple(el for el in plain if getattr(el, "group", None) is None)
         self._lam_known = None  # (m,) multipliers on all rows, the loop's last iterate
         self.family = None  # the run (Stepper) that builds systems for other modes
-        # the symbolic analysis of S (order, envelope, products): once per row set
+        # the symbolic analysis of S (order, envelope, products): once per row set; on the
+        # sparse path (large models), bodies held by their own active rows (the ground) are
+        # left out of S where that pays (schur_structure)
+        held = held_bodies(model, self.rows) if self.sparse and not self.kkt else ()
         self.sidx, self.inc, self.pairs = model_table(
-            model, ("schur", self.rows.tobytes()), schur_structure, self.fc.rb, self.rows, nb,
-            self.fc.ci)
+            model, ("schur", self.rows.tobytes(), held), schur_structure, self.fc.rb,
+            self.rows, nb, self.fc.ci, held)
         # the model's struct (shared with self.fc) gets the dynamics tables and buffers
         c = self.c = self.fc.c
         nenv = _env_size(self.sidx)
@@ -510,14 +515,73 @@ def pair_code(mask_u, mask_v):
     return -1 - mask
 
 
-def schur_structure(rb, rows, nb, ci=None):
+def held_bodies(model, rows):
+    """(bodies,) held by their own active rows alone: a ``ground`` item's six rows and the
+    body's normalisation row all in ``rows`` fix its coordinates (qdd_b = 0 whatever the
+    other rows do), so S needs none of its other incidences (:func:`schur_structure`)."""
+    active = set(int(r) for r in rows)
+    own = {}
+    for it in model.items:
+        if it.kind in ("ground", "normalization") and it.bj < 0:
+            own.setdefault(it.bi, []).append((it.kind, all(int(r) in active for r in it.rows)))
+    return tuple(sorted(b for b, kinds in own.items()
+                        if ("ground", True) in kinds and ("normalization", True) in kinds))
+
+
+def schur_structure(rb, rows, nb, ci=None, held=()):
     """(sidx (4, m_a), inc (ninc, 3), pairs (np, 4)) of the Schur matrix on ``rows`` (module
     doc): reverse Cuthill-McKee order, envelope, incidences (row, column offset, body) and
     the products that fill the envelope, with the columns they need (``pair_code`` of the
-    kernels' columns, ``column_masks(ci)``; without ``ci`` every column)."""
+    kernels' columns, ``column_masks(ci)``; without ``ci`` every column).
+
+    held: bodies fixed by their own rows (:func:`held_bodies`).  A held body b has qdd_b = 0,
+    so the other rows' entries in its columns change neither their S nor the moving bodies'
+    accelerations: only its own rows' multipliers carry them (Haug eq. 11.1.x, body b's
+    block: Phi_b^T lam_b = Qt_b - sum over the other rows u of Phi_ub^T lam_u).  Such an
+    incidence is kept with column offset + CROSS (kernels.c: no Mt^-1 product, no entry of
+    S; ``fixed_body_multipliers`` adds its reaction to the own rows' multipliers).  A
+    ground joined by many rows (the parallel four-bar's 41 pivots) otherwise couples all
+    of them in S.  The cut structure is kept where it at least halves the envelope cost
+    (HELD_GAIN), so a model where it does not pay factors exactly as before."""
+    plain = _schur_structure(rb, rows, nb, ci, ())
+    if not held:
+        return plain
+    cut = _schur_structure(rb, rows, nb, ci, held)
+    return cut if HELD_GAIN * _envelope_cost(cut[0]) <= _envelope_cost(plain[0]) else plain
+
+
+HELD_GAIN = 2.0
+"""Envelope cost ratio (plain / cut) from which :func:`schur_structure` leaves held bodies
+out of S: the factorization is then at most half the work, which on the large models that
+reach it (the sparse path) is most of an evaluation (the 40-loop four-bar: 6.6e6 -> 2.1e6
+squared widths, 2.2 -> 0.53 ms per accelerations call).  Below it, the model keeps the
+factorization, and round-off, it had (chains: ratio 1.03 at 64 links)."""
+
+
+CROSS = 14
+"""Column-offset flag of an incidence left out of S (:func:`schur_structure`, kernels.c)."""
+
+
+def _envelope_cost(sidx):
+    """sum of squared row widths of the envelope: the multiply-adds of its Cholesky x 2."""
+    width = np.arange(sidx.shape[1]) - sidx[2] + 1
+    return int((width * width).sum())
+
+
+def _schur_structure(rb, rows, nb, ci, held):
     ma = rows.size
     masks = None if ci is None else column_masks(ci, rb.shape[0])
-    inc = [(u, 7 * s, rb[r, s]) for u, r in enumerate(rows) for s in range(2) if rb[r, s] >= 0]
+    own = {b: set() for b in held}  # a held body's own rows: those on it alone
+    for u, r in enumerate(rows):
+        if rb[r, 0] in own and rb[r, 1] < 0:
+            own[rb[r, 0]].add(u)
+    inc, cross = [], []
+    for u, r in enumerate(rows):
+        for s in range(2):
+            b = rb[r, s]
+            if b < 0:
+                continue
+            (cross if b in own and u not in own[b] else inc).append((u, 7 * s, b))
     inc = np.array(sorted(inc, key=lambda x: (x[2], x[0], x[1])), dtype=np.int64).reshape(-1, 3)
     cols = (np.full(len(inc), ALL_COLUMNS, dtype=np.int64) if masks is None else
             masks[np.asarray(rows)[inc[:, 0]], inc[:, 1] // 7])  # (ninc,) each incidence's
@@ -540,4 +604,14 @@ def schur_structure(rb, rows, nb, ci=None):
                     pairs.append((off[pu] + pv - fc[pu], g1, g2, pair_code(cols[g1], cols[g2])))
     pairs = np.array(pairs, dtype=np.int64).reshape(-1, 4)
     sidx = np.ascontiguousarray(np.stack([np.asarray(rows, dtype=np.int64), order, fc, off]))
+    if cross:  # after the body's own incidences, its group kept (kernels.c)
+        cross = np.array(cross, dtype=np.int64) + np.array([0, CROSS, 0])
+        inc = np.concatenate([inc, cross])
+        inc = inc[np.lexsort((inc[:, 0], inc[:, 1] >= CROSS, inc[:, 2]))]
+        # pairs index incidences: renumber them after the sort
+        new = np.empty(inc.shape[0], dtype=np.int64)
+        regular = np.flatnonzero(inc[:, 1] < CROSS)
+        new[:regular.size] = regular
+        if pairs.size:
+            pairs[:, 1:3] = new[pairs[:, 1:3]]
     return sidx, inc, pairs

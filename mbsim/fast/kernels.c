@@ -18,7 +18,8 @@
  *                      c = 4 tr(J') / 3 (19), weight m g (20-22), 1 / m (23);
  *   ei (ne, 3) / ef (ne, 9): compiled force elements (EL_*), bodies b1, b2 and data;
  *   sidx (4, ma): active rows, Schur order (RCM), envelope first column fc, offset off;
- *   inc (ninc, 3): incidences (active row u, column offset 0/7, body), grouped by body;
+ *   inc (ninc, 3): incidences (active row u, column offset 0/7, body), grouped by body
+ *                  (offset + CROSS: left out of S, a body held by its own rows);
  *   pairs (np, 4): envelope index of S[u, v], incidence g_u, incidence g_v, and the bit
  *                      columns where XG[g_u] * JG[g_v] can be nonzero for the kernels' Phi_q
  *                      (pair_dot's code; mbsim/fast/dynamics.py: pair_code).
@@ -694,6 +695,10 @@ static inline double pair_dot(const double *x, const double *y, idx code)
  * raise (1: none below 1; ~ (sigma_min / sigma)^2 of the scaled rows near a change point).
  * Returns 0 when S is not positive definite. */
 #define PIVOT_FLOOR 1e-8 /* relative: (sigma_min / sigma)^2 below which a pivot is raised */
+/* inc's column offset + CROSS: an incidence of a row on a body held by its own rows alone
+ * (the ground), left out of S (mbsim/fast/dynamics.py: schur_structure); its XG is zero, so
+ * the sums over incidences below skip it, and fixed_body_multipliers adds its reaction. */
+#define CROSS 14
 
 static int schur_factor(const mb_model *M, const double *Jc, int unit)
 {
@@ -702,12 +707,16 @@ static int schur_factor(const mb_model *M, const double *Jc, int unit)
     const idx *rows = sidx, *fc = sidx + 2 * ma, *off = sidx + 3 * ma;
     double *XG = M->XG, *JG = M->JG, *env = M->env;
     for (idx g = 0; g < M->ninc; g++) {
-        const double *Jr = Jc + 14 * rows[inc[3 * g]] + inc[3 * g + 1];
+        idx o = inc[3 * g + 1], cross = o >= CROSS;
+        const double *Jr = Jc + 14 * rows[inc[3 * g]] + (cross ? o - CROSS : o);
         for (int c = 0; c < 7; c++)
             JG[8 * g + c] = Jr[c];
         JG[8 * g + 7] = 0.0;
         XG[8 * g + 7] = 0.0;
-        apply_minv(M, unit, inc[3 * g + 2], JG + 8 * g, XG + 8 * g);
+        if (cross) /* a row's entries on a body its own rows hold: no part of S */
+            memset(XG + 8 * g, 0, 7 * sizeof(double));
+        else
+            apply_minv(M, unit, inc[3 * g + 2], JG + 8 * g, XG + 8 * g);
     }
     memset(env, 0, (size_t)M->nenv * sizeof(double));
     int own = Jc == M->Jc; /* the kernels' Phi_q: the pairs' column masks hold (else Jg) */
@@ -831,6 +840,82 @@ static void add_incidences(const mb_model *M, const double *lam, double sign, do
     }
 }
 
+/* A held body's own rows alone fix its part of x (qdd: Phi_bb qdd_b = gamma_b; dq: Phi_bb dq_b
+ * = Phi_b), which the solve on S (own rows decoupled) gives; the other rows u then ask
+ * Phi_um x_m = ... - Phi_ub x_b.  With d = S^-1 (sum over CROSS incidences Phi_ub x_b):
+ * x_m -= Mt^-1 Phi_q^T d and lam += sign d (accelerations: +1, lam = S^-1 (Phi_q Mt^-1 Qt -
+ * gamma); projections: -1, lam = S^-1 rhs).  Nothing to do when x_b = 0 (a held body at
+ * rest: the ground), the usual case. */
+static void held_coupling(const mb_model *M, double *x, double sign)
+{
+    const idx *inc = M->inc;
+    double *d = M->srhs;
+    int any = 0;
+    memset(d, 0, (size_t)M->ma * sizeof(double));
+    for (idx k = 0; k < M->ninc; k++)
+        if (inc[3 * k + 1] >= CROSS) {
+            const double *xb = x + 7 * inc[3 * k + 2], *J = M->JG + 8 * k;
+            double s = 0.0;
+            for (int c = 0; c < 7; c++)
+                s += J[c] * xb[c];
+            if (s != 0.0) {
+                d[inc[3 * k]] += s;
+                any = 1;
+            }
+        }
+    if (!any)
+        return;
+    schur_solve(M, d, d);
+    for (idx u = 0; u < M->ma; u++)
+        M->lam[u] += sign * d[u];
+    for (idx k = 0; k < M->ninc; k++) { /* own incidences of held bodies: d = 0 there */
+        const double *xg = M->XG + 8 * k;
+        double *y = x + 7 * inc[3 * k + 2], h = d[inc[3 * k]];
+        for (int c = 0; c < 7; c++)
+            y[c] -= xg[c] * h;
+    }
+}
+
+/* The multipliers of the rows that hold a body alone (CROSS): S left the other rows' entries
+ * in its columns out, so its own rows' lam_b balance Qt_b alone; the body's block of the
+ * equations of motion (qdd_b = 0) adds Phi_bb^-T f, f = -sum over the other rows u of
+ * Phi_ub^T lam_u.  Phi_bb^-T = S_bb^-1 Phi_bb Mt_b^-1 (S_bb = Phi_bb Mt_b^-1 Phi_bb^T, its
+ * own block of S, which nothing couples to the rest), so one more solve with the right-hand
+ * side XG_g . f on the own incidences g (zero elsewhere, and so is the solution there). */
+static void fixed_body_multipliers(const mb_model *M)
+{
+    const idx *inc = M->inc;
+    double *rhs = M->srhs;
+    int any = 0;
+    memset(rhs, 0, (size_t)M->ma * sizeof(double));
+    for (idx g0 = 0, g1; g0 < M->ninc; g0 = g1) { /* incidences grouped by body */
+        idx b = inc[3 * g0 + 2];
+        double f[7] = {0.0};
+        int cross = 0;
+        for (g1 = g0; g1 < M->ninc && inc[3 * g1 + 2] == b; g1++)
+            if (inc[3 * g1 + 1] >= CROSS) {
+                double h = M->lam[inc[3 * g1]];
+                cross = any = 1;
+                for (int c = 0; c < 7; c++)
+                    f[c] += M->JG[8 * g1 + c] * h;
+            }
+        if (!cross)
+            continue;
+        for (idx g = g0; g < g1; g++)
+            if (inc[3 * g + 1] < CROSS) {
+                double s = 0.0;
+                for (int c = 0; c < 7; c++)
+                    s += M->XG[8 * g + c] * f[c];
+                rhs[inc[3 * g]] -= s;
+            }
+    }
+    if (!any)
+        return;
+    schur_solve(M, rhs, rhs);
+    for (idx u = 0; u < M->ma; u++)
+        M->lam[u] += rhs[u];
+}
+
 /* lam = S^-1 (Phi_q Mt^-1 Qt - g), qdd = Mt^-1 (Qt - Phi_q^T lam); factored: Mi, XG and
  * the factor of S are already those of Jc at M->q (the last mb_project, unit 0). */
 static int solve_schur(const mb_model *M, const double *Jc, int factored)
@@ -855,6 +940,8 @@ static int solve_schur(const mb_model *M, const double *Jc, int factored)
     for (idx b = 0; b < M->nb; b++)
         apply_minv(M, 0, b, M->Qt + 7 * b, M->qdd + 7 * b);
     add_incidences(M, M->lam, -1.0, M->qdd); /* - (Phi_q Mt^-1)^T lam */
+    held_coupling(M, M->qdd, 1.0);
+    fixed_body_multipliers(M);
     return STATUS_OK;
 }
 
@@ -1012,6 +1099,7 @@ void mb_project_factored(const mb_model *M)
     schur_solve(M, M->rhs, M->lam);
     memset(M->dq, 0, (size_t)M->nq * sizeof(double));
     add_incidences(M, M->lam, 1.0, M->dq);
+    held_coupling(M, M->dq, -1.0);
 }
 
 /* -- kinematic analysis: Phi = 0, Phi_q qd = nu, Phi_q qdd = gamma on one LU --------------- */
