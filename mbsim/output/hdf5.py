@@ -243,8 +243,11 @@ def _scalar_space() -> h5py.h5s.SpaceID:
 def _fixed_strings(items) -> tuple[np.ndarray, h5py.h5t.TypeStringID]:
     """(bytes array (n,), its HDF5 type): ``items`` as UTF-8, fixed-length at the longest's
     length in bytes (at least 1)."""
-    raw = [str(s).encode() for s in items]
-    data = np.array(raw, dtype=f"S{max([len(b) for b in raw] + [1])}")
+    try:  # ASCII (names, units, JSON): numpy's own conversion
+        data = np.array([str(s) for s in items], dtype="S")
+    except UnicodeEncodeError:
+        raw = [str(s).encode() for s in items]
+        data = np.array(raw, dtype=f"S{max([len(b) for b in raw] + [1])}")
     return data, _string_type(data.dtype.itemsize)
 
 
@@ -390,7 +393,8 @@ def _write_arrays(f: h5py.File, arrays: dict[str, tuple[np.ndarray, dict]]) -> N
     _strings(f, "arrays", single)
 
 
-def _write_file(f: h5py.File, result: Result, paths: list[str]) -> None:
+def _write_file(f: h5py.File, result: Result, values: np.ndarray, table: dict) -> None:
+    """The objects of ``result``'s file in ``f``; values, table: :func:`_channel_table`."""
     from mbsim import __version__
 
     _set_attrs(f, {
@@ -403,7 +407,6 @@ def _write_file(f: h5py.File, result: Result, paths: list[str]) -> None:
     for key in JSON_DATASETS:
         _strings(f, key, to_json(getattr(result, key)))
     _set_attrs(_put(f, "time", np.asarray(result.t, dtype=np.float64).reshape(-1)), {"unit": "s"})
-    values, table = _channel_table(result, paths)
     _put(f, "values", values)  # contiguous, uncompressed (see CHUNK_ELEMENTS)
     _table(f, "channels", table)
     kinds = list(result.names)
@@ -442,8 +445,8 @@ def write_result(result: Result, path: str | Path) -> Path:
         after the first axis, types or attributes).
     """
     path = Path(path)
-    paths = _check_names(result.channels)
-    check_finite(result)
+    values, table = _channel_table(result, _check_names(result.channels))
+    check_finite(result, values)
     tmp = _tmp_name(path)
     try:
         # The file is built in memory (HDF5's core driver, no backing store) and written with
@@ -451,7 +454,7 @@ def write_result(result: Result, path: str | Path) -> Path:
         # and then crashes the interpreter (issue 13: segmentation fault, exit 139), while a
         # failed os.write is one OSError.  Memory: one copy of the compressed file.
         with h5py.File(tmp, "w", driver="core", backing_store=False) as f:
-            _write_file(f, result, paths)
+            _write_file(f, result, values, table)
             f.flush()
             image = f.id.get_file_image()
         with open(tmp, "wb") as out:
@@ -563,9 +566,11 @@ def prepare_output(path: str | Path) -> Path:
     return path
 
 
-def check_finite(result: Result) -> None:
+def check_finite(result: Result, values: np.ndarray | None = None) -> None:
     """A result marked complete holds no NaN or inf (issue 13): if a channel does, mark it
-    incomplete, naming the channel and the first time, so the CLI exits 1."""
+    incomplete, naming the channel and the first time, so the CLI exits 1.  ``values``: the
+    channels side by side (:func:`_channel_table`), when the writer has them: all finite,
+    the channels are not visited one by one."""
     if not result.complete:
         return
     t = np.asarray(result.t, dtype=float)
@@ -573,6 +578,8 @@ def check_finite(result: Result) -> None:
     if bad_t.size:
         result.status = STATUS_INCOMPLETE
         result.message = f"time holds NaN or inf (output {int(bad_t[0])})"
+        return
+    if values is not None and np.isfinite(values).all():
         return
     for name, ch in result.channels.items():
         data = np.asarray(ch.data, dtype=float)
