@@ -478,15 +478,13 @@ def schur_structure(rb, rows, nb):
     np.minimum.at(fc, pos[np.repeat(np.arange(ma), np.diff(indptr))], pos[indices])
     width = np.arange(ma) - fc + 1
     off = np.concatenate([[0], np.cumsum(width)[:-1]]).astype(np.int64) if ma else fc.copy()
-    pairs = []
-    for b in range(nb):
+    pairs = [np.empty((0, 3), dtype=np.int64)]
+    for b in range(nb):  # per body, its incidences g1 (outer) x g2 (inner) with pu >= pv
         mine = np.flatnonzero(inc[:, 2] == b)
-        for g1 in mine:
-            pu = pos[inc[g1, 0]]
-            for g2 in mine:
-                pv = pos[inc[g2, 0]]
-                if pu >= pv:
-                    pairs.append((off[pu] + pv - fc[pu], g1, g2))
-    pairs = np.array(pairs, dtype=np.int64).reshape(-1, 3)
+        g1, g2 = np.repeat(mine, mine.size), np.tile(mine, mine.size)
+        pu, pv = pos[inc[g1, 0]], pos[inc[g2, 0]]
+        keep = pu >= pv
+        pairs.append(np.stack([off[pu] + pv - fc[pu], g1, g2], axis=1)[keep])
+    pairs = np.ascontiguousarray(np.concatenate(pairs), dtype=np.int64)
     sidx = np.ascontiguousarray(np.stack([np.asarray(rows, dtype=np.int64), order, fc, off]))
     return sidx, inc, pairs
