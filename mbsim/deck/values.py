@@ -456,14 +456,16 @@ class Reader:
         if "Q" not in pts:
             return
         f = pts["Q"] - pts["P"]
-        if np.linalg.norm(f) < ZERO_LENGTH:
+        nf = math.sqrt(f.dot(f))  # (np.linalg.norm's sqrt(f . f), without its dispatch)
+        if nf < ZERO_LENGTH:
             raise self.error(wheres["Q"], "zero-length axis P→Q (Q coincides with P)")
         if "R" not in pts:
             return
         g = pts["R"] - pts["P"]
-        if np.linalg.norm(g) < ZERO_LENGTH:
+        ng = math.sqrt(g.dot(g))
+        if ng < ZERO_LENGTH:
             raise self.error(wheres["R"], "zero-length direction P→R (R coincides with P)")
-        cos = np.dot(f, g) / (np.linalg.norm(f) * np.linalg.norm(g))
+        cos = np.dot(f, g) / (nf * ng)
         angle = math.acos(min(1.0, max(-1.0, cos)))
         off = min(angle, math.pi - angle)  # distance from parallel
         if off <= PARALLEL:

@@ -135,6 +135,7 @@ class CompiledStep:
         r.load = ctypes.cast(self._load, ctypes.c_void_p).value if self._load else None
         self.ptr = ctypes.addressof(r)
         self.ns = ns
+        self._dense_io = None  # dense: (times, flags buffers, their addresses)
 
     def _counted(self, status):
         c = self.system.counters
@@ -169,16 +170,20 @@ class CompiledStep:
         """(status, Q (n, nq), QD (n, nq), W (n,), flags (k,)) of the last trial (accepted;
         the buffers untouched since) at the first k (default all n) of ``times`` in
         [t0, t0 + h] (the rows after k are left for the caller); flags[i] = 1 where Python
-        must give the output (step.c: mb_rk_dense)."""
-        times = np.ascontiguousarray(times, dtype=np.float64)
+        must give the output (step.c: mb_rk_dense; flags: a view valid until the next call)."""
+        times = np.asarray(times, dtype=np.float64).reshape(-1)
         n, nq = times.size, self.system.nq
         k = n if k is None else k
-        Q, QD, W = np.empty((n, nq)), np.empty((n, nq)), np.empty(n)
-        flags = np.zeros(k, dtype=np.int64)
-        st = self.lib.mb_rk_dense(self.system.c.ptr, self.ptr, t0, h, k, times.ctypes.data,
-                                  Q.ctypes.data, QD.ctypes.data, W.ctypes.data,
-                                  flags.ctypes.data)
-        return self._counted(st), Q, QD, W, flags
+        if self._dense_io is None or self._dense_io[0].size < n:  # (addresses made once)
+            tb, fb = np.empty(max(n, 16)), np.empty(max(n, 16), dtype=np.int64)
+            self._dense_io = (tb, fb, tb.ctypes.data, fb.ctypes.data)
+        tb, fb, t_address, f_address = self._dense_io
+        tb[:n] = times
+        fb[:k] = 0
+        out = _lib.carve(Q=(n, nq), QD=(n, nq), W=n)  # fresh: the caller keeps their rows
+        st = self.lib.mb_rk_dense(self.system.c.ptr, self.ptr, t0, h, k, t_address,
+                                  out["Q"][1], out["QD"][1], out["W"][1], f_address)
+        return self._counted(st), out["Q"][0], out["QD"][0], out["W"][0], fb[:k]
 
 
 _TABLEAU_ARRAYS: dict = {}

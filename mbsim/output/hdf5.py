@@ -296,36 +296,29 @@ def _channel_table(result: Result, paths: list[str]) -> tuple[np.ndarray, dict[s
     """Every channel side by side in one (nt, ncol) array, and the channel table (name, unit,
     description, components, column, width, shape) that says which columns are whose."""
     nt = len(np.asarray(result.t).reshape(-1))
-    datas, widths, shapes = [], [], []
-    for path, ch in zip(paths, result.channels.values()):
-        data = np.asarray(ch.data, dtype=np.float64)
+    chans = list(result.channels.values())
+    datas = [np.asarray(ch.data, dtype=np.float64) for ch in chans]
+    for path, data in zip(paths, datas):
         if data.ndim == 0 or data.shape[0] != nt:
             raise ValueError(f"channel {path!r} has shape {data.shape}; the time axis has "
                              f"{nt} outputs")
-        datas.append(data)
-        shapes.append(data.shape[1:])
-        widths.append(math.prod(data.shape[1:]))
-    column = np.concatenate([[0], np.cumsum(widths, dtype=np.int64)]) if widths else \
-        np.zeros(1, np.int64)
-    values = np.empty((nt, int(column[-1])))
-    for data, start, width in zip(datas, column, widths):
-        values[:, start:start + width] = data.reshape(nt, width)
-    chans = list(result.channels.values())
-    text: dict[tuple, str] = {}  # the few distinct component lists and shapes, dumped once
-
-    def dump(value: tuple) -> str:
-        if value not in text:
-            text[value] = json.dumps(list(value))
-        return text[value]
-
+    shapes = [data.shape[1:] for data in datas]
+    widths = [math.prod(shape) for shape in shapes]
+    column = np.zeros(len(widths) + 1, dtype=np.int64)
+    np.cumsum(widths, dtype=np.int64, out=column[1:])
+    values = (np.concatenate([d.reshape(nt, w) for d, w in zip(datas, widths)], axis=1)
+              if datas else np.empty((nt, 0)))
+    components = [tuple(c.components) for c in chans]
+    # the few distinct component lists and shapes, dumped once
+    text = {v: json.dumps(list(v)) for v in {*components, *shapes}}
     table = {
         "name": paths,
         "unit": [c.unit for c in chans],
         "description": [c.description for c in chans],
-        "components": [dump(tuple(c.components)) for c in chans],
+        "components": [text[v] for v in components],
         "column": column[:-1],
         "width": np.asarray(widths, dtype=np.int64),
-        "shape": [dump(s) for s in shapes],
+        "shape": [text[v] for v in shapes],
     }
     return values, table
 
