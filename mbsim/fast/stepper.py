@@ -180,10 +180,14 @@ class CompiledStep:
         tb, fb, t_address, f_address = self._dense_io
         tb[:n] = times
         fb[:k] = 0
-        out = _lib.carve(Q=(n, nq), QD=(n, nq), W=n)  # fresh: the caller keeps their rows
-        st = self.lib.mb_rk_dense(self.system.c.ptr, self.ptr, t0, h, k, t_address,
-                                  out["Q"][1], out["QD"][1], out["W"][1], f_address)
-        return self._counted(st), out["Q"][0], out["QD"][0], out["W"][0], fb[:k]
+        # Q, QD, W: fresh (the caller keeps their rows), one allocation, addresses by offset
+        block = np.empty(n * (2 * nq + 1))
+        base, size = block.ctypes.data, n * nq
+        Q, QD, W = (block[:size].reshape(n, nq), block[size:2 * size].reshape(n, nq),
+                    block[2 * size:])
+        st = self.lib.mb_rk_dense(self.system.c.ptr, self.ptr, t0, h, k, t_address, base,
+                                  base + 8 * size, base + 16 * size, f_address)
+        return self._counted(st), Q, QD, W, fb[:k]
 
 
 _TABLEAU_ARRAYS: dict = {}
