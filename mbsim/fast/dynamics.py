@@ -468,8 +468,12 @@ def schur_structure(rb, rows, nb):
     doc): reverse Cuthill-McKee order, envelope, incidences
     (row, column offset, body) and the products that fill the envelope."""
     ma = rows.size
-    inc = [(u, 7 * s, rb[r, s]) for u, r in enumerate(rows) for s in range(2) if rb[r, s] >= 0]
-    inc = np.array(sorted(inc, key=lambda x: (x[2], x[0], x[1])), dtype=np.int64).reshape(-1, 3)
+    # (u, 7 s, body) for each row position u and side s with a body, sorted by body, u, s
+    bodies = np.asarray(rb, dtype=np.int64)[np.asarray(rows, dtype=np.int64)].reshape(ma, 2)
+    inc = np.stack([np.repeat(np.arange(ma, dtype=np.int64), 2),
+                    np.tile(np.array([0, 7], dtype=np.int64), ma), bodies.reshape(-1)], axis=1)
+    inc = inc[inc[:, 2] >= 0]
+    inc = np.ascontiguousarray(inc[np.lexsort((inc[:, 1], inc[:, 0], inc[:, 2]))])
     indptr, indices = row_graph(inc, ma)  # numpy alone: `mbsim check` imports no scipy
     order = reverse_cuthill_mckee(indptr, indices)
     pos = np.empty(ma, dtype=np.int64)
@@ -478,13 +482,20 @@ def schur_structure(rb, rows, nb):
     np.minimum.at(fc, pos[np.repeat(np.arange(ma), np.diff(indptr))], pos[indices])
     width = np.arange(ma) - fc + 1
     off = np.concatenate([[0], np.cumsum(width)[:-1]]).astype(np.int64) if ma else fc.copy()
-    pairs = [np.empty((0, 3), dtype=np.int64)]
-    for b in range(nb):  # per body, its incidences g1 (outer) x g2 (inner) with pu >= pv
-        mine = np.flatnonzero(inc[:, 2] == b)
-        g1, g2 = np.repeat(mine, mine.size), np.tile(mine, mine.size)
-        pu, pv = pos[inc[g1, 0]], pos[inc[g2, 0]]
-        keep = pu >= pv
-        pairs.append(np.stack([off[pu] + pv - fc[pu], g1, g2], axis=1)[keep])
-    pairs = np.ascontiguousarray(np.concatenate(pairs), dtype=np.int64)
+    # per body b < nb in turn, its incidences g1 (outer) x g2 (inner) where pu >= pv: inc is
+    # sorted by body, so body b's incidences are the run first[b] .. first[b] + run[b] - 1,
+    # and g1 x g2 in that order is each g1 repeated run[b] times beside g2 over the run
+    body = inc[:, 2]
+    mine = np.flatnonzero(body < nb)
+    run = np.bincount(body[mine], minlength=nb)
+    first = np.cumsum(run) - run
+    reps = run[body[mine]]
+    start = np.cumsum(reps) - reps
+    g1 = np.repeat(mine, reps)
+    g2 = np.repeat(first[body[mine]] - start, reps) + np.arange(int(reps.sum()))
+    pu, pv = pos[inc[g1, 0]], pos[inc[g2, 0]]
+    keep = pu >= pv
+    pairs = np.ascontiguousarray(
+        np.stack([off[pu] + pv - fc[pu], g1, g2], axis=1)[keep], dtype=np.int64)
     sidx = np.ascontiguousarray(np.stack([np.asarray(rows, dtype=np.int64), order, fc, off]))
     return sidx, inc, pairs
