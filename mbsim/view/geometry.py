@@ -59,20 +59,31 @@ def triangulate(shape: ShapeSpec) -> tuple[np.ndarray, np.ndarray]:
 
 def box(size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A box centred at the origin, edges ``size`` along x y z; 4 vertices a face (flat)."""
-    h = np.asarray(size, float) / 2
-    verts, faces = [], []
+    signs, faces = _box_layout()
+    return signs * (np.asarray(size, float) / 2), faces.copy()
+
+
+@functools.lru_cache(maxsize=1)
+def _box_layout():
+    """(signs (24, 3) of +-1 per vertex and axis, faces (12, 3)) of :func:`box`: per face
+    (axis, sign) four corners (a, b) in the plane of the two other axes u, w, the winding
+    outward."""
+    signs, faces = [], []
     for axis in range(3):
         for sign in (1.0, -1.0):
             u, w = (axis + 1) % 3, (axis + 2) % 3
             if sign < 0:
                 u, w = w, u  # keep the winding outward
-            n = len(verts)
+            n = len(signs)
             for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
                 p = np.zeros(3)
-                p[axis], p[u], p[w] = sign * h[axis], a * h[u], b * h[w]
-                verts.append(p)
+                p[axis], p[u], p[w] = sign, a, b
+                signs.append(p)
             faces += [[n, n + 1, n + 2], [n, n + 2, n + 3]]
-    return np.array(verts), np.array(faces)
+    out = (np.array(signs), np.array(faces))
+    for x in out:
+        x.flags.writeable = False
+    return out
 
 
 def cylinder(radius: float, length: float, n: int = SEGMENTS) -> tuple[np.ndarray, np.ndarray]:
