@@ -74,11 +74,6 @@ to create whatever its size: the governor's three (8 000 to 14 000 elements, 190
 1.8 ms compressed against 0.3 ms stored as they are, so only meshes above
 COMPRESS_MIN_SIZE (800 kB of float64: chains of hundreds of links) are compressed."""
 
-CORE_INCREMENT = 1 << 20
-"""Bytes by which the in-memory file grows (HDF5's core driver; by its default 64 kB the
-governor's 550 kB file grows about nine times: 1 MB builds it in 2.45 ms instead of 2.7); the
-file's bytes are the same whatever the increment."""
-
 _STR = h5py.string_dtype("utf-8")
 _VSTR_FILE, _VSTR_MEMORY = h5py.h5t.py_create(_STR, logical=True), h5py.h5t.py_create(_STR)
 
@@ -451,8 +446,7 @@ def write_result(result: Result, path: str | Path) -> Path:
         # plain file I/O: HDF5 writing to a full disk itself raises from its object finalisers
         # and then crashes the interpreter (issue 13: segmentation fault, exit 139), while a
         # failed os.write is one OSError.  Memory: one copy of the compressed file.
-        with h5py.File(tmp, "w", driver="core", backing_store=False,
-                       block_size=CORE_INCREMENT) as f:
+        with h5py.File(tmp, "w", driver="core", backing_store=False) as f:
             _write_file(f, result, values, table)
             f.flush()
             image = f.id.get_file_image()
