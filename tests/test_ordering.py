@@ -61,3 +61,48 @@ def test_the_schur_order_is_scipys_on_random_incidences():
         inc = np.array(sorted(inc, key=lambda x: (x[2], x[0], x[1])),
                        dtype=np.int64).reshape(-1, 3)
         assert_scipys(inc, ma, nb)
+
+
+def schur_structure_by_loops(rb, rows, nb):
+    """schur_structure as written before its incidences and envelope products were arrays
+    (f6fe280): a sorted list of (u, 7 s, body), then per body its incidences g1 x g2 with
+    pos[u1] >= pos[u2], one tuple at a time."""
+    ma = rows.size
+    inc = [(u, 7 * s, rb[r, s]) for u, r in enumerate(rows) for s in range(2) if rb[r, s] >= 0]
+    inc = np.array(sorted(inc, key=lambda x: (x[2], x[0], x[1])), dtype=np.int64).reshape(-1, 3)
+    indptr, indices = row_graph(inc, ma)
+    order = reverse_cuthill_mckee(indptr, indices)
+    pos = np.empty(ma, dtype=np.int64)
+    pos[order] = np.arange(ma)
+    fc = np.arange(ma, dtype=np.int64)
+    np.minimum.at(fc, pos[np.repeat(np.arange(ma), np.diff(indptr))], pos[indices])
+    off = np.concatenate([[0], np.cumsum(np.arange(ma) - fc + 1)[:-1]]).astype(np.int64) \
+        if ma else fc.copy()
+    pairs = []
+    for b in range(nb):
+        mine = np.flatnonzero(inc[:, 2] == b)
+        for g1 in mine:
+            for g2 in mine:
+                pu, pv = pos[inc[g1, 0]], pos[inc[g2, 0]]
+                if pu >= pv:
+                    pairs.append((off[pu] + pv - fc[pu], g1, g2))
+    sidx = np.stack([np.asarray(rows, dtype=np.int64), order, fc, off])
+    return sidx, inc, np.array(pairs, dtype=np.int64).reshape(-1, 3)
+
+
+def test_the_schur_structure_is_the_loops_on_random_row_body_tables():
+    """mbsim.fast.dynamics.schur_structure (arrays) gives the loops' arrays integer for
+    integer, in their order (the Schur products are summed in it): random tables of rows on
+    ground (-1) or bodies, random row subsets, no rows at all."""
+    from mbsim.fast.dynamics import schur_structure
+
+    rng = np.random.default_rng(2411)
+    for _ in range(300):
+        nb, m = int(rng.integers(1, 10)), int(rng.integers(0, 30))
+        rb = rng.integers(-1, nb, size=(m, 2)).astype(np.int64)
+        rows = np.sort(rng.choice(m, size=int(rng.integers(0, m + 1)), replace=False)) \
+            if m else np.zeros(0, dtype=np.int64)
+        for got, want in zip(schur_structure(rb, rows.astype(np.int64), nb),
+                             schur_structure_by_loops(rb, rows.astype(np.int64), nb)):
+            assert got.dtype == want.dtype and got.shape == want.shape
+            assert np.array_equal(got, want)
