@@ -28,6 +28,15 @@ Phases are timed by wrapping the named functions where the run looks them up (th
 own cost, ~1 us a call, is in the phases).  Figures (``phases: ...``, so that
 before_after.py's table keeps them apart from peers.py's): user run / bare, and estimate /
 (user run - estimate - shapes - write) per deck.
+
+``--split`` (default on; ``--no-split``): the whole ``mbsim run`` again as a process runs it
+once, ``load_model`` of the deck, the run and ``write_result`` of a fresh model each time
+(``peers.py --cases share``'s work, after the same warm-up), with every C kernel of the
+measured checkout (every ``mb_*`` function of its mbsim/fast/*.c) wrapped as well: per phase
+the process CPU inside the kernels (``C``) and outside them (``Python``, the wrappers' ~1 us
+a call included), ms per run, medians; and the share of the C kernels in the process CPU of
+the whole (figure ``phases: compiled share (process CPU)``), the arithmetic of issue 24's
+60 %.
 """
 
 from __future__ import annotations
@@ -118,10 +127,106 @@ def measure(deck, scene, repeats, tmp):
     return got, t_span, len(res.t), len(objects)
 
 
+def kernel_names(lib):
+    """Every non-static ``mb_*`` function of the measured checkout's mbsim/fast/*.c that its
+    library exports, less the two that only describe the build (as peers.py's share)."""
+    import re
+
+    found = []
+    for src in sorted((ROOT / "mbsim" / "fast").glob("*.c")):
+        for m in re.finditer(r"^(?!static)[A-Za-z_][\w \t*]*?\b(mb_\w+)\s*\(",
+                             src.read_text(), re.M):
+            if m[1] not in found and m[1] not in ("mb_source_hash", "mb_struct_size"):
+                found.append(m[1])
+    return [n for n in found if hasattr(lib, n)]
+
+
+def split(deck, scene, repeats, tmp):
+    """{phase: (total ms, C ms) per run, medians} of load + run + write with a fresh model
+    each time, and the C share of the whole (list over the repeats)."""
+    import mbsim.analyses.dynamic as dyn
+    import mbsim.api as api
+    import mbsim.view.geometry as geometry
+    from mbsim.fast import _lib
+    from mbsim.output import hdf5
+
+    path = ROOT / "models" / f"{deck}.yaml"
+    for_run = ({"studies": False} if "studies" in inspect.signature(api.load_model).parameters
+               else {})  # fmt: skip
+    out = Path(tmp) / f"{deck}-split.h5"
+    lib = _lib.library()
+    in_c = {"t": 0.0}
+
+    def kernel(f):
+        def c_kernel(*args):
+            c0 = time.process_time()
+            try:
+                return f(*args)
+            finally:
+                in_c["t"] += time.process_time() - c0
+        return c_kernel
+
+    spent: dict[str, list[float]] = {}
+
+    def phase(module, name, key):
+        f = getattr(module, name)
+
+        def wrapper(*args, **kwargs):
+            c0, k0 = time.process_time(), in_c["t"]
+            try:
+                return f(*args, **kwargs)
+            finally:
+                got = spent.setdefault(key, [0.0, 0.0])
+                got[0] += time.process_time() - c0
+                got[1] += in_c["t"] - k0
+        setattr(module, name, wrapper)
+        return f
+
+    def user_run():
+        spec, model = api.load_model(path, scene=scene, **for_run)
+        res = run_with_deck(model, "dynamic", dict(spec.analysis.get("dynamic", {})), spec)
+        hdf5.write_result(res, out)
+
+    user_run()  # warm-up
+    names = kernel_names(lib)
+    originals = [(lib, n, getattr(lib, n)) for n in names]
+    for n in names:
+        setattr(lib, n, kernel(getattr(lib, n)))
+    wrapped = [(api, "load_model", "load"), (dyn, "Prepared", "set-up"),
+               (dyn, "main_trajectory", "trajectory"), (dyn, "estimate", "estimate"),
+               (dyn, "build_result", "outputs"), (geometry, "scene_arrays", "shapes"),
+               (hdf5, "write_result", "write")]
+    originals += [(m, n, phase(m, n, k)) for m, n, k in wrapped]
+    rows: dict[str, list[tuple[float, float]]] = {}
+    shares = []
+    try:
+        for _ in range(repeats):
+            spent.clear()
+            in_c["t"] = 0.0
+            c0 = time.process_time()
+            user_run()
+            total = time.process_time() - c0
+            for k, (t, c) in spent.items():
+                rows.setdefault(k, []).append((1e3 * t, 1e3 * c))
+            rows.setdefault("rest", []).append(  # the run less its phases (option merging...)
+                (1e3 * (total - sum(t for t, _ in spent.values())),
+                 1e3 * (in_c["t"] - sum(c for _, c in spent.values()))))
+            rows.setdefault("whole", []).append((1e3 * total, 1e3 * in_c["t"]))
+            shares.append(in_c["t"] / total)
+    finally:
+        for m, n, f in originals:
+            setattr(m, n, f)
+    med = {k: (float(np.median([t for t, _ in v])), float(np.median([c for _, c in v])))
+           for k, v in rows.items()}
+    return med, shares
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--decks", default=DECKS, help=f"name[:scene],... (default {DECKS})")
+    ap.add_argument("--split", action=argparse.BooleanOptionalAction, default=True,
+                    help="also C / Python per phase of a fresh load + run + write")
     a = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         for item in a.decks.split(","):
@@ -144,6 +249,17 @@ def main(argv=None):
             figure(f"phases: load_model, {label}", got["load"], "ms")
             figure(f"phases: write, {label}", got["write"], "ms")
             figure(f"phases: HDF5 objects in the file, {label}", [objects], "objects")
+            if not a.split:
+                continue
+            med, shares = split(deck, scene or None, max(1, a.repeats), tmp)
+            print("    load + run + write, fresh model (as one `mbsim run`), ms per run, "
+                  "medians: total / in the C kernels / outside them")
+            for k, (t, c) in med.items():
+                print(f"    {k:<12} {t:8.2f}  C {c:7.2f}  Python {t - c:7.2f}", flush=True)
+            figure(f"phases: compiled share (process CPU), {label}",
+                   [100 * x for x in shares], "%")
+            figure(f"phases: Python outside the C kernels, load + run + write, {label}",
+                   [med["whole"][0] - med["whole"][1]], "ms")
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ requested (:func:`mbsim.options.run_options`) and passed in with the options.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -100,15 +101,28 @@ def joint_frame(ps: PointSet | None) -> dict[str, np.ndarray]:
         f = np.array([1.0, 0.0, 0.0])
     else:
         f = np.asarray(ps.Q, float) - out["P"]
-        f = f / np.linalg.norm(f)
+        f = f / _norm(f)
     if ps is not None and ps.R is not None:
         g = np.asarray(ps.R, float) - out["P"]
     else:  # any perpendicular: the axis least aligned with f
         g = np.eye(3)[int(np.argmin(np.abs(f)))]
     g = g - f * (f @ g)
-    g = g / np.linalg.norm(g)
-    out.update(f=f, g=g, h=np.cross(f, g))
+    g = g / _norm(g)
+    out.update(f=f, g=g, h=_cross(f, g))
     return out
+
+
+def _norm(v: np.ndarray) -> float:
+    """|v| of a 3-vector as np.linalg.norm computes it (sqrt(v . v)), without its dispatch."""
+    return math.sqrt(v.dot(v))
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b of two 3-vectors, each component as np.cross forms it (a1 b2 - a2 b1, ...),
+    without its dispatch (about 15 us a call, 13 calls for the governor's joints)."""
+    a0, a1, a2 = a.tolist()
+    b0, b1, b2 = b.tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 def _frames_of(bi_name, bj_name, points) -> dict[str, np.ndarray]:

@@ -61,3 +61,80 @@ def test_the_schur_order_is_scipys_on_random_incidences():
         inc = np.array(sorted(inc, key=lambda x: (x[2], x[0], x[1])),
                        dtype=np.int64).reshape(-1, 3)
         assert_scipys(inc, ma, nb)
+
+
+def schur_structure_by_loops(rb, rows, nb, held=()):
+    """schur_structure as written before its incidences and envelope products were arrays:
+    a sorted list of (u, 7 s, body), the incidences of held bodies from other rows set aside,
+    then per body its incidences g1 x g2 with pos[u1] >= pos[u2], one tuple at a time (every
+    column: ``pair_code`` of ALL_COLUMNS)."""
+    from mbsim.fast.dynamics import ALL_COLUMNS, CROSS, pair_code
+
+    ma = rows.size
+    own = {b: set() for b in held}
+    for u, r in enumerate(rows):
+        if rb[r, 0] in own and rb[r, 1] < 0:
+            own[rb[r, 0]].add(u)
+    inc, cross = [], []
+    for u, r in enumerate(rows):
+        for s in range(2):
+            b = rb[r, s]
+            if b >= 0:
+                (cross if b in own and u not in own[b] else inc).append((u, 7 * s, b))
+    inc = np.array(sorted(inc, key=lambda x: (x[2], x[0], x[1])), dtype=np.int64).reshape(-1, 3)
+    indptr, indices = row_graph(inc, ma)
+    order = reverse_cuthill_mckee(indptr, indices)
+    pos = np.empty(ma, dtype=np.int64)
+    pos[order] = np.arange(ma)
+    fc = np.arange(ma, dtype=np.int64)
+    np.minimum.at(fc, pos[np.repeat(np.arange(ma), np.diff(indptr))], pos[indices])
+    off = np.concatenate([[0], np.cumsum(np.arange(ma) - fc + 1)[:-1]]).astype(np.int64) \
+        if ma else fc.copy()
+    pairs = []
+    for b in range(nb):
+        mine = np.flatnonzero(inc[:, 2] == b)
+        for g1 in mine:
+            for g2 in mine:
+                pu, pv = pos[inc[g1, 0]], pos[inc[g2, 0]]
+                if pu >= pv:
+                    pairs.append((off[pu] + pv - fc[pu], g1, g2,
+                                  pair_code(ALL_COLUMNS, ALL_COLUMNS)))
+    pairs = np.array(pairs, dtype=np.int64).reshape(-1, 4)
+    if cross:
+        inc = np.concatenate([inc, np.array(cross, dtype=np.int64) + [0, CROSS, 0]])
+        inc = inc[np.lexsort((inc[:, 0], inc[:, 1] >= CROSS, inc[:, 2]))]
+        new = np.empty(inc.shape[0], dtype=np.int64)
+        regular = np.flatnonzero(inc[:, 1] < CROSS)
+        new[:regular.size] = regular
+        if pairs.size:
+            pairs[:, 1:3] = new[pairs[:, 1:3]]
+    sidx = np.stack([np.asarray(rows, dtype=np.int64), order, fc, off])
+    return sidx, inc, pairs
+
+
+def test_the_schur_structure_is_the_loops_on_random_row_body_tables():
+    """mbsim.fast.dynamics._schur_structure (arrays) gives the loops' arrays integer for
+    integer, in their order (the Schur products are summed in it): random tables of rows on
+    ground (-1) or bodies, random row subsets, no rows at all, random held bodies."""
+    from mbsim.fast.dynamics import _schur_structure
+
+    rng = np.random.default_rng(2411)
+    for _ in range(300):
+        nb, m = int(rng.integers(1, 10)), int(rng.integers(0, 30))
+        rb = rng.integers(-1, nb, size=(m, 2)).astype(np.int64)
+        rows = np.sort(rng.choice(m, size=int(rng.integers(0, m + 1)), replace=False)) \
+            if m else np.zeros(0, dtype=np.int64)
+        held = tuple(int(b) for b in np.flatnonzero(rng.random(nb) < 0.3))
+        for got, want in zip(_schur_structure(rb, rows.astype(np.int64), nb, None, held),
+                             schur_structure_by_loops(rb, rows.astype(np.int64), nb, held)):
+            assert got.dtype == want.dtype and got.shape == want.shape
+            assert np.array_equal(got, want)
+
+
+def test_pair_codes_are_pair_code_on_every_pair_of_masks():
+    """The arrays' pair_codes equals the scalar pair_code on all 128 x 128 column masks."""
+    from mbsim.fast.dynamics import pair_code, pair_codes
+
+    u, v = np.meshgrid(np.arange(128), np.arange(128), indexing="ij")
+    want = np.array([[pair_code(a, b) for b in range(128)] for a in range(128)])
+    assert np.array_equal(pair_codes(u, v), want)

@@ -76,10 +76,12 @@ class Trajectory:
         self.status, self.message, self.cpu = "complete", "", 0.0
         self.interrupted = False
         self.run = None  # the Stepper
+        self._stacked = None  # stacked(): (n, t, q, qd) as arrays, dropped by every change
 
     def add(self, t, q, qd, w, h, system):
         # the state first, t last: a Ctrl-C in between leaves lists of unequal length, which
         # __len__ and trim() reduce to the complete outputs
+        self._stacked = None
         self.q.append(np.array(q, float))
         self.qd.append(np.array(qd, float))
         self.w.append(float(w))
@@ -90,6 +92,7 @@ class Trajectory:
     def add_many(self, ts, Q, QD, W, h, system):
         """:meth:`add` of the outputs ``ts`` (k,) of one step at once: Q, QD (k, nq) fresh
         arrays (their rows are kept, not copied), W (k,), h the step."""
+        self._stacked = None
         self.q.extend(Q)
         self.qd.extend(QD)
         self.w.extend(np.asarray(W, dtype=float).tolist())
@@ -102,8 +105,23 @@ class Trajectory:
 
     def trim(self, n=None):
         n = len(self) if n is None else n
+        self._stacked = None
         for v in (self.t, self.q, self.qd, self.w, self.h, self.systems):
             del v[n:]
+
+    def stacked(self, n=None):
+        """(t (n,), q (n, nq), qd (n, nq)) of the first n outputs (default all) as arrays,
+        stacked once for the span, the loads, the bulk outputs and the recorder (read
+        only: shared by them)."""
+        n = len(self) if n is None else n
+        if self._stacked is None or self._stacked[0] != n:
+            nq = self.q[0].size if n else 0
+            t, q, qd = (np.array(self.t[:n], dtype=float), np.array(self.q[:n]).reshape(n, nq),
+                        np.array(self.qd[:n]).reshape(n, nq))
+            for a in (t, q, qd):
+                a.flags.writeable = False
+            self._stacked = (n, t, q, qd)
+        return self._stacked[1:]
 
     @property
     def complete(self):
@@ -280,9 +298,10 @@ def bulk_outputs(tr, n, loads):
         return None
     system = tr.systems[0]
     if (system.hybrid or system.reaction_loop or (system.py_forces and loads is None)
-            or any(s is not system for s in tr.systems[:n])):
+            or len(set(map(id, tr.systems[:n]))) > 1):
         return None
-    return output_rows(system, tr.t[:n], np.array(tr.q[:n]), np.array(tr.qd[:n]), loads)
+    t, q, qd = tr.stacked(n)
+    return output_rows(system, t, q, qd, loads)
 
 
 def build_result(model, prep, opt, tr, span):
@@ -301,8 +320,7 @@ def build_result(model, prep, opt, tr, span):
     stopped = None  # the message of a stop found while the outputs are recorded
     drift_limit = DRIFT_FACTOR * (float(opt["rtol"]) * max(1.0, span) + float(opt["atol"]))
     hybrid = bool(run.hybrid)
-    loads = output_loads(model, tr.systems[0].py_forces if n else (), np.asarray(tr.t[:n]),
-                         np.array(tr.q[:n]), np.array(tr.qd[:n]))
+    loads = output_loads(model, tr.systems[0].py_forces if n else (), *tr.stacked(n))
     bulk = bulk_outputs(tr, n, loads)  # all outputs in one C call where it can
     done = bulk[0] if bulk is not None else 0
     start = 0
@@ -311,7 +329,8 @@ def build_result(model, prep, opt, tr, span):
         # the first drift recorded at once; the loop below reports that one
         pos_all = np.abs(bulk[3][:done]).max(axis=1, initial=0.0)
         start = int(np.argmax(pos_all > drift_limit)) if np.any(pos_all > drift_limit) else done
-        rec.add_many(tr.t[:start], tr.q[:start], tr.qd[:start], bulk[1][:start])
+        t_all, q_all, qd_all = tr.stacked(n)
+        rec.add_many(t_all[:start], q_all[:start], qd_all[:start], bulk[1][:start])
         lam.extend(bulk[2][:start, :model.m])
         pos.extend(pos_all[:start].tolist())
         vel.extend(np.abs(bulk[4][:start]).max(axis=1, initial=0.0).tolist())
@@ -456,7 +475,7 @@ def motion_span(model, tr):
     n = len(tr)
     if n == 0:
         return 0.0
-    Q = np.array(tr.q[:n]).reshape(n, model.nb, 7)[:, :, :3]
+    Q = tr.stacked(n)[1].reshape(n, model.nb, 7)[:, :, :3]
     return float(np.max(np.ptp(Q, axis=0), initial=0.0))
 
 

@@ -303,20 +303,17 @@ def _parameters(rd: Reader, node: Node, where: Where) -> None:
 
 # -- bodies -------------------------------------------------------------------------------------
 def _body(rd: Reader, name: str, node: Node, where: Where) -> BodySpec:
-    pre = rd.fields(node, where, schema.BODY_KEYS, what="a body")
+    got = rd.fields(node, where, schema.BODY_KEYS, what="a body")
     ground = False
-    if "ground" in pre:
-        gnode, gw = pre["ground"]
+    if "ground" in got:
+        gnode, gw = got["ground"]
         if not isinstance(gnode.value, bool):
             raise rd.error(gw, f"expected true or false, got {describe(gnode)}", gnode)
         ground = gnode.value
-    got = rd.fields(
-        node,
-        where,
-        schema.BODY_KEYS,
-        () if ground else ("mass", "inertia"),
-        "a body (give mass and inertia, or ground: true)",
-    )
+    for key in () if ground else ("mass", "inertia"):  # as Reader.fields words it
+        if key not in got:
+            raise rd.error(where, f"missing required key {key!r} for a body (give mass and "
+                           f"inertia, or ground: true)")
     if ground:
         moving = [k for k in ("omega", "omega_local", "rdot") if k in got]
         if moving:

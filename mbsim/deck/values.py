@@ -240,7 +240,19 @@ class Reader:
         """Exactly ``n`` numbers."""
         if node.kind != "seq" or len(node.value) != n:
             raise self.error(where, f"expected {n} numbers, got {describe(node)}", node)
-        return np.array([self.number(v, _item(where, i, v), dim) for i, v in enumerate(node.value)])
+        return np.array(self.numbers(node.value, where, dim))
+
+    def numbers(self, nodes: list[Node], where: Where, dim: str | None = None) -> list[float]:
+        """:meth:`number` of each item of the list at ``where``; plain finite numbers (most of a
+        deck's) read directly, without the Where each item's message would need."""
+        out = []
+        for i, v in enumerate(nodes):
+            x = v.value
+            if v.kind == "scalar" and type(x) in (float, int) and abs(x) < 1e308:  # (not NaN)
+                out.append(float(x))
+            else:
+                out.append(self.number(v, _item(where, i, v), dim))
+        return out
 
     def setting(self, node: Node, where: Where, dim: str | None):
         """An analysis setting: numbers, quantities and formulas of parameters -> float (ints
@@ -427,10 +439,8 @@ class Reader:
             for k in range(n // 3):
                 key = "PQR"[k]
                 wheres[key] = Where(self.file, _join(where.path, key), where.line)
-                vals = node.value[3 * k : 3 * k + 3]
-                pts[key] = np.array(
-                    [self.number(v, _item(wheres[key], i, v), "length") for i, v in enumerate(vals)]
-                )
+                pts[key] = np.array(self.numbers(node.value[3 * k : 3 * k + 3], wheres[key],
+                                                 "length"))
         elif node.kind == "map":
             for key, (child, w) in self.fields(
                 node, where, ("P", "Q", "R"), ("P",), "points"
@@ -456,14 +466,16 @@ class Reader:
         if "Q" not in pts:
             return
         f = pts["Q"] - pts["P"]
-        if np.linalg.norm(f) < ZERO_LENGTH:
+        nf = math.sqrt(f.dot(f))  # (np.linalg.norm's sqrt(f . f), without its dispatch)
+        if nf < ZERO_LENGTH:
             raise self.error(wheres["Q"], "zero-length axis P→Q (Q coincides with P)")
         if "R" not in pts:
             return
         g = pts["R"] - pts["P"]
-        if np.linalg.norm(g) < ZERO_LENGTH:
+        ng = math.sqrt(g.dot(g))
+        if ng < ZERO_LENGTH:
             raise self.error(wheres["R"], "zero-length direction P→R (R coincides with P)")
-        cos = np.dot(f, g) / (np.linalg.norm(f) * np.linalg.norm(g))
+        cos = np.dot(f, g) / (nf * ng)
         angle = math.acos(min(1.0, max(-1.0, cos)))
         off = min(angle, math.pi - angle)  # distance from parallel
         if off <= PARALLEL:

@@ -515,6 +515,15 @@ def pair_code(mask_u, mask_v):
     return -1 - mask
 
 
+def pair_codes(mask_u, mask_v):
+    """:func:`pair_code` of arrays of masks, element by element."""
+    mask = np.asarray(mask_v, dtype=np.int64) & (np.asarray(mask_u, dtype=np.int64) | P_COLUMNS)
+    r = mask & ~P_COLUMNS
+    coded = ((mask & P_COLUMNS) == P_COLUMNS) & np.isin(r, (0, 1, 2, 4))
+    column = np.select([r == 1, r == 2, r == 4], [0, 1, 2], 7)
+    return np.where(coded, column, -1 - mask).astype(np.int64)
+
+
 def held_bodies(model, rows):
     """(bodies,) held by their own active rows alone: a ``ground`` item's six rows and the
     body's normalisation row all in ``rows`` fix its coordinates (qdd_b = 0 whatever the
@@ -571,18 +580,17 @@ def _envelope_cost(sidx):
 def _schur_structure(rb, rows, nb, ci, held):
     ma = rows.size
     masks = None if ci is None else column_masks(ci, rb.shape[0])
-    own = {b: set() for b in held}  # a held body's own rows: those on it alone
-    for u, r in enumerate(rows):
-        if rb[r, 0] in own and rb[r, 1] < 0:
-            own[rb[r, 0]].add(u)
-    inc, cross = [], []
-    for u, r in enumerate(rows):
-        for s in range(2):
-            b = rb[r, s]
-            if b < 0:
-                continue
-            (cross if b in own and u not in own[b] else inc).append((u, 7 * s, b))
-    inc = np.array(sorted(inc, key=lambda x: (x[2], x[0], x[1])), dtype=np.int64).reshape(-1, 3)
+    # (u, 7 s, body) for each row position u and side s with a body, sorted by body, u, s
+    bodies = np.asarray(rb, dtype=np.int64)[np.asarray(rows, dtype=np.int64)].reshape(ma, 2)
+    inc = np.stack([np.repeat(np.arange(ma, dtype=np.int64), 2),
+                    np.tile(np.array([0, 7], dtype=np.int64), ma), bodies.reshape(-1)], axis=1)
+    inc = inc[inc[:, 2] >= 0]
+    inc = np.ascontiguousarray(inc[np.lexsort((inc[:, 1], inc[:, 0], inc[:, 2]))])
+    # a held body's own rows are on it alone (side 0, no body j); its other incidences are
+    # left out of S and appended after the sort (below)
+    is_cross = (np.isin(inc[:, 2], np.asarray(held, dtype=np.int64))
+                & ~((inc[:, 1] == 0) & (bodies[inc[:, 0], 1] < 0)))
+    cross, inc = inc[is_cross], np.ascontiguousarray(inc[~is_cross])
     cols = (np.full(len(inc), ALL_COLUMNS, dtype=np.int64) if masks is None else
             masks[np.asarray(rows)[inc[:, 0]], inc[:, 1] // 7])  # (ninc,) each incidence's
     indptr, indices = row_graph(inc, ma)  # numpy alone: `mbsim check` imports no scipy
@@ -593,19 +601,26 @@ def _schur_structure(rb, rows, nb, ci, held):
     np.minimum.at(fc, pos[np.repeat(np.arange(ma), np.diff(indptr))], pos[indices])
     width = np.arange(ma) - fc + 1
     off = np.concatenate([[0], np.cumsum(width)[:-1]]).astype(np.int64) if ma else fc.copy()
-    pairs = []
-    for b in range(nb):
-        mine = np.flatnonzero(inc[:, 2] == b)
-        for g1 in mine:
-            pu = pos[inc[g1, 0]]
-            for g2 in mine:
-                pv = pos[inc[g2, 0]]
-                if pu >= pv:
-                    pairs.append((off[pu] + pv - fc[pu], g1, g2, pair_code(cols[g1], cols[g2])))
-    pairs = np.array(pairs, dtype=np.int64).reshape(-1, 4)
+    # per body b < nb in turn, its incidences g1 (outer) x g2 (inner) where pu >= pv: inc is
+    # sorted by body, so body b's incidences are the run first[b] .. first[b] + run[b] - 1,
+    # and g1 x g2 in that order is each g1 repeated run[b] times beside g2 over the run
+    body = inc[:, 2]
+    mine = np.flatnonzero(body < nb)
+    run = np.bincount(body[mine], minlength=nb)
+    first = np.cumsum(run) - run
+    reps = run[body[mine]]
+    start = np.cumsum(reps) - reps
+    g1 = np.repeat(mine, reps)
+    g2 = np.repeat(first[body[mine]] - start, reps) + np.arange(int(reps.sum()))
+    pu, pv = pos[inc[g1, 0]], pos[inc[g2, 0]]
+    keep = pu >= pv
+    g1, g2, pu, pv = g1[keep], g2[keep], pu[keep], pv[keep]
+    pairs = np.ascontiguousarray(
+        np.stack([off[pu] + pv - fc[pu], g1, g2, pair_codes(cols[g1], cols[g2])], axis=1),
+        dtype=np.int64)
     sidx = np.ascontiguousarray(np.stack([np.asarray(rows, dtype=np.int64), order, fc, off]))
-    if cross:  # after the body's own incidences, its group kept (kernels.c)
-        cross = np.array(cross, dtype=np.int64) + np.array([0, CROSS, 0])
+    if cross.size:  # after the body's own incidences, its group kept (kernels.c)
+        cross = cross + np.array([0, CROSS, 0])
         inc = np.concatenate([inc, cross])
         inc = inc[np.lexsort((inc[:, 0], inc[:, 1] >= CROSS, inc[:, 2]))]
         # pairs index incidences: renumber them after the sort

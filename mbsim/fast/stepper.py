@@ -135,6 +135,7 @@ class CompiledStep:
         r.load = ctypes.cast(self._load, ctypes.c_void_p).value if self._load else None
         self.ptr = ctypes.addressof(r)
         self.ns = ns
+        self._dense_io = None  # dense: (times, flags buffers, their addresses)
 
     def _counted(self, status):
         c = self.system.counters
@@ -169,16 +170,24 @@ class CompiledStep:
         """(status, Q (n, nq), QD (n, nq), W (n,), flags (k,)) of the last trial (accepted;
         the buffers untouched since) at the first k (default all n) of ``times`` in
         [t0, t0 + h] (the rows after k are left for the caller); flags[i] = 1 where Python
-        must give the output (step.c: mb_rk_dense)."""
-        times = np.ascontiguousarray(times, dtype=np.float64)
+        must give the output (step.c: mb_rk_dense; flags: a view valid until the next call)."""
+        times = np.asarray(times, dtype=np.float64).reshape(-1)
         n, nq = times.size, self.system.nq
         k = n if k is None else k
-        Q, QD, W = np.empty((n, nq)), np.empty((n, nq)), np.empty(n)
-        flags = np.zeros(k, dtype=np.int64)
-        st = self.lib.mb_rk_dense(self.system.c.ptr, self.ptr, t0, h, k, times.ctypes.data,
-                                  Q.ctypes.data, QD.ctypes.data, W.ctypes.data,
-                                  flags.ctypes.data)
-        return self._counted(st), Q, QD, W, flags
+        if self._dense_io is None or self._dense_io[0].size < n:  # (addresses made once)
+            tb, fb = np.empty(max(n, 16)), np.empty(max(n, 16), dtype=np.int64)
+            self._dense_io = (tb, fb, tb.ctypes.data, fb.ctypes.data)
+        tb, fb, t_address, f_address = self._dense_io
+        tb[:n] = times
+        fb[:k] = 0
+        # Q, QD, W: fresh (the caller keeps their rows), one allocation, addresses by offset
+        block = np.empty(n * (2 * nq + 1))
+        base, size = block.ctypes.data, n * nq
+        Q, QD, W = (block[:size].reshape(n, nq), block[size:2 * size].reshape(n, nq),
+                    block[2 * size:])
+        st = self.lib.mb_rk_dense(self.system.c.ptr, self.ptr, t0, h, k, t_address, base,
+                                  base + 8 * size, base + 16 * size, f_address)
+        return self._counted(st), Q, QD, W, fb[:k]
 
 
 _TABLEAU_ARRAYS: dict = {}

@@ -113,6 +113,7 @@ class Index1(RungeKuttaIntegrator):
             self._approach = self._new_approach()
         self._compiled = self._compiled_step()
         self._ends_buffer = np.empty(0)  # advance: the C loop's step ends
+        self._ends_pointer = None  # (its address, made with the buffer: data_as costs us)
         self._c_last = False  # the last accepted step was taken in C (its buffers hold it)
         self._start()
 
@@ -306,8 +307,10 @@ class Index1(RungeKuttaIntegrator):
         if self.step_ends is not None:
             if self._ends_buffer.size < max_steps:
                 self._ends_buffer = np.empty(max_steps)
+                self._ends_pointer = self._ends_buffer.ctypes.data_as(
+                    ctypes.POINTER(ctypes.c_double))
             ends = self._ends_buffer
-            L.ends = ends.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
+            L.ends = self._ends_pointer
         why = c.steps(self.y, self.f, L)
         if L.steps:
             if ends is not None:

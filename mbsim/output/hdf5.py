@@ -156,20 +156,21 @@ def _dataset_options(shape: tuple[int, ...]) -> dict[str, Any]:
     }
 
 
-def _put(group: h5py.File | h5py.Group, name: str, data) -> h5py.Dataset:
+def _put(group: h5py.File | h5py.Group, name: str, data) -> h5py.h5d.DatasetID:
     """A contiguous, uncompressed dataset ``name`` (no slash) of ``group`` holding the numbers
     ``data``, through h5py's low-level API: about half the cost of ``create_dataset`` (its
-    option handling), which counts at the ~30 objects of a small run's file."""
+    option handling), which counts at the ~30 objects of a small run's file.  Returns the
+    low-level id (:func:`_set_attrs` takes it): wrapping it in ``h5py.Dataset`` costs more
+    than writing a small dataset (its property lists, each a registered object)."""
     data = np.ascontiguousarray(data)
-    space = (h5py.h5s.create_simple(data.shape) if data.ndim
-             else h5py.h5s.create(h5py.h5s.SCALAR))
-    ds = h5py.h5d.create(group.id, name.encode(), h5py.h5t.py_create(data.dtype), space)
+    space = h5py.h5s.create_simple(data.shape) if data.ndim else _scalar_space()
+    ds = h5py.h5d.create(group.id, name.encode(), _number_type(data.dtype), space)
     if data.size:
         ds.write(h5py.h5s.ALL, h5py.h5s.ALL, data)
-    return h5py.Dataset(ds)
+    return ds
 
 
-def _strings(group: h5py.File | h5py.Group, name: str, items) -> h5py.Dataset:
+def _strings(group: h5py.File | h5py.Group, name: str, items) -> h5py.h5d.DatasetID:
     """``name`` (no slash) in ``group``: the strings ``items`` (a list: (n,); one str: a
     scalar) as fixed-length, null-padded UTF-8 (the longest's length in bytes).  Read as any
     HDF5 string (``.asstr()``); written in about a fifth of the time of variable-length
@@ -177,51 +178,94 @@ def _strings(group: h5py.File | h5py.Group, name: str, items) -> h5py.Dataset:
     scalar = isinstance(items, str)
     data, tid = _fixed_strings([items] if scalar else items)
     data = data.reshape(()) if scalar else data
-    space = (h5py.h5s.create(h5py.h5s.SCALAR) if scalar
-             else h5py.h5s.create_simple(data.shape))
+    space = _scalar_space() if scalar else h5py.h5s.create_simple(data.shape)
     ds = h5py.h5d.create(group.id, name.encode(), tid, space)
     if data.size:
         ds.write(h5py.h5s.ALL, h5py.h5s.ALL, data, mtype=tid)
-    return h5py.Dataset(ds)
+    return ds
 
 
-def _set_attrs(obj: h5py.File | h5py.Group | h5py.Dataset, items: dict[str, Any]) -> None:
+def _set_attrs(obj, items: dict[str, Any]) -> None:
     """``obj.attrs.update(items)`` with the types h5py gives them (str: a variable-length UTF-8
     scalar, float and int: float64 and int64 scalars; anything else through h5py), written
     with HDF5's own calls: a fifth of the cost of ``attrs[key] = value`` (0.03 against 0.14
-    ms each; a run's file has about twelve)."""
+    ms each; a run's file has about twelve).  ``obj``: a file, group or dataset, or the
+    low-level id of one (what :func:`_put` returns)."""
+    oid = obj if isinstance(obj, h5py.h5d.DatasetID) else obj.id
     for key, value in items.items():
         if isinstance(value, str):
             data, ftype, mtype = np.array(value, dtype=_STR), _VSTR_FILE, _VSTR_MEMORY
         elif isinstance(value, (float, int, np.floating, np.integer)) and not isinstance(
                 value, (bool, np.bool_)):  # fmt: skip
             data = np.asarray(value)
-            ftype = mtype = h5py.h5t.py_create(data.dtype)
+            ftype = mtype = _number_type(data.dtype)
         else:
-            obj.attrs[key] = value
+            (obj if hasattr(obj, "attrs") else h5py.Dataset(oid)).attrs[key] = value
             continue
-        attr = h5py.h5a.create(obj.id, key.encode(), ftype, h5py.h5s.create_simple(()))
+        attr = h5py.h5a.create(oid, key.encode(), ftype, _scalar_space())
         attr.write(data, mtype=mtype)
+
+
+def _vlen_strings(group: h5py.File | h5py.Group, name: str, items) -> h5py.h5d.DatasetID:
+    """``name`` (no slash) in ``group``: the strings ``items`` (n,) as variable-length UTF-8
+    (the type ``create_dataset(data=np.array(items, dtype=h5py.string_dtype()))`` gives,
+    read back as str objects), through HDF5's own calls."""
+    data = np.array(list(items), dtype=_STR)
+    ds = h5py.h5d.create(group.id, name.encode(), _VSTR_FILE,
+                         h5py.h5s.create_simple(data.shape))
+    if data.size:
+        ds.write(h5py.h5s.ALL, h5py.h5s.ALL, data, mtype=_VSTR_MEMORY)
+    return ds
+
+
+# HDF5 types and the scalar dataspace made once per process (h5py registers every id it
+# makes, about 10 us each, and a small run's file needs about a hundred): read only, as
+# HDF5 copies a type into each object it creates.
+_NUMBER_TYPES: dict[np.dtype, h5py.h5t.TypeID] = {}
+_STRING_TYPES: dict[int, h5py.h5t.TypeStringID] = {}
+_SCALAR: list = []
+
+
+def _number_type(dtype: np.dtype) -> h5py.h5t.TypeID:
+    """``h5py.h5t.py_create(dtype)``, made once per dtype."""
+    tid = _NUMBER_TYPES.get(dtype)
+    if tid is None:
+        tid = _NUMBER_TYPES[dtype] = h5py.h5t.py_create(dtype)
+    return tid
+
+
+def _scalar_space() -> h5py.h5s.SpaceID:
+    if not _SCALAR:
+        _SCALAR.append(h5py.h5s.create(h5py.h5s.SCALAR))
+    return _SCALAR[0]
 
 
 def _fixed_strings(items) -> tuple[np.ndarray, h5py.h5t.TypeStringID]:
     """(bytes array (n,), its HDF5 type): ``items`` as UTF-8, fixed-length at the longest's
     length in bytes (at least 1)."""
-    raw = [str(s).encode() for s in items]
-    data = np.array(raw, dtype=f"S{max([len(b) for b in raw] + [1])}")
+    try:  # ASCII (names, units, JSON): numpy's own conversion
+        data = np.array([str(s) for s in items], dtype="S")
+    except UnicodeEncodeError:
+        raw = [str(s).encode() for s in items]
+        data = np.array(raw, dtype=f"S{max([len(b) for b in raw] + [1])}")
     return data, _string_type(data.dtype.itemsize)
 
 
 def _string_type(size: int) -> h5py.h5t.TypeStringID:
-    """HDF5's fixed-length, null-padded UTF-8 string of ``size`` bytes."""
-    tid = h5py.h5t.TypeStringID.copy(h5py.h5t.C_S1)
-    tid.set_size(size)
-    tid.set_cset(h5py.h5t.CSET_UTF8)
-    tid.set_strpad(h5py.h5t.STR_NULLPAD)
+    """HDF5's fixed-length, null-padded UTF-8 string of ``size`` bytes (made once per size)."""
+    tid = _STRING_TYPES.get(size)
+    if tid is None:
+        tid = h5py.h5t.TypeStringID.copy(h5py.h5t.C_S1)
+        tid.set_size(size)
+        tid.set_cset(h5py.h5t.CSET_UTF8)
+        tid.set_strpad(h5py.h5t.STR_NULLPAD)
+        if len(_STRING_TYPES) < 1000:
+            _STRING_TYPES[size] = tid
     return tid
 
 
-def _table(group: h5py.File | h5py.Group, name: str, columns: dict[str, Any]) -> h5py.Dataset:
+def _table(group: h5py.File | h5py.Group, name: str,
+           columns: dict[str, Any]) -> h5py.h5d.DatasetID:
     """``name`` (no slash) in ``group``: one compound dataset (n,) with a field per entry of
     ``columns`` (equal lengths), strings (lists of str) as fixed-length, null-padded UTF-8,
     numbers (arrays) in their own type: a table of n rows is one HDF5 object, not one per
@@ -230,7 +274,7 @@ def _table(group: h5py.File | h5py.Group, name: str, columns: dict[str, Any]) ->
     for key, items in columns.items():
         if isinstance(items, np.ndarray):
             arr = np.ascontiguousarray(items)
-            tid = h5py.h5t.py_create(arr.dtype)
+            tid = _number_type(arr.dtype)
         else:
             arr, tid = _fixed_strings(items)
         fields.append((key, arr.dtype))
@@ -245,43 +289,36 @@ def _table(group: h5py.File | h5py.Group, name: str, columns: dict[str, Any]) ->
     ds = h5py.h5d.create(group.id, name.encode(), ctid, h5py.h5s.create_simple(rows.shape))
     if rows.size:
         ds.write(h5py.h5s.ALL, h5py.h5s.ALL, rows, mtype=ctid)
-    return h5py.Dataset(ds)
+    return ds
 
 
 def _channel_table(result: Result, paths: list[str]) -> tuple[np.ndarray, dict[str, Any]]:
     """Every channel side by side in one (nt, ncol) array, and the channel table (name, unit,
     description, components, column, width, shape) that says which columns are whose."""
     nt = len(np.asarray(result.t).reshape(-1))
-    datas, widths, shapes = [], [], []
-    for path, ch in zip(paths, result.channels.values()):
-        data = np.asarray(ch.data, dtype=np.float64)
+    chans = list(result.channels.values())
+    datas = [np.asarray(ch.data, dtype=np.float64) for ch in chans]
+    for path, data in zip(paths, datas):
         if data.ndim == 0 or data.shape[0] != nt:
             raise ValueError(f"channel {path!r} has shape {data.shape}; the time axis has "
                              f"{nt} outputs")
-        datas.append(data)
-        shapes.append(data.shape[1:])
-        widths.append(math.prod(data.shape[1:]))
-    column = np.concatenate([[0], np.cumsum(widths, dtype=np.int64)]) if widths else \
-        np.zeros(1, np.int64)
-    values = np.empty((nt, int(column[-1])))
-    for data, start, width in zip(datas, column, widths):
-        values[:, start:start + width] = data.reshape(nt, width)
-    chans = list(result.channels.values())
-    text: dict[tuple, str] = {}  # the few distinct component lists and shapes, dumped once
-
-    def dump(value: tuple) -> str:
-        if value not in text:
-            text[value] = json.dumps(list(value))
-        return text[value]
-
+    shapes = [data.shape[1:] for data in datas]
+    widths = [math.prod(shape) for shape in shapes]
+    column = np.zeros(len(widths) + 1, dtype=np.int64)
+    np.cumsum(widths, dtype=np.int64, out=column[1:])
+    values = (np.concatenate([d.reshape(nt, w) for d, w in zip(datas, widths)], axis=1)
+              if datas else np.empty((nt, 0)))
+    components = [tuple(c.components) for c in chans]
+    # the few distinct component lists and shapes, dumped once
+    text = {v: json.dumps(list(v)) for v in {*components, *shapes}}
     table = {
         "name": paths,
         "unit": [c.unit for c in chans],
         "description": [c.description for c in chans],
-        "components": [dump(tuple(c.components)) for c in chans],
+        "components": [text[v] for v in components],
         "column": column[:-1],
         "width": np.asarray(widths, dtype=np.int64),
-        "shape": [dump(s) for s in shapes],
+        "shape": [text[v] for v in shapes],
     }
     return values, table
 
@@ -302,13 +339,26 @@ def _write_arrays(f: h5py.File, arrays: dict[str, tuple[np.ndarray, dict]]) -> N
     ``/arrays``."""
     stacks: dict[tuple[str, str], list[tuple[str, np.ndarray, dict]]] = {}
     single = []
+    groups: dict[str, h5py.Group] = {}
+
+    def group_of(name: str) -> h5py.File | h5py.Group:
+        if not name:
+            return f
+        if name not in groups:
+            groups[name] = f.require_group(name)
+        return groups[name]
+
     for path, (data, attrs) in arrays.items():
         data = np.asarray(data)
         key = _stack_key(path)
         if key is None or data.ndim == 0 or data.dtype.kind in "USO":
             single.append(path)
-            ds = f.create_dataset(path, data=data.astype(_STR) if data.dtype.kind in "US"
-                                  else data)
+            parent, _, leaf = path.rpartition("/")
+            if data.dtype.kind in "US" and data.ndim == 1:  # shapes/layout: its JSON text
+                ds = _vlen_strings(group_of(parent), leaf, data.tolist())
+            else:
+                ds = f.create_dataset(path, data=data.astype(_STR) if data.dtype.kind in "US"
+                                      else data)
             _set_attrs(ds, attrs)
         else:
             stacks.setdefault((key[0], key[2]), []).append((key[1], data, attrs))
@@ -318,7 +368,7 @@ def _write_arrays(f: h5py.File, arrays: dict[str, tuple[np.ndarray, dict]]) -> N
         if any(d.shape[1:] != first.shape[1:] or d.dtype != first.dtype or a != members[0][2]
                for _, d, a in members):
             raise ValueError(f"arrays {group}/*/{leaf} differ in shape, type or attributes")
-        g = f.require_group(group)
+        g = group_of(group)
         data = np.concatenate([d for _, d, _ in members])
         options = _dataset_options(data.shape)
         ds = g.create_dataset(leaf, data=data, **options) if options else _put(g, leaf, data)
@@ -330,13 +380,14 @@ def _write_arrays(f: h5py.File, arrays: dict[str, tuple[np.ndarray, dict]]) -> N
         cols["start"] += [0, *stop[:-1].tolist()]
         cols["stop"] += stop.tolist()
     for group, cols in index.items():
-        _table(f[group], "index", {"leaf": cols["leaf"], "item": cols["item"],
+        _table(group_of(group), "index", {"leaf": cols["leaf"], "item": cols["item"],
                                    "start": np.asarray(cols["start"], dtype=np.int64),
                                    "stop": np.asarray(cols["stop"], dtype=np.int64)})
     _strings(f, "arrays", single)
 
 
-def _write_file(f: h5py.File, result: Result, paths: list[str]) -> None:
+def _write_file(f: h5py.File, result: Result, values: np.ndarray, table: dict) -> None:
+    """The objects of ``result``'s file in ``f``; values, table: :func:`_channel_table`."""
     from mbsim import __version__
 
     _set_attrs(f, {
@@ -349,7 +400,6 @@ def _write_file(f: h5py.File, result: Result, paths: list[str]) -> None:
     for key in JSON_DATASETS:
         _strings(f, key, to_json(getattr(result, key)))
     _set_attrs(_put(f, "time", np.asarray(result.t, dtype=np.float64).reshape(-1)), {"unit": "s"})
-    values, table = _channel_table(result, paths)
     _put(f, "values", values)  # contiguous, uncompressed (see CHUNK_ELEMENTS)
     _table(f, "channels", table)
     kinds = list(result.names)
@@ -388,8 +438,8 @@ def write_result(result: Result, path: str | Path) -> Path:
         after the first axis, types or attributes).
     """
     path = Path(path)
-    paths = _check_names(result.channels)
-    check_finite(result)
+    values, table = _channel_table(result, _check_names(result.channels))
+    check_finite(result, values)
     tmp = _tmp_name(path)
     try:
         # The file is built in memory (HDF5's core driver, no backing store) and written with
@@ -397,7 +447,7 @@ def write_result(result: Result, path: str | Path) -> Path:
         # and then crashes the interpreter (issue 13: segmentation fault, exit 139), while a
         # failed os.write is one OSError.  Memory: one copy of the compressed file.
         with h5py.File(tmp, "w", driver="core", backing_store=False) as f:
-            _write_file(f, result, paths)
+            _write_file(f, result, values, table)
             f.flush()
             image = f.id.get_file_image()
         with open(tmp, "wb") as out:
@@ -509,9 +559,11 @@ def prepare_output(path: str | Path) -> Path:
     return path
 
 
-def check_finite(result: Result) -> None:
+def check_finite(result: Result, values: np.ndarray | None = None) -> None:
     """A result marked complete holds no NaN or inf (issue 13): if a channel does, mark it
-    incomplete, naming the channel and the first time, so the CLI exits 1."""
+    incomplete, naming the channel and the first time, so the CLI exits 1.  ``values``: the
+    channels side by side (:func:`_channel_table`), when the writer has them: all finite,
+    the channels are not visited one by one."""
     if not result.complete:
         return
     t = np.asarray(result.t, dtype=float)
@@ -519,6 +571,8 @@ def check_finite(result: Result) -> None:
     if bad_t.size:
         result.status = STATUS_INCOMPLETE
         result.message = f"time holds NaN or inf (output {int(bad_t[0])})"
+        return
+    if values is not None and np.isfinite(values).all():
         return
     for name, ch in result.channels.items():
         data = np.asarray(ch.data, dtype=float)

@@ -59,35 +59,64 @@ def triangulate(shape: ShapeSpec) -> tuple[np.ndarray, np.ndarray]:
 
 def box(size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A box centred at the origin, edges ``size`` along x y z; 4 vertices a face (flat)."""
-    h = np.asarray(size, float) / 2
-    verts, faces = [], []
+    signs, faces = _box_layout()
+    return signs * (np.asarray(size, float) / 2), faces.copy()
+
+
+@functools.lru_cache(maxsize=1)
+def _box_layout():
+    """(signs (24, 3) of +-1 per vertex and axis, faces (12, 3)) of :func:`box`: per face
+    (axis, sign) four corners (a, b) in the plane of the two other axes u, w, the winding
+    outward."""
+    signs, faces = [], []
     for axis in range(3):
         for sign in (1.0, -1.0):
             u, w = (axis + 1) % 3, (axis + 2) % 3
             if sign < 0:
                 u, w = w, u  # keep the winding outward
-            n = len(verts)
+            n = len(signs)
             for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
                 p = np.zeros(3)
-                p[axis], p[u], p[w] = sign * h[axis], a * h[u], b * h[w]
-                verts.append(p)
+                p[axis], p[u], p[w] = sign, a, b
+                signs.append(p)
             faces += [[n, n + 1, n + 2], [n, n + 2, n + 3]]
-    return np.array(verts), np.array(faces)
+    out = (np.array(signs), np.array(faces))
+    for x in out:
+        x.flags.writeable = False
+    return out
 
 
 def cylinder(radius: float, length: float, n: int = SEGMENTS) -> tuple[np.ndarray, np.ndarray]:
-    """A closed cylinder along z centred at the origin."""
+    """A closed cylinder along z centred at the origin: vertices the bottom ring, the top
+    ring, then for the caps the bottom centre, the bottom ring, the top centre, the top ring;
+    the faces depend on n only (:func:`_cylinder_layout`)."""
+    cos_a, sin_a, faces = _cylinder_layout(n)
+    v = np.empty((4 * n + 2, 3))
+    half = length / 2
+    below = 0.0 - half  # (as the rings were: z = 0 - length / 2, +0.0 at length 0)
+    for rows, z in ((slice(0, n), below), (slice(n, 2 * n), half),
+                    (slice(2 * n + 1, 3 * n + 1), below), (slice(3 * n + 2, 4 * n + 2), half)):
+        v[rows, 0], v[rows, 1], v[rows, 2] = radius * cos_a, radius * sin_a, z
+    v[2 * n] = (0.0, 0.0, -half)
+    v[3 * n + 1] = (0.0, 0.0, half)
+    return v, faces.copy()
+
+
+@functools.lru_cache(maxsize=8)
+def _cylinder_layout(n: int):
+    """cos, sin of the segments' azimuths and the faces of :func:`cylinder` (the sides: two
+    triangles per segment; the caps: a fan around each centre)."""
     a = 2 * np.pi * np.arange(n) / n
-    ring = np.c_[radius * np.cos(a), radius * np.sin(a), np.zeros(n)]
-    top, bot = ring + [0, 0, length / 2], ring - [0, 0, length / 2]
     k = np.arange(n)
     k1 = (k + 1) % n
     side = np.r_[np.c_[k, k1, n + k1], np.c_[k, n + k1, n + k]]  # bot 0..n-1, top n..2n-1
-    caps_v = np.r_[[[0, 0, -length / 2]], bot, [[0, 0, length / 2]], top]
     c0, c1 = 2 * n, 3 * n + 1  # centres of the bottom and the top cap
     caps = np.r_[np.c_[np.full(n, c0), c0 + 1 + k1, c0 + 1 + k],
                  np.c_[np.full(n, c1), c1 + 1 + k, c1 + 1 + k1]]  # fmt: skip
-    return np.r_[bot, top, caps_v], np.r_[side, caps]
+    out = (np.cos(a), np.sin(a), np.r_[side, caps])
+    for x in out:
+        x.flags.writeable = False
+    return out
 
 
 def capsule(radius: float, length: float, n: int = SEGMENTS, rings: int = RINGS):
@@ -96,7 +125,7 @@ def capsule(radius: float, length: float, n: int = SEGMENTS, rings: int = RINGS)
     the mesh's layout and faces depend on (n, rings) only (:func:`_capsule_layout`)."""
     sin_th, cos_th, cos_a, sin_a, ti, ai, north, faces = _capsule_layout(n, rings)
     rs = radius * sin_th[ti]
-    row = np.c_[rs * cos_a[ai], rs * sin_a[ai], radius * cos_th[ti]]
+    row = np.stack((rs * cos_a[ai], rs * sin_a[ai], radius * cos_th[ti]), axis=1)
     half = np.array([0.0, 0.0, length / 2])
     v = np.where(north[:, None], row + half, row - half)
     return v, faces.copy()
@@ -200,7 +229,7 @@ def body_mesh(pieces: list[ShapeSpec], color: str) -> tuple[np.ndarray, np.ndarr
         v, f = triangulate(piece)
         vs.append(v)
         fs.append(f + n)
-        cs.append(np.tile(_rgb(piece.color or color), (len(v), 1)))
+        cs.append(np.broadcast_to(_rgb(piece.color or color), (len(v), 3)))
         n += len(v)
     if not vs:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int32), np.zeros((0, 3))
@@ -216,7 +245,8 @@ def mechanism_size(spec: DeckSpec) -> float:
     pts = [np.asarray(b.r, float) for b in spec.bodies.values()]
     for name, local in attachment_points(spec).items():
         body = spec.bodies[name]
-        pts += [body.r + A(body.p) @ P for P in local]
+        A_body = A(body.p)
+        pts += [body.r + A_body @ P for P in local]
     spread = float(np.ptp(np.array(pts), axis=0).max()) if pts else 0.0
     if spread > 0:
         return spread

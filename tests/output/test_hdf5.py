@@ -130,8 +130,12 @@ def test_shapes_are_one_dataset_per_leaf_and_an_index(tmp_path):
         assert rows == [("vertices", "crank", 0, 4), ("vertices", "rod", 4, 6),
                         ("faces", "crank", 0, 3), ("faces", "rod", 3, 4)]
         assert f["shapes/vertices"].compression is None  # small: stored as it is
+        info = h5py.check_string_dtype(f["shapes/layout"].dtype)  # the JSON: a str dataset
+        assert info.encoding == "utf-8" and info.length is None  # variable-length, as h5py's
+        assert f["shapes/layout"].attrs["format"] == "JSON"
     back = read_result(path)
     assert set(back.arrays) == set(r.arrays)
+    assert str(back.arrays["shapes/layout"][0][0]) == "{}"
     np.testing.assert_array_equal(back.arrays["shapes/rod/vertices"][0], np.full((2, 3), 2.0))
     assert back.arrays["shapes/rod/vertices"][1] == {"unit": "m"}
     assert back.arrays["shapes/rod/faces"][0].dtype == np.int32
