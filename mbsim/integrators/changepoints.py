@@ -71,34 +71,40 @@ class Policy:
           6.1e-4, 2.8e-3, 1.3e-2 at rtol 1e-6, 1e-8, 1e-10.
         - index-1 integrates q and qd and solves once, for the accelerations, through the
           Schur complement S = Phi_q M^-1 Phi_q^T, whose pivots go as s^2: a state off the
-          constraints by its round-off moves the multipliers, and with them qdd, by eps s^-2
-          relative (on the four cranks a 4-ulp perturbation of q moves qdd by 1.0-1.5 eps
-          s^-2 of max |qdd| for s from 1e-4 to 4e-2).  If that relative error had to stay
-          below rtol the switch would be sqrt(eps / rtol) = 1.5e-5, 1.5e-4, 1.5e-3 at rtol
-          1e-6, 1e-8, 1e-10: an upper bound, since the error test sees qdd's error only
-          through h qdd in qd and h^2 qdd / 2 in q, a fraction h |qdd| / |qd| of it.  The
-          switch is the square of gcp's law, (eps / rtol)^(2/3) = 3.7e-7, 7.9e-6, 1.7e-4,
-          below that bound by (eps / rtol)^(1/6): this exponent is measured on the four
-          cranks (and the test suite holds with it under every kernel of .ci/matrix), not
-          derived.  The bound
-          itself took the four cranks at rtol 1e-9 through tangent coordinates under
-          OpenBLAS Prescott and left 4.0e-8 m (40 x rtol; 3.0e-10 m at the measured switch),
-          so the tangent coordinates, not the Schur path, are what fails first between the
-          two.  The kernels add a limit: below sqrt(SCHUR_PIVOT_FLOOR) = 1e-4 they raise the
-          Schur pivot, and the accelerations are no longer those of the equations;
-          s_index1 = max(1e-4, (eps / rtol)^(2/3)) (the floor holds down to rtol = 2.2e-10).
+          constraints by its round-off moves qdd by e_S = eps s^-2 of max |qdd|.  Its
+          tangent coordinates complete q, then qd, then solve for qdd, each through
+          A = [Phi_q; C] whose smallest singular value goes as s, as gcp's three solves do:
+          e_T = eps s^-3.  Measured on the four cranks against the exact accelerations
+          (constant effective inertia: theta'' = -g cos(theta) (4 m_c L/2 + M L) / I_eff),
+          the spread of six 4-ulp perturbations of q, s from 4e-5 to 4e-2: e_S = 0.2-1.7
+          eps s^-2, e_T = 0.2-0.6 eps s^-3, under the default and the Prescott OpenBLAS kernels alike, and
+          e_T the same with C taken 0.003, 0.06 or 0.3 rad from the point (it is the chain
+          of three solves, not the reference point of C).  So e_T / e_S = 1 / s > 1
+          wherever the Schur accelerations are those of the equations: tangent coordinates
+          never have less round-off than the Schur path; what they have that it lacks is a
+          solve with no pivot floor.  The kernels raise a Schur pivot below
+          SCHUR_PIVOT_FLOOR (1e-8, a pivot ratio, ~ s^2), i.e. below s_f =
+          sqrt(SCHUR_PIVOT_FLOOR) = 1e-4, and there the accelerations are no longer those of
+          the equations (measured 0.4-0.9 of max |qdd| off for s < 7.4e-5, against e_T =
+          1e-3 ... 7e-2).  So s_index1 = s_f, for every rtol: above it the Schur path is the
+          more accurate of the two, below it the only one that solves the equations.  Any
+          larger switch moves stages that the Schur path takes to eps s^-2 into coordinates
+          with eps s^-3: the four cranks at rtol 1e-9 under OpenBLAS Prescott with a switch
+          of 3e-4 ... 1e-3 retried one step crossing the point (0.4471 -> 0.4659 s) in
+          tangent coordinates; a stage of it landed at s = 5.4e-5, the step's energy
+          jumped 6.6e-7 J and the run ended 4.0e-8 m off (2.97e-10 m at s_f).
         A fixed-step run has no error test: nothing in it sees either path's round-off or
         the accuracy its steps deliver (rk4 at 0.25 ms: 1e-12 m on the four cranks, far
         below any default).  Its switch is where the tangent coordinates themselves meet
         the accuracy of a run that asks none, :meth:`law` at DEFAULT_RTOL = 6.1e-4, for
-        both families (index-1 at its own law, 1e-4 there: 1.3e-11 m instead).  An index-1 run
-        whose measure at the start, s0, is already below its switch (a tight tolerance on
-        a model whose regular states have s0 ~ 1e-2: the four cranks start at 1.4e-2,
-        below sqrt(eps / rtol) for rtol < 1.2e-12) meets the law nowhere, on either path;
-        a change point is where s falls from its regular value towards 0, so the switch is
-        taken below s0, at the geometric mean of the kernels' floor and s0
-        (:meth:`at_start`; 1.2e-3 on the four cranks).  A start at or below the floor (at
-        the change point itself, where no branch is known) takes no tangent coordinates.
+        both families (index-1 at s_f instead: 1.3e-11 m).  An index-1 run whose measure at
+        the start, s0, is already below its switch (a fixed-step run on a model whose
+        regular states have a small s0) meets the switch nowhere; a change point is where s
+        falls from its regular value towards 0, so the switch is taken below s0, at
+        sqrt(s_f s0) (:meth:`at_start`): the midpoint of s_f and s0 on the log scale in
+        which the round-off laws above are powers, as far (in decades of round-off) from
+        the regular states as from the floor.  A start at or below s_f (at the change
+        point itself, where no branch is known) takes no tangent coordinates.
     noise_s: below this s a tangent step's round-off is not taken off its error test
         (index-1 ``_stage_noise``): s = eps^(1/3) = 6.1e-6 (:meth:`law` at rtol 1), where
         the three solves' round-off eps s^-3 is as large as the accelerations themselves,
@@ -123,7 +129,7 @@ class Policy:
         interpolant) is accurate to the local error, ~1 tolerance; where the coordinates
         change (s = tangent) the other branch lies tangent x L away, tangent / rtol
         tolerances.  The threshold is the geometric mean of the two, sqrt(tangent / rtol):
-        a factor sqrt(tangent / rtol) from each (gcp 25, 530, 1.1e4; index-1 10, 120, 3900
+        a factor sqrt(tangent / rtol) from each (gcp 25, 530, 1.1e4; index-1 10, 100, 1000
         at rtol 1e-6, 1e-8, 1e-10).  Where tangent <= rtol the two branches lie within one
         tolerance of each other, which the error test cannot tell apart: no check (inf).
     newton_tol: the completion's Newton tolerance on max |dq| (m or rad): a hundredth of
@@ -162,7 +168,7 @@ class Policy:
         elif family == "gcp":
             s = cls.law(rtol)
         else:
-            s = max(float(np.sqrt(SCHUR_PIVOT_FLOOR)), float(cls.law(rtol) ** 2))
+            s = float(np.sqrt(SCHUR_PIVOT_FLOOR))
         k = -1.0 / exponent if exponent and not fixed else 0.0
         return cls(
             tangent=s if tangent else 0.0,
