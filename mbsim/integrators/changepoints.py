@@ -74,37 +74,48 @@ class Policy:
           constraints by its round-off moves qdd by e_S = eps s^-2 of max |qdd|.  Its
           tangent coordinates complete q, then qd, then solve for qdd, each through
           A = [Phi_q; C] whose smallest singular value goes as s, as gcp's three solves do:
-          e_T = eps s^-3.  Measured on the four cranks against the exact accelerations
-          (constant effective inertia: theta'' = -g cos(theta) (4 m_c L/2 + M L) / I_eff),
-          the spread of six 4-ulp perturbations of q, s from 4e-5 to 4e-2: e_S = 0.2-1.7
-          eps s^-2, e_T = 0.2-0.6 eps s^-3, under the default and the Prescott OpenBLAS kernels alike, and
-          e_T the same with C taken 0.003, 0.06 or 0.3 rad from the point (it is the chain
-          of three solves, not the reference point of C).  So e_T / e_S = 1 / s > 1
-          wherever the Schur accelerations are those of the equations: tangent coordinates
-          never have less round-off than the Schur path; what they have that it lacks is a
-          solve with no pivot floor.  The kernels raise a Schur pivot below
-          SCHUR_PIVOT_FLOOR (1e-8, a pivot ratio, ~ s^2), i.e. below s_f =
-          sqrt(SCHUR_PIVOT_FLOOR) = 1e-4, and there the accelerations are no longer those of
-          the equations (measured 0.4-0.9 of max |qdd| off for s < 7.4e-5, against e_T =
-          1e-3 ... 7e-2).  So s_index1 = s_f, for every rtol: above it the Schur path is the
-          more accurate of the two, below it the only one that solves the equations.  Any
-          larger switch moves stages that the Schur path takes to eps s^-2 into coordinates
-          with eps s^-3: the four cranks at rtol 1e-9 under OpenBLAS Prescott with a switch
-          of 3e-4 ... 1e-3 retried one step crossing the point (0.4471 -> 0.4659 s) in
-          tangent coordinates; a stage of it landed at s = 5.4e-5, the step's energy
-          jumped 6.6e-7 J and the run ended 4.0e-8 m off (2.97e-10 m at s_f).
+          e_T = eps s^-3.  (Measured on the four cranks against the exact accelerations,
+          from q perturbed by 4 ulps, s from 4e-5 to 4e-2: e_S = 0.2-1.7 eps s^-2 and e_T =
+          0.2-0.6 eps s^-3 under the default and the Prescott OpenBLAS kernels alike, e_T
+          the same with C taken 0.003, 0.06 or 0.3 rad from the point: it is the chain of
+          solves, not C's reference point; tests/integrators/test_policy.py.)  So the
+          Schur path is the more accurate wherever it solves the equations, i.e. above
+          s_f = sqrt(SCHUR_PIVOT_FLOOR) = 1e-4: below that pivot ratio (~ s^2) the kernels
+          raise the pivot and its accelerations are off by 0.4-0.9 of max |qdd|.  What the
+          tangent coordinates have besides is an error test that takes the probed
+          round-off off (``noise_err``, index-1 ``_stage_noise``); the Schur path's error
+          test sees its round-off and cuts the steps for it.  The switch is where that
+          begins: a relative error e of the stage accelerations moves a step's qd by
+          ~ h e |qdd| (the embedded estimate weights the stages by h (b_i - b^_i)), i.e.
+          h e |qdd| / (rtol |qd|) tolerances; with |qd| ~ T |qdd| (T the motion's time
+          scale) and the controller's steps h ~ T rtol^(1/k) (an estimate of order k - 1
+          whose error constant is ~1 in units of T) that is e rtol^(1/k - 1).  It reaches
+          one tolerance at e_S = rtol^(1 - 1/k):
+          s_index1 = max(s_f, sqrt(eps rtol^-(1 - 1/k)))   (dimensionless)
+          = 1e-4 (the floor) at rtol >= 1.8e-9 (DOP853, k = 8) or >= 2.7e-10
+          (Dormand-Prince 5(4), k = 5); 3.5e-4, 9.7e-4, 2.6e-3 for DOP853 and 1.5e-4,
+          3.7e-4, 9.4e-4 for 5(4) at rtol 1e-10, 1e-11, 1e-12.  Below it the Schur path's
+          steps would be cut by round-off (projection-dop853 at rtol 1e-11 and a switch of
+          1e-4 crawled at 1.4e-5 s next to the dead centre of
+          tests/integrators/test_changepoints.py); above it the tangent coordinates would
+          take stages to eps s^-3 that the Schur path takes to eps s^-2 with its error
+          test satisfied: the four cranks at rtol 1e-9 under OpenBLAS Prescott with a
+          switch of 3e-4 ... 1e-3 (s_index1 = 1.3e-4) retried one step across the point
+          (0.4471 -> 0.4659 s) in tangent coordinates, a stage of it came to s = 5.4e-5,
+          the energy jumped 6.6e-7 J and the run ended 4.0e-8 m off (2.97e-10 m with no
+          tangent stage).
         A fixed-step run has no error test: nothing in it sees either path's round-off or
         the accuracy its steps deliver (rk4 at 0.25 ms: 1e-12 m on the four cranks, far
         below any default).  Its switch is where the tangent coordinates themselves meet
         the accuracy of a run that asks none, :meth:`law` at DEFAULT_RTOL = 6.1e-4, for
-        both families (index-1 at s_f instead: 1.3e-11 m).  An index-1 run whose measure at
-        the start, s0, is already below its switch (a fixed-step run on a model whose
-        regular states have a small s0) meets the switch nowhere; a change point is where s
-        falls from its regular value towards 0, so the switch is taken below s0, at
-        sqrt(s_f s0) (:meth:`at_start`): the midpoint of s_f and s0 on the log scale in
-        which the round-off laws above are powers, as far (in decades of round-off) from
-        the regular states as from the floor.  A start at or below s_f (at the change
-        point itself, where no branch is known) takes no tangent coordinates.
+        both families (index-1 at s_f instead: 1.3e-11 m).  An index-1 run whose measure
+        at the start, s0, is already below its switch (a tight tolerance, or fixed steps,
+        on a model whose regular states have a small s0) meets the switch nowhere; a
+        change point is where s falls from its regular value towards 0, so the switch is
+        taken below s0, at sqrt(s_f s0) (:meth:`at_start`): the midpoint of s_f and s0 on
+        the log scale in which the round-off laws above are powers, as many decades of
+        round-off from the regular states as from the floor.  A start at or below s_f (at
+        the change point itself, where no branch is known) takes no tangent coordinates.
     noise_s: below this s a tangent step's round-off is not taken off its error test
         (index-1 ``_stage_noise``): s = eps^(1/3) = 6.1e-6 (:meth:`law` at rtol 1), where
         the three solves' round-off eps s^-3 is as large as the accelerations themselves,
@@ -129,12 +140,26 @@ class Policy:
         interpolant) is accurate to the local error, ~1 tolerance; where the coordinates
         change (s = tangent) the other branch lies tangent x L away, tangent / rtol
         tolerances.  The threshold is the geometric mean of the two, sqrt(tangent / rtol):
-        a factor sqrt(tangent / rtol) from each (gcp 25, 530, 1.1e4; index-1 10, 100, 1000
-        at rtol 1e-6, 1e-8, 1e-10).  Where tangent <= rtol the two branches lie within one
+        a factor sqrt(tangent / rtol) from each (gcp 25, 530, 1.1e4; index-1 10, 100, 1900
+        (DOP853) at rtol 1e-6, 1e-8, 1e-10).  Where tangent <= rtol the two branches lie within one
         tolerance of each other, which the error test cannot tell apart: no check (inf).
-    newton_tol: the completion's Newton tolerance on max |dq| (m or rad): a hundredth of
-        atol, within [1e-12, 1e-9] (1e-12 for fixed steps): its own error stays two orders
-        below the error test's, and above the round-off of q ~ 1 (Newton stagnates there).
+    newton_tol: the completion's Newton tolerance on max |dq| (m or rad): (1 - SAFETY)
+        atol = 0.1 atol, at least newton_floor.  The completed q enters the error test,
+        whose absolute unit is atol; an error of (1 - SAFETY) atol moves a scaled component
+        by at most 1 - SAFETY, the margin by which the controller's next step stays inside
+        the test (h_new = h SAFETY err^(-1/k)), so it cannot turn a step that the margin
+        accepts into a rejected one.  (Not a fitted factor: on the four cranks at rtol
+        1e-6, 1e-8, 1e-10 with projection-dop853, gcp-dop853 and gcp-rk45, 1e-3, 1e-2 and
+        1e-1 atol gave the same errors to the passages' round-off.)  Fixed steps have no
+        atol in their error test: newton_floor.
+    newton_floor: the smallest Newton tolerance (m or rad) that the completion can reach:
+        its corrections go through A (or Phi_u), whose smallest singular value is ~ s, so
+        they resolve eps |q| / s; at the kernels' floor s_f on coordinates of unit size
+        (Euler parameters, the unit of positions in m) that is eps / s_f = 2.2e-12.
+    kept_residual: a Newton that stops moving above its tolerance (gcp's projected
+        Hermite fallback) is kept where its residual max |Phi| is within one absolute
+        tolerance, atol (m), what the error test cannot tell from zero (at least
+        newton_tol).  The index-1 projection's own rule is :meth:`projection_kept`.
     newton_iter: the completion's most Newton iterations: quadratic convergence doubles the
         correct digits per iteration, from one (a start within the local error) to the 16
         of a double in ceil(log2(-log10 eps)) = 4; twice that for a start outside the
@@ -150,6 +175,8 @@ class Policy:
     cut: float
     branch_jump: float
     newton_tol: float
+    newton_floor: float
+    kept_residual: float
     newton_iter: int
     rank_lost: float
 
@@ -158,27 +185,49 @@ class Policy:
         """(eps / rtol)^(1/3): the s below which three solves' round-off exceeds rtol."""
         return (EPS / rtol) ** (1.0 / 3.0)
 
+    @staticmethod
+    def index1_law(rtol, k):
+        """max(s_f, sqrt(eps rtol^-(1 - 1/k))): the s at which the Schur path's round-off
+        eps s^-2 moves an index-1 step's qd by one tolerance (class doc, ``tangent``); k:
+        the error exponent's -1/k."""
+        return max(float(np.sqrt(SCHUR_PIVOT_FLOOR)),
+                   float(np.sqrt(EPS * rtol ** -(1.0 - 1.0 / k))))
+
     @classmethod
     def for_run(cls, family, rtol, atol, fixed, tangent=True, *, exponent, n):
         """The policy of a run: family 'gcp' | 'index-1'; fixed: a fixed-step run;
         tangent: False takes no tangent coordinates (index-1 option ``tangent_steps``);
         exponent: the integrator's error exponent -1/k (0: no error estimate); n: nq."""
+        k = -1.0 / exponent if exponent and not fixed else 0.0
+        floor = EPS / float(np.sqrt(SCHUR_PIVOT_FLOOR))
+        newton_tol = floor if fixed else max(floor, (1.0 - SAFETY) * atol)
         if fixed:
             s = cls.law(DEFAULT_RTOL)
         elif family == "gcp":
             s = cls.law(rtol)
         else:
-            s = float(np.sqrt(SCHUR_PIVOT_FLOOR))
-        k = -1.0 / exponent if exponent and not fixed else 0.0
+            s = cls.index1_law(rtol, k) if k else float(np.sqrt(SCHUR_PIVOT_FLOOR))
         return cls(
             tangent=s if tangent else 0.0,
             noise_s=cls.law(1.0),
             noise_err=SAFETY ** k if k else 1.0,
             cut=(EPS / rtol) ** (1.0 / k) if k else 1.0,
             branch_jump=cls.jump(s, rtol),
-            newton_tol=1e-12 if fixed else min(1e-9, max(1e-12, 1e-2 * atol)),
+            newton_tol=newton_tol,
+            newton_floor=floor,
+            kept_residual=max(atol, newton_tol),
             newton_iter=2 * int(np.ceil(np.log2(-np.log10(EPS)))),
             rank_lost=n * EPS)
+
+    @staticmethod
+    def projection_kept(proj_tol):
+        """The residual max |Phi| (m) up to which an index-1 projection with tolerance
+        proj_tol that stops moving is kept (Index1._project; mbsim/fast/stepper.py's
+        proj_fail repeats it for the compiled step): 1e3 proj_tol, at least 1e-11.  With
+        the default proj_tol = 1e-3 atol within [1e-14, 1e-10] this is atol within
+        [1e-11, 1e-7]: one absolute tolerance, as ``kept_residual``; the 1e-11 is 1e3 x
+        that default's floor, and matters only for a projection_tol option below it."""
+        return max(1e3 * proj_tol, 1e-11)
 
     @staticmethod
     def jump(s, rtol):
