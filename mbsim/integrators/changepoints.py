@@ -75,8 +75,8 @@ class Policy:
           tangent coordinates complete q, then qd, then solve for qdd, each through
           A = [Phi_q; C] whose smallest singular value goes as s, as gcp's three solves do:
           e_T = eps s^-3.  (Measured on the four cranks against the exact accelerations,
-          from q perturbed by 4 ulps, s from 4e-5 to 4e-2: e_S = 0.2-1.7 eps s^-2 and e_T =
-          0.2-0.6 eps s^-3 under the default and the Prescott OpenBLAS kernels alike, e_T
+          from q perturbed by 4 ulps, s from 4e-5 to 4e-2: e_S = 0.2-1.9 eps s^-2 and e_T =
+          0.04-0.6 eps s^-3 under the default and the Prescott OpenBLAS kernels alike, e_T
           the same with C taken 0.003, 0.06 or 0.3 rad from the point: it is the chain of
           solves, not C's reference point; tests/integrators/test_policy.py.)  So the
           Schur path is the more accurate wherever it solves the equations, i.e. above
