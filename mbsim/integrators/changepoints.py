@@ -96,7 +96,9 @@ class Policy:
             eleven passages ended 2.98e-8 m off (bound 1.5e-8 m); at 2e-4 both pass.
           - from above, where tangent steps go wrong: a step retried in tangent coordinates
             whose stage comes to s ~ 5e-5 can pass its error test with a true error 30 x
-            the tolerance (error norm 0.954).  Measured: the four cranks at rtol 1e-9 under
+            the tolerance (error norm 0.954, projection-dop853 at rtol 1e-10 under Haswell
+            with newton_tol's lower clamp moved to 2.220446e-12: a stage at s = 6.3e-5, the
+            run 2.8e-9 m off).  Measured: the four cranks at rtol 1e-9 under
             OpenBLAS Prescott, switch 3e-4 ... 1e-3: 4.0e-8 m (2.97e-10 m at 2e-4 or less;
             the step 0.4471 -> 0.4659 s, a stage at s = 5.4e-5, the energy up 6.6e-7 J);
             the shaken four cranks (tests/integrators/test_index1_tangent.py::
@@ -108,8 +110,8 @@ class Policy:
           switches from 1e-4 up.  Until the tangent step's error test sees the error of
           such a step, the switch is the measured law s_index1 = max(s_f, (eps /
           rtol)^(2/3)) (the square of gcp's; 1e-4 down to rtol 2.2e-10, 1.7e-4 at 1e-10,
-          7.9e-4 at 1e-11), which passes every case above and the test suite under every
-          kernel of .ci/matrix: a fitted exponent, not a derivation (docs/benchmarks.md).
+          7.9e-4 at 1e-11), which passes every case above (and .ci/matrix's kernels on
+          f6fe280): a fitted exponent, not a derivation (docs/benchmarks.md).
         A fixed-step run has no error test: nothing in it sees either path's round-off or
         the accuracy its steps deliver (rk4 at 0.25 ms: 1e-12 m on the four cranks, far
         below any default).  Its switch is where the tangent coordinates themselves meet
