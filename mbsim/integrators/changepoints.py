@@ -71,33 +71,58 @@ class Policy:
           6.1e-4, 2.8e-3, 1.3e-2 at rtol 1e-6, 1e-8, 1e-10.
         - index-1 integrates q and qd and solves once, for the accelerations, through the
           Schur complement S = Phi_q M^-1 Phi_q^T, whose pivots go as s^2: a state off the
-          constraints by its round-off moves the multipliers, and with them qdd, by eps s^-2
-          relative (on the four cranks a 4-ulp perturbation of q moves qdd by 1.0-1.5 eps
-          s^-2 of max |qdd| for s from 1e-4 to 4e-2).  If that relative error had to stay
-          below rtol the switch would be sqrt(eps / rtol) = 1.5e-5, 1.5e-4, 1.5e-3 at rtol
-          1e-6, 1e-8, 1e-10: an upper bound, since the error test sees qdd's error only
-          through h qdd in qd and h^2 qdd / 2 in q, a fraction h |qdd| / |qd| of it.  The
-          switch is the square of gcp's law, (eps / rtol)^(2/3) = 3.7e-7, 7.9e-6, 1.7e-4,
-          below that bound by (eps / rtol)^(1/6): this exponent is measured on the four
-          cranks (and the test suite holds with it under every kernel of .ci/matrix), not
-          derived.  The bound
-          itself took the four cranks at rtol 1e-9 through tangent coordinates under
-          OpenBLAS Prescott and left 4.0e-8 m (40 x rtol; 3.0e-10 m at the measured switch),
-          so the tangent coordinates, not the Schur path, are what fails first between the
-          two.  The kernels add a limit: below sqrt(SCHUR_PIVOT_FLOOR) = 1e-4 they raise the
-          Schur pivot, and the accelerations are no longer those of the equations;
-          s_index1 = max(1e-4, (eps / rtol)^(2/3)) (the floor holds down to rtol = 2.2e-10).
+          constraints by its round-off moves qdd by e_S = eps s^-2 of max |qdd|.  Its
+          tangent coordinates complete q, then qd, then solve for qdd, each through
+          A = [Phi_q; C] whose smallest singular value goes as s, as gcp's three solves do:
+          e_T = eps s^-3.  (Measured on the four cranks against the exact accelerations,
+          from q perturbed by 4 ulps, s from 4e-5 to 4e-2: e_S = 0.2-1.9 eps s^-2 and e_T =
+          0.04-0.6 eps s^-3 under the default and the Prescott OpenBLAS kernels alike, e_T
+          the same with C taken 0.003, 0.06 or 0.3 rad from the point: it is the chain of
+          solves, not C's reference point; tests/integrators/test_policy.py.)  So the
+          Schur path is the more accurate wherever it solves the equations, i.e. above
+          s_f = sqrt(SCHUR_PIVOT_FLOOR) = 1e-4: below that pivot ratio (~ s^2) the kernels
+          raise the pivot and its accelerations are off by 0.4-0.9 of max |qdd|.  What the
+          tangent coordinates have besides is an error test that takes the probed
+          round-off off (``noise_err``, index-1 ``_stage_noise``); the Schur path's error
+          test sees its round-off and cuts the steps for it.  That gives two limits, and
+          the switch must lie between them:
+          - from below, where the Schur path's round-off begins to cut the steps: a
+            relative error e of the stage accelerations moves a step's qd by ~ h e |qdd|,
+            i.e. e h / (rtol T) tolerances (|qd| ~ T |qdd|), with steps h ~ T rtol^(1/k):
+            e_S reaches one tolerance at s = sqrt(eps rtol^-(1 - 1/k)) (:meth:`index1_law`;
+            DOP853 1.3e-4, 3.5e-4, 9.7e-4 at rtol 1e-9, 1e-10, 1e-11).  Measured: with the
+            switch at the floor alone projection-dop853 at rtol 1e-11 crawled at 1.4e-5 s
+            next to the dead centre of tests/integrators/test_changepoints.py and the deck's
+            eleven passages ended 2.98e-8 m off (bound 1.5e-8 m); at 2e-4 both pass.
+          - from above, where tangent steps go wrong: a step retried in tangent coordinates
+            whose stage comes to s ~ 5e-5 can pass its error test with a true error 30 x
+            the tolerance (error norm 0.954, projection-dop853 at rtol 1e-10 under Haswell
+            with newton_tol's lower clamp moved to 2.220446e-12: a stage at s = 6.3e-5, the
+            run 2.8e-9 m off).  Measured: the four cranks at rtol 1e-9 under
+            OpenBLAS Prescott, switch 3e-4 ... 1e-3: 4.0e-8 m (2.97e-10 m at 2e-4 or less;
+            the step 0.4471 -> 0.4659 s, a stage at s = 5.4e-5, the energy up 6.6e-7 J);
+            the shaken four cranks (tests/integrators/test_index1_tangent.py::
+            test_rheonomic_linkage) at rtol 1e-10 under Haswell, switch 3e-4 or more:
+            2.54e-8 m (passes at 1e-4 ... 2.5e-4).  Which stage lands how close to the
+            point is the run's round-off, so this limit is not a law of rtol, and the
+            derived lower limit crosses it (3.5e-4 at rtol 1e-10).
+          The derived lower limit is not sharp either: at rtol 1e-10 the runs pass with
+          switches from 1e-4 up.  Until the tangent step's error test sees the error of
+          such a step, the switch is the measured law s_index1 = max(s_f, (eps /
+          rtol)^(2/3)) (the square of gcp's; 1e-4 down to rtol 2.2e-10, 1.7e-4 at 1e-10,
+          7.9e-4 at 1e-11), which passes every case above (and .ci/matrix's kernels on
+          f6fe280): a fitted exponent, not a derivation (docs/benchmarks.md).
         A fixed-step run has no error test: nothing in it sees either path's round-off or
         the accuracy its steps deliver (rk4 at 0.25 ms: 1e-12 m on the four cranks, far
         below any default).  Its switch is where the tangent coordinates themselves meet
         the accuracy of a run that asks none, :meth:`law` at DEFAULT_RTOL = 6.1e-4, for
-        both families (index-1 at its own law, 1e-4 there: 1.3e-11 m instead).  An index-1 run
-        whose measure at the start, s0, is already below its switch (a tight tolerance on
-        a model whose regular states have s0 ~ 1e-2: the four cranks start at 1.4e-2,
-        below sqrt(eps / rtol) for rtol < 1.2e-12) meets the law nowhere, on either path;
-        a change point is where s falls from its regular value towards 0, so the switch is
-        taken below s0, at the geometric mean of the kernels' floor and s0
-        (:meth:`at_start`; 1.2e-3 on the four cranks).  A start at or below the floor (at
+        both families (index-1 at s_f instead: 1.3e-11 m).  An index-1 run whose measure
+        at the start, s0, is already below its switch (a tight tolerance, or fixed steps,
+        on a model whose regular states have a small s0) meets the switch nowhere; a
+        change point is where s falls from its regular value towards 0, so the switch is
+        taken below s0, at sqrt(s_f s0) (:meth:`at_start`): the midpoint of s_f and s0 on
+        the log scale in which the round-off laws above are powers, as many decades of
+        round-off from the regular states as from the floor.  A start at or below s_f (at
         the change point itself, where no branch is known) takes no tangent coordinates.
     noise_s: below this s a tangent step's round-off is not taken off its error test
         (index-1 ``_stage_noise``): s = eps^(1/3) = 6.1e-6 (:meth:`law` at rtol 1), where
@@ -123,12 +148,24 @@ class Policy:
         interpolant) is accurate to the local error, ~1 tolerance; where the coordinates
         change (s = tangent) the other branch lies tangent x L away, tangent / rtol
         tolerances.  The threshold is the geometric mean of the two, sqrt(tangent / rtol):
-        a factor sqrt(tangent / rtol) from each (gcp 25, 530, 1.1e4; index-1 10, 120, 3900
+        a factor sqrt(tangent / rtol) from each (gcp 25, 530, 1.1e4; index-1 10, 100, 1300
         at rtol 1e-6, 1e-8, 1e-10).  Where tangent <= rtol the two branches lie within one
         tolerance of each other, which the error test cannot tell apart: no check (inf).
-    newton_tol: the completion's Newton tolerance on max |dq| (m or rad): a hundredth of
-        atol, within [1e-12, 1e-9] (1e-12 for fixed steps): its own error stays two orders
-        below the error test's, and above the round-off of q ~ 1 (Newton stagnates there).
+    newton_tol: the completion's Newton tolerance on max |dq| (m or rad): 1e-2 atol within
+        [1e-12, 1e-9] (1e-12 for fixed steps, which have no atol in an error test).  Not
+        derived: a margin (the completion's error two orders below the error test's
+        absolute unit) and two clamps (the lower one near the completion's round-off eps
+        |q| / s at the kernels' floor s_f, eps / s_f = 2.2e-12 on coordinates of unit
+        size).  Measured on the four cranks at rtol 1e-6, 1e-8, 1e-10 (projection-dop853,
+        gcp-dop853, gcp-rk45): factors 1e-3 and 1e-1 and lower clamps 1e-13 and 1e-11 give
+        the same errors up to the passages' round-off, and so does eps / s_f as the lower
+        clamp, except that a change of its last bits moves stages next to the point and
+        can take projection-dop853 at rtol 1e-10 under OpenBLAS Haswell from 2.6e-11 to
+        2.8e-9 m (docs/benchmarks.md): the values are kept as they were measured.
+    kept_residual: a Newton that stops moving above its tolerance (gcp's projected
+        Hermite fallback) is kept where its residual max |Phi| is within 1e2 newton_tol,
+        i.e. atol within [1e-10, 1e-7] (m): one absolute tolerance, what the error test
+        cannot tell from zero.  The index-1 projection's own rule is :meth:`projection_kept`.
     newton_iter: the completion's most Newton iterations: quadratic convergence doubles the
         correct digits per iteration, from one (a start within the local error) to the 16
         of a double in ceil(log2(-log10 eps)) = 4; twice that for a start outside the
@@ -144,6 +181,7 @@ class Policy:
     cut: float
     branch_jump: float
     newton_tol: float
+    kept_residual: float
     newton_iter: int
     rank_lost: float
 
@@ -152,27 +190,48 @@ class Policy:
         """(eps / rtol)^(1/3): the s below which three solves' round-off exceeds rtol."""
         return (EPS / rtol) ** (1.0 / 3.0)
 
+    @staticmethod
+    def index1_law(rtol, k):
+        """max(s_f, sqrt(eps rtol^-(1 - 1/k))): the s at which the Schur path's round-off
+        eps s^-2 moves an index-1 step's qd by one tolerance, the lower limit of the
+        index-1 switch (class doc, ``tangent``; not the switch itself); k: the error
+        exponent's -1/k."""
+        return max(float(np.sqrt(SCHUR_PIVOT_FLOOR)),
+                   float(np.sqrt(EPS * rtol ** -(1.0 - 1.0 / k))))
+
     @classmethod
     def for_run(cls, family, rtol, atol, fixed, tangent=True, *, exponent, n):
         """The policy of a run: family 'gcp' | 'index-1'; fixed: a fixed-step run;
         tangent: False takes no tangent coordinates (index-1 option ``tangent_steps``);
         exponent: the integrator's error exponent -1/k (0: no error estimate); n: nq."""
+        k = -1.0 / exponent if exponent and not fixed else 0.0
+        newton_tol = 1e-12 if fixed else min(1e-9, max(1e-12, 1e-2 * atol))
         if fixed:
             s = cls.law(DEFAULT_RTOL)
         elif family == "gcp":
             s = cls.law(rtol)
         else:
             s = max(float(np.sqrt(SCHUR_PIVOT_FLOOR)), float(cls.law(rtol) ** 2))
-        k = -1.0 / exponent if exponent and not fixed else 0.0
         return cls(
             tangent=s if tangent else 0.0,
             noise_s=cls.law(1.0),
             noise_err=SAFETY ** k if k else 1.0,
             cut=(EPS / rtol) ** (1.0 / k) if k else 1.0,
             branch_jump=cls.jump(s, rtol),
-            newton_tol=1e-12 if fixed else min(1e-9, max(1e-12, 1e-2 * atol)),
+            newton_tol=newton_tol,
+            kept_residual=1e2 * newton_tol,
             newton_iter=2 * int(np.ceil(np.log2(-np.log10(EPS)))),
             rank_lost=n * EPS)
+
+    @staticmethod
+    def projection_kept(proj_tol):
+        """The residual max |Phi| (m) up to which an index-1 projection with tolerance
+        proj_tol that stops moving is kept (Index1._project; mbsim/fast/stepper.py's
+        proj_fail repeats it for the compiled step): 1e3 proj_tol, at least 1e-11.  With
+        the default proj_tol = 1e-3 atol within [1e-14, 1e-10] this is atol within
+        [1e-11, 1e-7]: one absolute tolerance, as ``kept_residual``; the 1e-11 is 1e3 x
+        that default's floor, and matters only for a projection_tol option below it."""
+        return max(1e3 * proj_tol, 1e-11)
 
     @staticmethod
     def jump(s, rtol):

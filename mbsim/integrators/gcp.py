@@ -395,7 +395,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
                 # the step: fifth order), projected onto the constraints, at this output only
                 s = self.system
                 q, ok, _, res = s.project_positions(hermite5(t), t, tol=self.newton_tol)
-                if not ok and res > 1e2 * self.newton_tol:
+                if not ok and res > self.policy.kept_residual:
                     raise
                 x = (t - prev[0]) / (cur[0] - prev[0])
                 return q, s.project_velocities(q, hermite5(t, 1), t), (1 - x) * w0 + x * w1

@@ -430,7 +430,7 @@ class Index1(RungeKuttaIntegrator):
         smaller."""
         s = self.system
         q, ok, its, res = s.project_positions(q, t, tol=self.proj_tol)
-        if not ok and res > max(1e3 * self.proj_tol, 1e-11):
+        if not ok and res > cp.Policy.projection_kept(self.proj_tol):
             raise StageFailure(f"projection onto the constraints did not converge at "
                                f"t = {t:.6g} s (max |Phi| = {res:.3g})")
         return q, s.project_velocities(q, qd, t)
