@@ -16,7 +16,7 @@ constant compiled model and per-call data (MuJoCo's ``mjModel``/``mjData``; Pino
     core.project_positions(model, data, q, t)    # the one Newton correction onto Phi = 0
     core.kinematic_state(model, data, q, t)      # q, qd, qdd of a DOF-0 system at t
 
-The equations (Haug 1989, Ch. 9 and eq. 11.1.x) are evaluated in C (mbsim/fast/kernels.c,
+The equations (Haug 1989, Chs. 9 and 11) are evaluated in C (mbsim/fast/kernels.c,
 through :class:`mbsim.fast.System`); the numpy statement of the same equations lives under
 tests/reference/ and exists only so the tests can compare the two to round-off.
 
@@ -168,7 +168,7 @@ def _data(model, data) -> Data:
     return make_data(model) if data is None else data
 
 
-# -- constraint terms (Haug eqs. 9.1.x) -----------------------------------------------------
+# -- constraint terms (Haug Ch. 9) -----------------------------------------------------
 def constraints(model, data, q, t=0.0, qd=None, phi=True, jac=True, gamma=False, nu=False,
                 sparse=False) -> Terms:
     """Phi, Phi_q, nu and gamma on ``data.rows`` at (q, qd, t), only the parts asked for.
@@ -220,7 +220,7 @@ def gamma(model, data, q, qd, t=0.0) -> np.ndarray:
     return constraints(model, data, q, t, qd=qd, phi=False, jac=False, gamma=True).gamma
 
 
-# -- masses, forces, energy (Haug eq. 11.1.x) -----------------------------------------------
+# -- masses, forces, energy (Haug Ch. 11) -----------------------------------------------
 def mass_blocks(model, data, q) -> np.ndarray:
     """(nb, 7, 7) diagonal blocks of M = diag(m I, 4 G^T J' G)."""
     return _data(model, data).system.mass_blocks(q)
@@ -252,7 +252,7 @@ def generalized_forces(model, data, q, qd, t=0.0) -> np.ndarray:
 
 
 def energy(model, data, q, qd=None):
-    """(kinetic, potential) energy at (q, qd) (Haug eq. 11.x): T = sum 1/2 m |rd|^2 +
+    """(kinetic, potential) energy at (q, qd) (Haug Ch. 11): T = sum 1/2 m |rd|^2 +
     1/2 w'^T J' w', V = -sum m g.r plus the force elements' potentials; kinetic is None
     without qd."""
     st = State(model, q, qd)
@@ -275,7 +275,7 @@ def potential_energy(model, data, q) -> float:
 
 # -- the equations of motion ----------------------------------------------------------------
 def accelerations(model, data, q, qd, t=0.0):
-    """(qdd (nq,), lam (m,)): the one solve of the equations of motion (Haug eq. 11.1.x)
+    """(qdd (nq,), lam (m,)): the one solve of the equations of motion (Haug Ch. 11)
 
         [M  Phi_q^T] [qdd]   [Q    ]
         [Phi_q    0] [lam] = [gamma]
@@ -305,7 +305,7 @@ def project_positions(model, data, q, t=0.0, tol=1e-12, max_iter=10):
 def kinematic_state(model, data, q, t, tol=1e-10, max_iter=25, cond=False):
     """One output of a kinematic analysis (DOF 0: ``data.rows`` square) in one C call:
     Newton from the predictor q (nq,) onto Phi(q, t) = 0, then Phi_q qd = nu and
-    Phi_q qdd = gamma on one LU of Phi_q (Haug Sec. 10.x).
+    Phi_q qdd = gamma on one LU of Phi_q (Haug Ch. 10).
 
     Returns (status, q, qd, qdd, info): status 0 ok, 2 singular Phi_q (a zero pivot), 3 no
     convergence in max_iter steps; info (4,) = Newton iterations, max |Phi| on the rows,

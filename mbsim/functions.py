@@ -1,5 +1,5 @@
 """Scalar functions of time for drivers and time-varying loads, with exact first and second
-derivatives (drivers need f, f' and f'' for Phi, nu and gamma; Haug eqs. 9.5.x)."""
+derivatives (drivers need f, f' and f'' for Phi, nu and gamma; Haug Ch. 9)."""
 
 from __future__ import annotations
 

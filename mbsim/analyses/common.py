@@ -388,7 +388,7 @@ class Recorder:
 
 
 def kinetic_energies(model, kin) -> np.ndarray:
-    """(nt,) T = sum 1/2 m |rd|^2 + 1/2 w'^T J' w' (Haug eq. 11.x), from batched kinematics."""
+    """(nt,) T = sum 1/2 m |rd|^2 + 1/2 w'^T J' w' (Haug Ch. 11), from batched kinematics."""
     wl = kin["omega_local"]
     rot = np.einsum("tbi,bij,tbj->t", wl, model.J_local, wl)
     return 0.5 * np.einsum("b,tbi,tbi->t", model.mass, kin["rd"], kin["rd"]) + 0.5 * rot

@@ -5,7 +5,7 @@ Methods (``METHODS``, option ``method``):
 ``minimum`` (default)
     Minimum of the total potential energy V (gravity + springs + constant forces) on the
     constraint manifold, from the deck's estimates (or ``options['q0']``).  The stationarity
-    (KKT) conditions are Q(q) - Phi_q^T lam = 0, Phi(q) = 0 (Haug eq. 11.5.x), with Q the
+    (KKT) conditions are Q(q) - Phi_q^T lam = 0, Phi(q) = 0 (Haug Ch. 11), with Q the
     generalized applied force at rest (Q = -dV/dq up to components along p, which the
     normalisation multipliers absorb).  They are solved by a null-space Newton method:
     with N an orthonormal basis of null(Phi_q) (tangent to the manifold; it includes the
@@ -428,7 +428,7 @@ def spin_field(model, q, Omega, c, bodies):
         qd[b, :3] = np.cross(Omega, rho)
         qdd[b, :3] = np.cross(Omega, qd[b, :3])
         wl = st.A[b].T @ Omega
-        pd = 0.5 * st.G[b].T @ wl  # Haug eq. 6.3.x: pd = 1/2 G^T omega'
+        pd = 0.5 * st.G[b].T @ wl  # Haug Ch. 6: pd = 1/2 G^T omega'
         qd[b, 3:] = pd
         qdd[b, 3:] = -(pd @ pd) * Qr[b, 3:]  # omega'd = 0, p^T pdd = -pd^T pd
     return qd.reshape(-1), qdd.reshape(-1)

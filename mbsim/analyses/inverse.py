@@ -5,7 +5,7 @@ checks and failure handling are reused as they are: :func:`mbsim.analyses.kinema
 The equations of motion M qdd + Phi_q^T lam = Q then leave only lam unknown; with DOF = 0
 Phi_q (active rows) is square and nonsingular wherever the kinematics succeeded, so
 
-    Phi_q^T lam = Q - M qdd                                        (Haug eq. 11.6.x)
+    Phi_q^T lam = Q - M qdd                                        (Haug Ch. 11)
 
 is *solved* (LU, the factors of the kinematic Jacobian; not least squares).  From lam:
 
@@ -41,7 +41,7 @@ DEFAULTS = dict(KIN_DEFAULTS)
 def states_from_result(model, res: Result):
     """Rebuild q, qd, qdd (nt, nq) from a result's body channels (exact, no differencing).
 
-    pd = 1/2 G^T omega' and pdd = 1/2 G^T omegad' - |pd|^2 p (Haug eqs. 6.3.18, 6.3.x: the
+    pd = 1/2 G^T omega' and pdd = 1/2 G^T omegad' - |pd|^2 p (Haug eq. 6.3.18 and Ch. 6: the
     inverse of omega' = 2 G pd on p^T pd = 0, and p^T pdd = -pd^T pd).
     """
     nt, nb = len(res.t), model.nb

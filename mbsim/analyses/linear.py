@@ -19,7 +19,7 @@ parameters enter only through rotations) the independent coordinates are the lin
 exact at any distance from q0: q(v) is the point on Phi = 0 with N^T (q - q0) = v (Newton
 along the complement Nc of N), qd(v, vd) solves [Phi_q; N^T] qd = [nu; vd].  The state
 z = (v, vd) obeys zd = F(z) = (vd, N^T qdd(q, qd)) with qdd from the reference KKT solve
-:func:`mbsim.core.accelerations` (Haug eq. 11.1.x); the state matrix
+:func:`mbsim.core.accelerations` (Haug Ch. 11); the state matrix
 
     A = dF/dz = [[0, I], [dvdd/dv, dvdd/dvd]]
 

@@ -5,7 +5,7 @@ Phi_q.  The constraint force on body b from the k rows of one item is the genera
 
     Q^c_b = -Phi_{q_b}^T lam_k        (7,) = [force (3), Euler-parameter part (4)]
 
-(Haug eq. 11.6.x; the equations of motion read M qdd + Phi_q^T lam = Q).  Its parts are
+(Haug Ch. 11; the equations of motion read M qdd + Phi_q^T lam = Q).  Its parts are
 
     F_b     = -Phi_{r_b}^T lam_k                  force at the centroid, global frame
     n'_b    = -1/2 G_b Phi_{p_b}^T lam_k          torque about the centroid, body frame
@@ -96,7 +96,7 @@ def rows_reaction(item, side, b, Jb, lam_k, p_b, s_loc, C, A=None, G=None) -> Re
     body coordinates (C None: the body frame); A (nt, 3, 3), G (nt, 3, 4): A(p_b), G(p_b)
     when the caller has them.  The one formula of the module doc (also the per-step normal
     load of :mod:`mbsim.forces.friction`)."""
-    Qc = -(np.swapaxes(Jb, 1, 2) @ lam_k[:, :, None])[:, :, 0]  # (nt, 7) Haug eq. 11.6.x
+    Qc = -(np.swapaxes(Jb, 1, 2) @ lam_k[:, :, None])[:, :, 0]  # (nt, 7) Haug Ch. 11
     F = Qc[:, :3]
     G = rot_G(p_b) if G is None else G
     A = rot_A(p_b) if A is None else A  # (nt, 3, 3)

@@ -84,7 +84,7 @@ class SphericalSpherical(Joint):
     type, n_eq, needs = "spherical-spherical", 1, ("P", "P")
     rows = (("distance", {"si": "P_i", "sj": "P_j"}),)
     target = "distance"
-    description = "massless link with balls at both ends: |P_j - P_i| = C (Haug eq. 9.4.x)"
+    description = "massless link with balls at both ends: |P_j - P_i| = C (Haug Ch. 9)"
 
 
 class Distance(SphericalSpherical):

@@ -1,7 +1,7 @@
 """The physics in C: constraint terms and equations of motion, for every analysis.
 
-This package is the one implementation of the equations in production (Haug 1989, Ch. 9
-and eq. 11.1.x): every analysis (assembly, kinematic, inverse, equilibrium, linear,
+This package is the one implementation of the equations in production (Haug 1989, Chs. 9
+and 11): every analysis (assembly, kinematic, inverse, equilibrium, linear,
 dynamic, initial conditions, reactions, diagnosis) reaches it through the free functions of
 :mod:`mbsim.core`, the integrators through :class:`System`.  mbsim/fast/kernels.c holds
 every basic kernel (dot1, dot2, spherical, distance, angle, absolute, ground,

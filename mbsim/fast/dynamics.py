@@ -1,6 +1,6 @@
 """System(model, rows): the constrained equations of motion the integrators call.
 
-Equations of motion (Haug eq. 11.1.x, Euler-parameter form):
+Equations of motion (Haug Ch. 11, Euler-parameter form):
 
     M(q) qdd + Phi_q^T lam = Q(q, qd, t),    Phi_q qdd = gamma(q, qd, t)
 
@@ -217,13 +217,13 @@ class System:
         return Q, self._F.copy(), self._n + gyro
 
     def mass_blocks(self, q) -> np.ndarray:
-        """(nb, 7, 7) diagonal blocks of M = diag(m I, 4 G^T J' G) (Haug eq. 11.1.x)."""
+        """(nb, 7, 7) diagonal blocks of M = diag(m I, 4 G^T J' G) (Haug Ch. 11)."""
         self.fc.vector(q, "q", self.fc._q)
         self._mass(self.c.ptr)
         return self._Mb.copy()
 
     def mass_matrix(self, q) -> np.ndarray:
-        """M (nq, nq) = diag(m I, 4 G^T J' G) (Haug eq. 11.1.x)."""
+        """M (nq, nq) = diag(m I, 4 G^T J' G) (Haug Ch. 11)."""
         Mb = self.mass_blocks(q)
         M = np.zeros((self.nq, self.nq))
         for b in range(self.nb):
@@ -412,7 +412,7 @@ class System:
         return float(np.abs(ph).max(initial=0.0)), float(np.abs(v).max(initial=0.0))
 
     def energy(self, q, qd):
-        """(T, V): kinetic and potential energy (Haug eq. 11.x)."""
+        """(T, V): kinetic and potential energy (Haug Ch. 11)."""
         return core.energy(self.model, None, q, qd)
 
 
@@ -545,7 +545,7 @@ def schur_structure(rb, rows, nb, ci=None, held=()):
 
     held: bodies fixed by their own rows (:func:`held_bodies`).  A held body b has qdd_b = 0,
     so the other rows' entries in its columns change neither their S nor the moving bodies'
-    accelerations: only its own rows' multipliers carry them (Haug eq. 11.1.x, body b's
+    accelerations: only its own rows' multipliers carry them (Haug Ch. 11, body b's
     block: Phi_b^T lam_b = Qt_b - sum over the other rows u of Phi_ub^T lam_u).  Such an
     incidence is kept with column offset + CROSS (kernels.c: no Mt^-1 product, no entry of
     S; ``fixed_body_multipliers`` adds its reaction to the own rows' multipliers).  A

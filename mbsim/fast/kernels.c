@@ -136,7 +136,7 @@ static void k_dot1(const vec_t *v, double *phi, double *J, double *gamma, int ja
                      2.0 * dot3(v[0].vel, v[1].vel));
 }
 
-/* d = r_j + A_j s_j - r_i - A_i s_i and its rate (Haug eq. 9.2.x). */
+/* d = r_j + A_j s_j - r_i - A_i s_i and its rate (Haug Ch. 9). */
 static void point_diff(const double *q, const double *qd, idx bi, idx bj, const vec_t *v,
                        int gam, double *d, double *dd)
 {
@@ -522,7 +522,7 @@ static void el_tsda(const double *q, const double *qd, const double *A, const do
     cross_add(e + 3, x, n + 3 * b2, -1.0);
 }
 
-/* Q (nq,) = [F, 2 G^T (n' - w' x J' w')] per body (Haug eq. 11.1.x, Euler-parameter form):
+/* Q (nq,) = [F, 2 G^T (n' - w' x J' w')] per body (Haug Ch. 11, Euler-parameter form):
  * gravity, the compiled elements (EL_*), the Python elements' loads (2, nb, 3: F and n') and
  * the gyroscopic term. */
 void mb_applied_forces(const mb_model *M)
@@ -589,7 +589,7 @@ void mb_applied_forces(const mb_model *M)
     }
 }
 
-/* Mb (nb, 7, 7) = diag(m I, 4 G^T J' G) (Haug eq. 11.1.x), into M->Mb. */
+/* Mb (nb, 7, 7) = diag(m I, 4 G^T J' G) (Haug Ch. 11), into M->Mb. */
 void mb_mass_blocks(const mb_model *M)
 {
     double G[3][4];
@@ -1015,8 +1015,8 @@ static void dense_lu_solve(const double *LU, const idx *piv, idx n, double *x, i
     }
 }
 
-/* [M, Phi_q^T; Phi_q, 0] [qdd; lam] = [Q; g] by dense LU with partial pivoting (Haug eq.
- * 11.1.x): for models where some J' is singular (no exact Mt^-1).  Returns STATUS_SINGULAR
+/* [M, Phi_q^T; Phi_q, 0] [qdd; lam] = [Q; g] by dense LU with partial pivoting (Haug
+ * Ch. 11): for models where some J' is singular (no exact Mt^-1).  Returns STATUS_SINGULAR
  * on an exactly zero pivot (as LAPACK's dgesv). */
 static int solve_kkt(const mb_model *M, const double *Jc)
 {
@@ -1212,8 +1212,8 @@ static double lanczos_max(const double *J, const double *LU, const idx *piv, idx
     return ritz;
 }
 
-/* One output of a kinematic analysis (DOF 0: the rows `rows` square, ma == nq), Haug Sec.
- * 10.x: Newton from the predictor M->q onto Phi(q, t) = 0 on `rows` until max |Phi| <= tol
+/* One output of a kinematic analysis (DOF 0: the rows `rows` square, ma == nq), Haug Ch.
+ * 10: Newton from the predictor M->q onto Phi(q, t) = 0 on `rows` until max |Phi| <= tol
  * (at most max_iter steps, dense LU of Phi_q each), then qd from Phi_q qd = nu into M->qd
  * and qdd from Phi_q qdd = gamma into M->qdd on the LU of Phi_q at the solution.  The time
  * targets M->tv are the caller's.  work: 3 nq^2 + 4 nq doubles; piv: nq.  info[0] = Newton

@@ -117,7 +117,9 @@ class CompiledStep:
         r.alpha, r.beta = stab if stab is not None else (0.0, 0.0)
         r.rtol, r.atol = rtol, atol
         r.proj_tol = proj_tol
-        r.proj_fail = max(1e3 * proj_tol, 1e-11)  # Index1._project's failure rule
+        from mbsim.integrators.changepoints import Policy  # scipy: imported where a run is
+
+        r.proj_fail = Policy.projection_kept(proj_tol)  # Index1._project's failure rule
         self._keep = tableau_arrays(tab, err_form)  # the arrays C points into
         for name, a in self._keep.items():
             setattr(r, name, a.ctypes.data)

@@ -10,7 +10,7 @@ Contract of a force type (a class registered in ``FORCES``):
    centroids in body frames.  ``st`` is :class:`mbsim.core.State` (r, p, rd, pd, A,
    omega, omega_local).  A point force F at body point s' contributes F to F[b] and
    s' x (A^T F) to n_local[b]; the equations turn these into Q_r = F and Q_p = 2 G^T n'
-   (Haug eq. 11.1.x).
+   (Haug Ch. 11).
 4. ``potential(st) -> float``: stored energy of the conservative part (0 if none), for the
    energy monitor and minimum-potential-energy equilibrium.
 5. ``channels(st, t) -> dict[name, (value, unit)]``: optional outputs (length, force, ...).

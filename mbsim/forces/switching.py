@@ -241,7 +241,7 @@ class SwitchingLaw:
         return J
 
     def rate(self, ctx, qdd) -> float:
-        """dm/dt at ctx with the accelerations qdd (nq,) (Haug eq. 6.3.x: d(2 G pd)/dt =
+        """dm/dt at ctx with the accelerations qdd (nq,) (Haug Ch. 6: d(2 G pd)/dt =
         2 G pdd, since G' pd = 0)."""
         m, st = self.measure, ctx.state
         sa = core.State(ctx.model, ctx.q, qdd)  # rd -> rdd, omega_local -> omega_local'

@@ -226,8 +226,8 @@ class Policy:
     @staticmethod
     def projection_kept(proj_tol):
         """The residual max |Phi| (m) up to which an index-1 projection with tolerance
-        proj_tol that stops moving is kept (Index1._project; mbsim/fast/stepper.py's
-        proj_fail repeats it for the compiled step): 1e3 proj_tol, at least 1e-11.  With
+        proj_tol that stops moving is kept (Index1._project, and the compiled step through
+        mbsim/fast/stepper.py's proj_fail): 1e3 proj_tol, at least 1e-11.  With
         the default proj_tol = 1e-3 atol within [1e-14, 1e-10] this is atol within
         [1e-11, 1e-7]: one absolute tolerance, as ``kept_residual``; the 1e-11 is 1e3 x
         that default's floor, and matters only for a projection_tol option below it."""

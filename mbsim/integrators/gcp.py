@@ -20,7 +20,7 @@ ball that both follow the spin, and DOP853 then rejects half its steps; the null
 choice picks the spindle's spin parameter and a ball's swing parameter.
 
 Re-partitioning.  The sensitivity s = max |Phi_u^-1 Phi_v| (how far u moves per unit of v;
-Haug eq. 11.4.x, du = -Phi_u^-1 Phi_v dv) is checked after every accepted step; past
+Haug Sec. 11.4, du = -Phi_u^-1 Phi_v dv) is checked after every accepted step; past
 ``repartition_ratio`` times max(1, s at the last partition) the coordinates are chosen
 again at the current state.  (The condition number of Phi_u alone misses the classic case:
 for a free body Phi_u = 2 e0 is 1 x 1 with condition 1 while e0 -> 0.)  A failed stage also

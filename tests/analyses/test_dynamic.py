@@ -36,7 +36,7 @@ def test_channels_monitors_and_counters(crank):
         assert res.channel(f"monitors/{name}").data.shape == (11,)
     lam = res.channel("constraints/lam")
     assert lam.data.shape == (11, model.m) and lam.components == model.row_label
-    # multipliers at t0 are those of the KKT solve (Haug eq. 11.1.x)
+    # multipliers at t0 are those of the KKT solve (Haug Ch. 11)
     assert np.allclose(lam.data[0], eq.accelerations(model, q, qd)[1], atol=1e-8)
     for key in (
         "steps",

@@ -66,7 +66,7 @@ def test_assembly_from_perturbed_estimates_returns_to_table(seed):
             axis[1] = 0.0  # a tilt, keeping e2 (spin) as given
         dp = from_axis_angle(axis, np.deg2rad(rng.uniform(2.5, 5.0)))
         p = q[b, 3:]
-        # quaternion product dp * p (Haug eq. 6.3.x): rotate the estimate by up to 5 deg
+        # quaternion product dp * p (Haug Ch. 6): rotate the estimate by up to 5 deg
         q[b, 3:] = np.concatenate([[dp[0] * p[0] - dp[1:] @ p[1:]],
                                    dp[0] * p[1:] + p[0] * dp[1:] + np.cross(dp[1:], p[1:])])
         if name in ("spindle",):

@@ -13,7 +13,7 @@ A kernel returns, for its k constraints of ne equations each:
 - ``phi``   (k, ne)      Phi(q) without the time target
 - ``ji``    (k, ne, 7)   d Phi / d [r_i, p_i]
 - ``jj``    (k, ne, 7)   d Phi / d [r_j, p_j]   (None for one-body kernels)
-- ``gamma`` (k, ne)      -(d/dt Phi_q) qd  (Haug eq. 9.1.x), without the target's f''
+- ``gamma`` (k, ne)      -(d/dt Phi_q) qd  (Haug Ch. 9), without the target's f''
 
 Notation: for a body-fixed vector a' on body b, a = A_b a', a_p = B(p_b, a') and
 ad = B(p_b, a') pd_b; ``bdot`` = B(pd_b, a') pd_b is the term that enters gamma.
@@ -46,7 +46,7 @@ class Vec:
 
 
 def _point_diff(st, blk, vel):
-    """d = r_j + A_j s_j - r_i - A_i s_i, with its parts (Haug eq. 9.2.x)."""
+    """d = r_j + A_j s_j - r_i - A_i s_i, with its parts (Haug Ch. 9)."""
     si = Vec(st, blk.bi, blk.vecs["si~T"], vel)
     sj = Vec(st, blk.bj, blk.vecs["sj~T"], vel)
     d = st.r[blk.bj] + sj.val - st.r[blk.bi] - si.val
@@ -120,7 +120,7 @@ def spherical(st, blk, jac=True, gamma=False):
 
 
 def distance(st, blk, jac=True, gamma=False):
-    """Phi = d . d (target C^2; Haug eq. 9.2.9 / 9.4.x spherical-spherical)."""
+    """Phi = d . d (target C^2; Haug eq. 9.2.9, spherical-spherical)."""
     d, dd, si, sj = _point_diff(st, blk, gamma)
     out = {"phi": np.sum(d * d, axis=1)[:, None]}
     if jac:

@@ -4,8 +4,8 @@ Production evaluates the same equations in C through :mod:`mbsim.core`; the test
 the two to round-off (tests/test_kernels.py).
 
 q = [r_1, p_1, ..., r_nb, p_nb] (7 per body); rows in the order of ``model.items``.
-Phi(q, t) = phi(q) - c(t);  Phi_q qd = nu = c'(t);  Phi_q qdd = gamma (Haug eqs. 9.1.x).
-Equations of motion (Haug eq. 11.1.x, Euler-parameter form):
+Phi(q, t) = phi(q) - c(t);  Phi_q qd = nu = c'(t);  Phi_q qdd = gamma (Haug Ch. 9).
+Equations of motion (Haug Ch. 11, Euler-parameter form):
 
     [ M     Phi_q^T ] [qdd]   [Q]          M = diag(m I, 4 G^T J' G)
     [ Phi_q   0     ] [lam] = [gamma]      Q = [F, 2 G^T (n' - w'~ J' w')]
@@ -105,7 +105,7 @@ def gamma(model, q, qd, t=0.0):
 
 
 def mass_matrix(model, q, sparse=False):
-    """M = diag(m_b I3, 4 G_b^T J'_b G_b) (Haug eq. 11.1.x); (nq, nq)."""
+    """M = diag(m_b I3, 4 G_b^T J'_b G_b) (Haug Ch. 11); (nq, nq)."""
     st = State(model, q)
     Mp = 4 * np.einsum("bki,bkl,blj->bij", st.G, model.J_local, st.G)
     blocks = np.zeros((model.nb, 7, 7))
@@ -153,7 +153,7 @@ def kinetic_energy(model, q, qd) -> float:
 
 
 def accelerations(model, q, qd, t=0.0, Q=None, rows=None):
-    """Solve the KKT system for (qdd, lam) (Haug eq. 11.1.x). Dense LU; see the integrators
+    """Solve the KKT system for (qdd, lam) (Haug Ch. 11). Dense LU; see the integrators
     for the sparse path.  ``rows``: the constraint rows to use (e.g. an assembly's
     ``active_rows``, without redundant ones); lam is returned for all rows, 0 for the others."""
     T = constraints(model, q, t, qd=qd, phi=False, gamma=True)
