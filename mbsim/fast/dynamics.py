@@ -16,8 +16,9 @@ With s = p^T p, [G; p^T] [G; p^T]^T = s I, hence the exact block inverse
 
 and lam = (Phi_q Mt^-1 Phi_q^T)^-1 (Phi_q Mt^-1 Qt - gamma), qdd = Mt^-1 (Qt - Phi_q^T lam).
 Only the m x m Schur matrix S is factored, never the (nq + m) KKT matrix: S is assembled
-body by body in the envelope of its reverse Cuthill-McKee ordering and factored by envelope
-Cholesky (George and Liu 1981, Ch. 4), so a chain costs O(m b^2), b its bandwidth.  Models
+body by body in the envelope of its reverse Cuthill-McKee ordering and factored in it as
+L D L^T (George and Liu 1981, Ch. 4: envelope Cholesky without its square roots), so a chain
+costs O(m b^2), b its bandwidth.  Models
 with a singular J' (the four-bar's Izz = 0, Table 12.3.1) have no Mt^-1: their accelerations
 solve the full KKT matrix by dense LU (``self.kkt``) and the projections use the identity
 metric (min-norm corrections).
@@ -141,8 +142,9 @@ class System:
         # the buffers, zeros carved from one allocation (c.zeros); after mb_applied_forces:
         # F (nb, 3) global forces, n (nb, 3) body torques with the gyroscopic term, w (nb, 3)
         # body-frame angular velocities
+        # env (nenv,): the factor L D L^T of S in its envelope, 1 / D_ii on the diagonal
         (self._loads, self._par, self._Jg, self._rhs, self._Q, self._qdd, self._lam, self._dq,
-         self._out, _, _, _, _, _, _, _, _, _, _, _, self._F, self._n, self._w,
+         self._out, _, _, _, _, _, self._env, _, _, _, _, _, self._F, self._n, self._w,
          self._Mb) = c.zeros(
             loads=(2, nb, 3), par=3, Jg=(model.m, 14), rhs=ma, Q=nq, qdd=nq, lam=ma, dq=nq,
             out=2, Qt=nq, g=ma, Mi=(nb, 4, 4), XG=(ninc, 8), JG=(ninc, 8), env=nenv,

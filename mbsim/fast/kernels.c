@@ -690,8 +690,11 @@ static inline double pair_dot(const double *x, const double *y, idx code)
  * Per incidence g = (row u, column offset, body b): JG[g] = the row's 7 entries for b and
  * XG[g] = Mt_b^-1 JG[g] (padded to 8); S[u, v] = sum over shared bodies XG[g_u] . JG[g_v]
  * (pairs), assembled in the envelope of its RCM permutation and overwritten by its
- * Cholesky factor L (George and Liu 1981, Ch. 4: the fill stays in the envelope), the
- * diagonal stored as 1 / L_ii.  out[1] = the smallest ratio pivot / diagonal before any
+ * factor S = L D L^T (L unit lower triangular; George and Liu 1981, Ch. 4: the fill stays
+ * in the envelope), the diagonal stored as 1 / D_ii.  Row i by bordering (Golub & Van Loan
+ * Sec. 4.1): w_ij = S_ij - sum_k w_ik L_jk (w = L D, k < j), then L_ij = w_ij / D_jj and
+ * D_ii = S_ii - sum_k w_ik L_ik: the multiply-adds of Cholesky, without its square roots
+ * on the chain from one row to the next.  out[1] = the smallest ratio pivot / diagonal before any
  * raise (1: none below 1; ~ (sigma_min / sigma)^2 of the scaled rows near a change point).
  * Returns 0 when S is not positive definite. */
 #define PIVOT_FLOOR 1e-8 /* relative: (sigma_min / sigma)^2 below which a pivot is raised */
@@ -724,19 +727,22 @@ static int schur_factor(const mb_model *M, const double *Jc, int unit)
         const idx *pk = pairs + 4 * k;
         env[pk[0]] += pair_dot(XG + 8 * pk[1], JG + 8 * pk[2], own ? pk[3] : -1 - ALL_COLUMNS);
     }
-    double rmin = 1.0;
-    for (idx i = 0; i < ma; i++) { /* envelope Cholesky, row by row (bordering) */
+    double rmin = 1.0, *dinv = M->z; /* 1 / D_kk by position (z: free until the solve) */
+    for (idx i = 0; i < ma; i++) { /* envelope L D L^T, row by row (bordering) */
         idx fi = fc[i], oi = off[i] - fi;
-        for (idx j = fi; j < i; j++) {
+        for (idx j = fi; j < i; j++) { /* w_ij: row i's k < j hold w, row j's L */
             idx fj = fc[j], oj = off[j] - fj;
             double s = env[oi + j];
             for (idx k = fi > fj ? fi : fj; k < j; k++)
                 s -= env[oi + k] * env[oj + k];
-            env[oi + j] = s * env[oj + j];
+            env[oi + j] = s;
         }
         double d0 = env[oi + i], s = d0;
-        for (idx k = fi; k < i; k++)
-            s -= env[oi + k] * env[oi + k];
+        for (idx k = fi; k < i; k++) { /* L_ik = w_ik / D_kk, D_ii -= w_ik L_ik */
+            double l = env[oi + k] * dinv[k];
+            s -= env[oi + k] * l;
+            env[oi + k] = l;
+        }
         if (d0 > 0.0 && s < rmin * d0)
             rmin = s / d0;
         if (!(s > PIVOT_FLOOR * d0)) {
@@ -750,29 +756,30 @@ static int schur_factor(const mb_model *M, const double *Jc, int unit)
                 return 0;
             s = PIVOT_FLOOR * d0;
         }
-        env[oi + i] = 1.0 / sqrt(s);
+        env[oi + i] = dinv[i] = 1.0 / s;
     }
     M->out[1] = rmin;
     return 1;
 }
 
-/* x = S^-1 rhs (both in the active rows' order) with the factor of schur_factor. */
+/* x = S^-1 rhs (both in the active rows' order) with the factor L D L^T of schur_factor. */
 static void schur_solve(const mb_model *M, const double *rhs, double *x)
 {
     idx n = M->ma;
     const idx *order = M->sidx + n, *fc = M->sidx + 2 * n, *off = M->sidx + 3 * n;
     const double *env = M->env;
     double *z = M->z;
-    for (idx i = 0; i < n; i++) { /* L z = P rhs */
+    for (idx i = 0; i < n; i++) { /* L z = P rhs (unit diagonal) */
         idx oi = off[i] - fc[i];
         double s = rhs[order[i]];
         for (idx k = fc[i]; k < i; k++)
             s -= env[oi + k] * z[k];
-        z[i] = s * env[oi + i];
+        z[i] = s;
     }
-    for (idx i = n - 1; i >= 0; i--) { /* L^T x = z, column by column */
+    for (idx i = 0; i < n; i++) /* D y = z */
+        z[i] *= env[off[i] + i - fc[i]];
+    for (idx i = n - 1; i >= 0; i--) { /* L^T x = y, column by column */
         idx oi = off[i] - fc[i];
-        z[i] *= env[oi + i];
         for (idx k = fc[i]; k < i; k++)
             z[k] -= env[oi + k] * z[i];
     }
