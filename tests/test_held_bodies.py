@@ -14,7 +14,9 @@ the matrix factored, at least 1e-10 relative):
 - the projection's correction Mt^-1 Phi_q^T S^-1 rhs for a random rhs: the held body's own
   rows fix its part (they are square on its 7 coordinates), so the least-norm correction
   of the cut structure is the full one;
-- a model where the cut does not halve the envelope (a 16-link chain) keeps RCM's structure.
+- a model where the cut does not halve the envelope (a 16-link chain) keeps RCM's structure;
+  with the cut forced (HELD_GAIN 0: the ground's spherical joint out of S) the chain's
+  accelerations still match the reference, and the plain structure's to round-off.
 """
 
 from __future__ import annotations
@@ -68,3 +70,28 @@ def test_a_chain_keeps_its_structure():
     model = M.chain(40)  # nq = 287: the sparse path; one link on the ground
     system = fast.System(model)
     assert system.sparse and not np.any(system.inc[:, 1] >= CROSS)
+
+
+def test_a_chain_with_the_cut_forced_matches_the_reference(monkeypatch):
+    """The chain's ground (6 ground rows, its normalisation, the first spherical joint's 3
+    entries) cut out of S although it does not pay (HELD_GAIN 0), at a state where the
+    ground moves (qd random on every body): qdd and lam against the dense KKT reference, and
+    against the plain structure, with test_kernels.py's bound."""
+    from mbsim.fast import dynamics
+
+    plain_model, cut_model = M.chain(40), M.chain(40)  # two models: two table caches
+    plain = fast.System(plain_model)
+    monkeypatch.setattr(dynamics, "HELD_GAIN", 0.0)
+    cut = fast.System(cut_model)
+    assert cut.sparse and np.count_nonzero(cut.inc[:, 1] >= CROSS) == 3
+    assert not np.any(plain.inc[:, 1] >= CROSS)
+    q = cut_model.q0 + 1e-6 * rng.normal(size=cut_model.nq)
+    qd = 0.1 * rng.normal(size=cut_model.nq)
+    qdd_ref, lam_ref = eq.accelerations(cut_model, q, qd, 0.1)
+    tol = _solve_tolerance(cut_model, q, 0.1, None, cut)
+    qdd, lam, _ = cut.accelerations(q, qd, 0.1)
+    _close(qdd, qdd_ref, tol)
+    _close(cut.full_lam(lam), lam_ref, tol)
+    qdd_p, lam_p, _ = plain.accelerations(q, qd, 0.1)
+    _close(qdd, qdd_p, tol)
+    _close(lam, lam_p, tol)
