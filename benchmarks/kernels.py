@@ -10,7 +10,7 @@ repeats of the mean time per call (each repeat times a batch of calls) of
 - Phi + Phi_q + gamma (+ nu): the same with qd;
 - accelerations: ``equations.accelerations`` (the numpy reference: dense LU of the KKT
   matrix; skipped above N = 64, where it is seconds per call) vs ``System.accelerations``
-  (the C kernels the integrators use: Schur complement, envelope Cholesky);
+  (the C kernels the integrators use: Schur complement, envelope L D L^T);
 
 both sides return fresh arrays; the Jacobian is CSR from nq >= SPARSE_NQ (250) on both
 sides.  The C path's minimum over the batches is printed too: on a shared machine it is
