@@ -47,6 +47,12 @@ DEPENDENCY_CUT = 1e-8
 that row names (round-off of the least-squares fit of C)."""
 
 
+DEPENDENCY_SPARSE_NQ = 100
+"""Coordinates from which :func:`dependency` solves sparse whatever J's storage (set-up
+passes a dense Phi_q below mbsim.analyses.common.DENSE_NQ): the parallel four-bar's
+dependency took 0.3 / 0.7 / 2 to 100 / 20 to 1000 ms dense against 5 / 2 / 3 / 20 ms sparse
+at nq 42 / 70 / 91 / 301 (CPU, the dense SVD's time scattering with the machine's load)."""
+
 SPARSE_PIVOT_RATIO = float(np.sqrt(np.finfo(float).eps))
 """Smallest pivot of the augmented system's sparse LU, relative to its largest, that
 :func:`dependency` takes; below it the dense SVD decides.  The LU's pivots are no
@@ -70,18 +76,19 @@ class InconsistentConstraintsError(AnalysisError):
 def dependency(J: np.ndarray, red: np.ndarray, act: np.ndarray) -> np.ndarray:
     """C (nred, nact) with J[red] = C J[act] in the least-squares sense (J: Phi_q, (m, nq)).
 
-    Dense J: numpy's lstsq (SVD).  Sparse J (CSR, a large model): :func:`_dependency_sparse`,
-    one sparse LU of the augmented system, where the SVD of the dense (nq, nact) block cost
-    0.96 CPU s on the 40-loop four-bar (nq 301, 300 active and 159 dropped rows) against
-    about 20 ms; the dense SVD stays where the LU's pivots find the active rows near
+    Below DEPENDENCY_SPARSE_NQ coordinates (a dense J): numpy's lstsq (SVD).  From it on, or
+    for a sparse J (CSR): :func:`_dependency_sparse`, one sparse LU of the augmented system,
+    where the SVD of the dense (nq, nact) block cost 0.4-1.0 CPU s on the 40-loop four-bar
+    (nq 301, 300 active and 159 dropped rows; at set-up and again at the end of a run)
+    against about 20 ms; the dense SVD stays where the LU's pivots find the active rows near
     dependent (SPARSE_PIVOT_RATIO)."""
     if red.size == 0:
         return np.zeros((0, act.size))
-    if hasattr(J, "toarray"):
+    if hasattr(J, "toarray") or J.shape[1] >= DEPENDENCY_SPARSE_NQ:
         C = _dependency_sparse(J, red, act)
         if C is not None:
             return C
-        J = J.toarray()
+        J = J.toarray() if hasattr(J, "toarray") else J
     C = np.linalg.lstsq(J[act].T, J[red].T, rcond=None)[0]
     return C.T
 

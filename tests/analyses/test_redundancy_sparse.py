@@ -75,3 +75,19 @@ def test_dependent_active_rows_fall_back_to_the_dense_lstsq(th):
 def test_no_dropped_rows_give_an_empty_dependency():
     J, act, _ = _fourbar(41, None)
     assert redundancy.dependency(J, np.zeros(0, int), act).shape == (0, act.size)
+
+
+def test_a_dense_jacobian_of_many_coordinates_takes_the_sparse_solve(monkeypatch):
+    # set-up passes a dense Phi_q below DENSE_NQ (nq 301 here): from DEPENDENCY_SPARSE_NQ on
+    # it is solved sparse all the same; the sparse J's stored zeros change the LU's order,
+    # so the two agree to round-off
+    J, act, red = _fourbar(41, None)
+    assert J.shape[1] >= redundancy.DEPENDENCY_SPARSE_NQ
+    calls = []
+    sparse = redundancy._dependency_sparse
+    monkeypatch.setattr(redundancy, "_dependency_sparse",
+                        lambda *a: calls.append(1) or sparse(*a))
+    np.testing.assert_allclose(redundancy.dependency(J.toarray(), red, act),
+                               redundancy.dependency(J, red, act), rtol=0, atol=1e-12)
+    assert len(calls) == 2
+
