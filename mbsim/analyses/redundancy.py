@@ -50,8 +50,9 @@ that row names (round-off of the least-squares fit of C)."""
 DEPENDENCY_SPARSE_NQ = 100
 """Coordinates from which :func:`dependency` solves sparse whatever J's storage (set-up
 passes a dense Phi_q below mbsim.analyses.common.DENSE_NQ): the parallel four-bar's
-dependency took 0.3 / 0.7 / 2 to 100 / 20 to 1000 ms dense against 5 / 2 / 3 / 20 ms sparse
-at nq 42 / 70 / 91 / 301 (CPU, the dense SVD's time scattering with the machine's load)."""
+dependency took 0.3 / 0.7 / 99 / 51 to 960 ms dense against 4.8 / 1.8 / 2.7 / 19 ms sparse
+at nq 42 / 70 / 91 / 301 (CPU at load 8-9 on 2 cores; the dense SVD's time scatters with
+the load, the largest figure is a run's end under cProfile)."""
 
 SPARSE_PIVOT_RATIO = float(np.sqrt(np.finfo(float).eps))
 """Smallest pivot of the augmented system's sparse LU, relative to its largest, that
@@ -125,7 +126,7 @@ def _dependency_sparse(J, red, act):
     if d.min(initial=np.inf) <= SPARSE_PIVOT_RATIO * d.max(initial=0.0):
         return None
     x = lu.solve(rhs)
-    for _ in range(2):  # iterative refinement: the LU alone loses u cond^2 (module doc)
+    for _ in range(2):  # iterative refinement: the LU alone loses u cond^2 (docstring)
         x += lu.solve(rhs - K @ x)
     x = x[nq:]
     return x.T if np.all(np.isfinite(x)) else None
