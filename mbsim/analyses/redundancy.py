@@ -47,6 +47,23 @@ DEPENDENCY_CUT = 1e-8
 that row names (round-off of the least-squares fit of C)."""
 
 
+DEPENDENCY_SPARSE_NQ = 100
+"""Coordinates from which :func:`dependency` solves sparse whatever J's storage (set-up
+passes a dense Phi_q below mbsim.analyses.common.DENSE_NQ): the parallel four-bar's
+dependency took 0.3 / 0.7 / 99 / 51 to 960 ms dense against 4.8 / 1.8 / 2.7 / 19 ms sparse
+at nq 42 / 70 / 91 / 301 (CPU at load 8-9 on 2 cores; the dense SVD's time scatters with
+the load, the largest figure is a run's end under cProfile)."""
+
+SPARSE_PIVOT_RATIO = float(np.sqrt(np.finfo(float).eps))
+"""Smallest pivot of the augmented system's sparse LU, relative to its largest, that
+:func:`dependency` takes; below it the dense SVD decides.  The LU's pivots are no
+rank-revealing measure: active rows that depend on each other left 3e-11 to 3e-19 on the
+parallel four-bar (tests/analyses/test_redundancy_sparse.py), independent ones 5e-5 (40
+loops), 9e-5 and 7e-8 with the cranks 1e-3 and 1e-6 rad from flat; sqrt(eps) = 1.5e-8 keeps
+the sparse solve where the rows are well apart from dependent and the SVD's minimum-norm
+answer near dependence."""
+
+
 def position_bound(cnorm, level):
     """(nred,) largest |Phi[red]| that is consistent where the kept rows hold to ``level``
     (cnorm: (nred,) row sums of |C|; POSITION_FACTOR)."""
@@ -58,13 +75,61 @@ class InconsistentConstraintsError(AnalysisError):
 
 
 def dependency(J: np.ndarray, red: np.ndarray, act: np.ndarray) -> np.ndarray:
-    """C (nred, nact) with J[red] = C J[act] in the least-squares sense (J: Phi_q, (m, nq))."""
+    """C (nred, nact) with J[red] = C J[act] in the least-squares sense (J: Phi_q, (m, nq)).
+
+    Below DEPENDENCY_SPARSE_NQ coordinates (a dense J): numpy's lstsq (SVD).  From it on, or
+    for a sparse J (CSR): :func:`_dependency_sparse`, one sparse LU of the augmented system,
+    where the SVD of the dense (nq, nact) block cost 0.4-1.0 CPU s on the 40-loop four-bar
+    (nq 301, 300 active and 159 dropped rows; at set-up and again at the end of a run)
+    against about 20 ms; the dense SVD stays where the LU's pivots find the active rows near
+    dependent (SPARSE_PIVOT_RATIO)."""
     if red.size == 0:
         return np.zeros((0, act.size))
-    if hasattr(J, "toarray"):  # CSR of a large model: the dropped rows' solve is dense
-        J = J.toarray()
+    if hasattr(J, "toarray") or J.shape[1] >= DEPENDENCY_SPARSE_NQ:
+        C = _dependency_sparse(J, red, act)
+        if C is not None:
+            return C
+        J = J.toarray() if hasattr(J, "toarray") else J
     C = np.linalg.lstsq(J[act].T, J[red].T, rcond=None)[0]
     return C.T
+
+
+def _dependency_sparse(J, red, act):
+    """C (nred, nact) as :func:`dependency` for a sparse J, or None where the active rows are
+    (numerically) dependent.  The least-squares problem min |A x - b| with A = J[act]^T
+    (nq, nact), b = J[red]^T is the augmented system (Bjorck, Numerical Methods for Least
+    Squares Problems, 1996, Sec. 2.5.3)
+
+        [ a I   A ] [ r / a ]   [ b ]
+        [ A^T   0 ] [   x   ] = [ 0 ]
+
+    solved by one sparse LU for all nred right-hand sides, a = max |J|.  The LU alone
+    leaves an error ~ u cond(J[act])^2 in x where a is far from sigma_min (1e-3 against the
+    SVD at cond 3e6, the parallel four-bar 1e-5 rad from flat); two steps of iterative
+    refinement with the same LU bring it to u cond (7e-11 there, 5e-13 on 40 loops at cond
+    8e3; tests/analyses/test_redundancy_sparse.py)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    J = sp.csr_matrix(J)
+    A = J[act].T.tocsc()
+    nq, na = A.shape
+    a = float(np.abs(J.data).max(initial=0.0)) or 1.0
+    K = sp.bmat([[a * sp.identity(nq, format="csc"), A], [A.T, None]], format="csc")
+    rhs = np.zeros((nq + na, red.size))
+    rhs[:nq] = J[red].T.toarray()
+    try:
+        lu = spla.splu(K)
+    except RuntimeError:  # exactly singular: the active rows depend on each other
+        return None
+    d = np.abs(lu.U.diagonal())
+    if d.min(initial=np.inf) <= SPARSE_PIVOT_RATIO * d.max(initial=0.0):
+        return None
+    x = lu.solve(rhs)
+    for _ in range(2):  # iterative refinement: the LU alone loses u cond^2 (docstring)
+        x += lu.solve(rhs - K @ x)
+    x = x[nq:]
+    return x.T if np.all(np.isfinite(x)) else None
 
 
 def conflict_items(model, C, red, act, k) -> list[str]:
