@@ -33,6 +33,8 @@ from mbsim import core
 from mbsim.analyses import redundancy
 from mbsim.analyses.assembly import assemble
 from mbsim.analyses.common import DENSE_NQ
+from mbsim.errors import AnalysisError
+from mbsim.fast import SolveError
 from mbsim.rotations import A as rot_A
 from mbsim.rotations import E as rot_E
 from mbsim.rotations import G as rot_G
@@ -228,6 +230,21 @@ def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10, hold=None)
         # over-determines the mechanism holds at the assembled position only)
         T = core.constraints(model, None, q, t0, qd=qd, phi=False, gamma=True, nu=True)
         redundancy.check(model, T.jac, asm.redundant_rows, active, t0, qd=qd, nu=T.nu,
-                         qdd=qdd, gamma=T.gamma, start=True)
+                         qdd=qdd, gamma=T.gamma, qdd_terms=_acceleration_terms(
+                             model, q, qd, t0, qdd), start=True)
     return q, qd, qdd, lam, info
+
+
+def _acceleration_terms(model, q, qd, t, qdd):
+    """(nq,) the size of the two terms whose sum is qdd: the accelerations the applied
+    forces give the bodies held by nothing but their Euler-parameter normalisation, and the
+    constraint forces' share, qdd less those.  A mechanism at rest under load (hanging at
+    equilibrium) has qdd = 0 from terms of the size of g, and the dropped rows carry their
+    round-off; None where that solve is not possible (the check then uses qdd alone)."""
+    free = [r for it in model.items if it.kind == "normalization" for r in it.rows]
+    try:
+        a_free, _ = core.accelerations(model, core.make_data(model, np.sort(free)), q, qd, t)
+    except (AnalysisError, SolveError):  # a scale only: the check stands without it
+        return None
+    return np.abs(a_free) + np.abs(qdd - a_free)
 

@@ -166,11 +166,14 @@ def conflict_message(model, items, level, residual, scale=None) -> str:
 
 
 def check(model, J, red, act, t, *, phi=None, tol=1e-10, qd=None, nu=None, qdd=None,
-          gamma=None, start=True):
+          gamma=None, qdd_terms=None, start=True):
     """Raise if the dropped rows ``red`` do not hold at the levels given.
 
     J: (m, nq) Phi_q at q over all rows; phi: (m,) Phi(q, t); qd, nu: velocity level (nu over
-    all rows); qdd, gamma: acceleration level (gamma over all rows).  ``start``: a conflict is
+    all rows); qdd, gamma: acceleration level (gamma over all rows); qdd_terms: (nq,) the
+    size of the terms qdd is the sum of (applied and constraint forces' accelerations), which
+    sets the acceleration level's scale where qdd itself is small (at rest under load: qdd =
+    0, its round-off that of the terms).  ``start``: a conflict is
     the deck's structure (ModelError) when True, a failure along the motion at t
     (InconsistentConstraintsError) when False.
     """
@@ -182,13 +185,15 @@ def check(model, J, red, act, t, *, phi=None, tol=1e-10, qd=None, nu=None, qdd=N
     levels = []
     if phi is not None:
         levels.append(("position", np.abs(phi[red]), position_bound(cnorm, tol), None))
-    for name, x, rhs in (("velocity", qd, nu), ("acceleration", qdd, gamma)):
+    for name, x, rhs, terms in (("velocity", qd, nu, None), ("acceleration", qdd, gamma,
+                                                             qdd_terms)):
         if x is None or rhs is None:
             continue
         r = np.abs(J[red] @ x - rhs[red])
         # the size of the terms of every row: a dropped row whose own terms vanish (its
         # direction at rest) still carries the others' round-off
-        scale = np.full(red.size, max(float(np.max(np.abs(J) @ np.abs(x) + np.abs(rhs),
+        size = np.abs(x) if terms is None else np.maximum(np.abs(x), terms)
+        scale = np.full(red.size, max(float(np.max(np.abs(J) @ size + np.abs(rhs),
                                                       initial=0.0)), 1e-300))
         levels.append((name, r, CONSISTENT_REL * (1.0 + cnorm) * scale, scale))
     for level, r, bound, scale in levels:

@@ -165,3 +165,22 @@ def test_a_row_dropped_with_no_row_left_names_its_own_item():
     red, act = np.arange(model.m), np.zeros(0, int)
     C = np.zeros((model.m, 0))
     assert redundancy.conflict_items(model, C, red, act, 0) == model.items_of_rows([0])
+
+
+@pytest.mark.parametrize("cranks", [4, 41])
+def test_redundant_loops_hanging_at_rest_start_without_a_conflict(cranks):
+    """Parallel cranks on one coupler hanging at rest (the flat-free equilibrium theta =
+    -pi/2, qd = 0): the dropped rows are consistent, so the initial state is found, with
+    qdd = 0 up to the round-off of terms of the size of g (eps g cond(Phi_q): 2.2e-16 x
+    9.81 x ~1e3 ~ 2e-12 m/s^2; bound 1e-9).  At rest qdd itself is that round-off, so the
+    acceleration check's scale must be the size of the terms (gravity against the
+    constraint forces), not |qdd| (which once refused this mechanism as conflicting)."""
+    from mbsim.analyses.initial import initial_state
+    from tests.integrators import models as M
+
+    model = M.parallel_fourbar(cranks)
+    q, qd, qdd, lam, info = initial_state(model)
+    assert np.abs(qd).max() == 0.0
+    assert np.abs(qdd).max() <= 1e-9
+    assert np.abs(lam).max() > 1.0  # the constraint forces carry the weight
+
