@@ -211,7 +211,7 @@ class Policy:
         elif family == "gcp":
             s = cls.law(rtol)
         else:
-            s = max(float(np.sqrt(SCHUR_PIVOT_FLOOR)), float(cls.law(rtol) ** 2))
+            s = cls.index1_law(rtol, k) if k else float(np.sqrt(SCHUR_PIVOT_FLOOR))
         return cls(
             tangent=s if tangent else 0.0,
             noise_s=cls.law(1.0),
