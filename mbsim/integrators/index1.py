@@ -34,7 +34,11 @@ a passage's steps are cut below ``Policy.cut`` x its first tangent step (an embe
 estimate of truncation error falls like h^k: what still cuts the step is the round-off;
 :meth:`Index1._error_norm`); and where the motion dwells next to the point without crossing
 it, the error test takes off what the stages' round-off alone makes, probed by two
-completions from q perturbed by ROUNDOFF_ULPS ulps (:meth:`Index1._stage_noise`).  A motion
+completions from q perturbed by ROUNDOFF_ULPS ulps (:meth:`Index1._stage_noise`).  What the
+estimate cannot see, it is given: the stages of a step next to the point share their
+round-off, which cancels in the embedded estimate's difference of two solutions but not in
+the step, so the error norm adds a bound of what that round-off makes in the step, probed at
+its stage nearest the point (:meth:`Index1._stage_roundoff_norm`).  A motion
 that approaches the point slowly is given a step across it that keeps its stages clear of
 it (:class:`changepoints.Approach`; counter ``straddle_steps``).
 
@@ -101,6 +105,7 @@ class Index1(RungeKuttaIntegrator):
         self._in_trial = False
         self._trial_s = np.inf
         self._stages_s = []  # (s, t, y) of the trial's stages, its start first (_trial)
+        self._s_start = 1.0  # s at the step's start (_step_impl)
         # the approach to a change point and the step across it (changepoints.Approach)
         self.counters["straddle_steps"] = 0
         self._approach = None
@@ -195,7 +200,8 @@ class Index1(RungeKuttaIntegrator):
         to that much.  The policy's two round-off rules (module doc): the noise of (v, vd)
         probed and taken off (:meth:`_stage_noise`) where the norm exceeds ``noise_err``
         and no stage came below ``noise_s``; the q part left out once the passage's steps
-        are cut below ``cut`` x its first tangent step."""
+        are cut below ``cut`` x its first tangent step.  The error the stages' common
+        round-off makes in the step itself is added (:meth:`_stage_roundoff_norm`)."""
         if not self._tangent:
             return super()._error_norm(h, y_new)
         n, C = self.n, self._C
@@ -243,13 +249,13 @@ class Index1(RungeKuttaIntegrator):
         s, t, y = zip(*self._stages_s[:ns])
         s = np.asarray(s)
         i = int(np.argmin(s))
+        if not s[i] < s[0]:
+            return 0.0
         noise = self._stage_noise(t[i], y[i])
         if noise is None:
             return 0.0
         n_vdd = noise[self._C.shape[0]:]
-        w = np.ones(s.size)
-        far = s > s[i]
-        w[far] = (s[i] / s[far]) ** 3
+        w = np.maximum((s[i] / np.maximum(s, s[i])) ** 3 - (s[i] / s[0]) ** 3, 0.0)
         bA = np.zeros(ns)
         bA[:tab.A.shape[1]] = tab.B @ tab.A
         r_vd = h * (np.abs(tab.B[:w.size]) @ w) * n_vdd
@@ -422,7 +428,7 @@ class Index1(RungeKuttaIntegrator):
     def _trial(self, h):
         self._in_trial = True
         self._trial_s = np.inf  # the smallest measure of the trial's stages
-        self._stages_s = [(self._s, self.t, self.y)]  # (s, t, y) of each stage (_rhs)
+        self._stages_s = [(self._s_start, self.t, self.y)]  # (s, t, y) of each stage (_rhs)
         try:
             return super()._trial(h)
         finally:
@@ -450,6 +456,7 @@ class Index1(RungeKuttaIntegrator):
             # belongs to another configuration: a new one is taken where it is needed
             self._C = None
         self._step_start = (self.t, self.q)
+        self._s_start = self._s  # (from f at the step's start; a rejected trial moves _s)
         self._step_tangent = False  # (the last step's dense output has been taken)
         approach = self._approach if self.policy.tangent > 0.0 else None
         h = approach.step(self.h_abs) if approach else None
