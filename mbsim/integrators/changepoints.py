@@ -76,34 +76,42 @@ class Policy:
           A = [Phi_q; C] whose smallest singular value goes as s, as gcp's three solves do:
           e_T = eps s^-3.  (Measured on the four cranks against the exact accelerations,
           from q perturbed by 4 ulps, s from 4e-5 to 4e-2: e_S = 0.2-1.9 eps s^-2 and e_T =
-          0.04-0.6 eps s^-3 under the default and the Prescott OpenBLAS kernels alike;
-          tests/integrators/test_policy.py.)  So the Schur path is the more accurate
-          wherever it solves the equations, i.e. above s_f = sqrt(SCHUR_PIVOT_FLOOR) = 1e-4:
-          below that pivot ratio (~ s^2) the kernels raise the pivot and its accelerations
-          are off by 0.4-0.9 of max |qdd|.  The two paths differ in what their error tests
-          see.  The Schur path's embedded estimate sees its round-off and cuts the steps for
-          it; the tangent step's error norm instead takes the probed round-off off the
-          estimate where it is noise between stages (``noise_err``, index-1
-          ``_stage_noise``) and adds the error that the stages' common round-off makes in
-          the step itself, which the estimate's two solutions share (index-1
-          ``_stage_roundoff_norm``), so that a step with a stage next to the point is
-          retried rather than accepted as if its error were truncation error only.  The
-          switch lies between two limits.  From below, where the Schur path's round-off
-          begins to cut the steps: a relative error e of the stage accelerations moves a
-          step's qd by ~ h e |qdd|, i.e. e h / (rtol T) tolerances (|qd| ~ T |qdd|, T the
-          motion's time scale), with steps h ~ T rtol^(1/k): e_S reaches one tolerance at
-          sqrt(eps rtol^-(1 - 1/k)) (:meth:`index1_law`; DOP853 1.3e-4, 3.5e-4, 9.7e-4 at
-          rtol 1e-9, 1e-10, 1e-11); with s_f alone projection-dop853 at rtol 1e-11 crawls
-          next to the dead centre of tests/integrators/test_changepoints.py.  From above,
-          where tangent steps still go wrong with that term counted: the shaken four
-          cranks of tests/integrators/test_index1_tangent.py::test_rheonomic_linkage at
-          rtol 1e-10 under OpenBLAS Haswell, 2.5e-8 m (bound 2e-9 m) with the switch at
-          index1_law = 3.5e-4 (the one suspect step found: accepted at norm 0.76, its
-          last stage's s 1.9e-5 read before that stage's completion, its completed end
-          at s = 2.4e-2; not explained).  The switch is s_index1 = max(s_f, (eps /
-          rtol)^(2/3)) (1e-4 down to rtol 2.2e-10, 1.7e-4 at 1e-10, 7.9e-4 at 1e-11),
-          which lies between the two limits on every case measured (docs/benchmarks.md):
-          an exponent chosen between a derived and a measured limit, not derived itself.
+          0.04-0.6 eps s^-3 under the default and the Prescott OpenBLAS kernels alike, e_T
+          the same with C taken 0.003, 0.06 or 0.3 rad from the point: it is the chain of
+          solves, not C's reference point; tests/integrators/test_policy.py.)  So the
+          Schur path is the more accurate wherever it solves the equations, i.e. above
+          s_f = sqrt(SCHUR_PIVOT_FLOOR) = 1e-4: below that pivot ratio (~ s^2) the kernels
+          raise the pivot and its accelerations are off by 0.4-0.9 of max |qdd|.  What the
+          tangent coordinates have besides is an error test that takes the probed
+          round-off off (``noise_err``, index-1 ``_stage_noise``); the Schur path's error
+          test sees its round-off and cuts the steps for it.  That gives two limits, and
+          the switch must lie between them:
+          - from below, where the Schur path's round-off begins to cut the steps: a
+            relative error e of the stage accelerations moves a step's qd by ~ h e |qdd|,
+            i.e. e h / (rtol T) tolerances (|qd| ~ T |qdd|), with steps h ~ T rtol^(1/k):
+            e_S reaches one tolerance at s = sqrt(eps rtol^-(1 - 1/k)) (:meth:`index1_law`;
+            DOP853 1.3e-4, 3.5e-4, 9.7e-4 at rtol 1e-9, 1e-10, 1e-11).  Measured: with the
+            switch at the floor alone projection-dop853 at rtol 1e-11 crawled at 1.4e-5 s
+            next to the dead centre of tests/integrators/test_changepoints.py and the deck's
+            eleven passages ended 2.98e-8 m off (bound 1.5e-8 m); at 2e-4 both pass.
+          - from above, where tangent steps go wrong: a step retried in tangent coordinates
+            whose stage comes to s ~ 5e-5 can pass its error test with a true error 30 x
+            the tolerance (error norm 0.954, projection-dop853 at rtol 1e-10 under Haswell
+            with newton_tol's lower clamp moved to 2.220446e-12: a stage at s = 6.3e-5, the
+            run 2.8e-9 m off).  Measured: the four cranks at rtol 1e-9 under
+            OpenBLAS Prescott, switch 3e-4 ... 1e-3: 4.0e-8 m (2.97e-10 m at 2e-4 or less;
+            the step 0.4471 -> 0.4659 s, a stage at s = 5.4e-5, the energy up 6.6e-7 J);
+            the shaken four cranks (tests/integrators/test_index1_tangent.py::
+            test_rheonomic_linkage) at rtol 1e-10 under Haswell, switch 3e-4 or more:
+            2.54e-8 m (passes at 1e-4 ... 2.5e-4).  Which stage lands how close to the
+            point is the run's round-off, so this limit is not a law of rtol, and the
+            derived lower limit crosses it (3.5e-4 at rtol 1e-10).
+          The derived lower limit is not sharp either: at rtol 1e-10 the runs pass with
+          switches from 1e-4 up.  Until the tangent step's error test sees the error of
+          such a step, the switch is the measured law s_index1 = max(s_f, (eps /
+          rtol)^(2/3)) (the square of gcp's; 1e-4 down to rtol 2.2e-10, 1.7e-4 at 1e-10,
+          7.9e-4 at 1e-11), which passes every case above (and .ci/matrix's kernels on
+          f6fe280): a fitted exponent, not a derivation (docs/benchmarks.md).
         A fixed-step run has no error test: nothing in it sees either path's round-off or
         the accuracy its steps deliver (rk4 at 0.25 ms: 1e-12 m on the four cranks, far
         below any default).  Its switch is where the tangent coordinates themselves meet

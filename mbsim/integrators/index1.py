@@ -34,11 +34,7 @@ a passage's steps are cut below ``Policy.cut`` x its first tangent step (an embe
 estimate of truncation error falls like h^k: what still cuts the step is the round-off;
 :meth:`Index1._error_norm`); and where the motion dwells next to the point without crossing
 it, the error test takes off what the stages' round-off alone makes, probed by two
-completions from q perturbed by ROUNDOFF_ULPS ulps (:meth:`Index1._stage_noise`).  What the
-estimate cannot see, it is given: the stages of a step next to the point share their
-round-off, which cancels in the embedded estimate's difference of two solutions but not in
-the step, so the error norm adds a bound of what that round-off makes in the step, probed at
-its stage nearest the point (:meth:`Index1._stage_roundoff_norm`).  A motion
+completions from q perturbed by ROUNDOFF_ULPS ulps (:meth:`Index1._stage_noise`).  A motion
 that approaches the point slowly is given a step across it that keeps its stages clear of
 it (:class:`changepoints.Approach`; counter ``straddle_steps``).
 
@@ -104,8 +100,6 @@ class Index1(RungeKuttaIntegrator):
         self._tangent_wanted = False  # a stage of the failed trial was in the region
         self._in_trial = False
         self._trial_s = np.inf
-        self._stages_s = []  # (s, t, y) of the trial's stages, its start first (_trial)
-        self._s_start = 1.0  # s at the step's start (_step_impl)
         # the approach to a change point and the step across it (changepoints.Approach)
         self.counters["straddle_steps"] = 0
         self._approach = None
@@ -153,8 +147,6 @@ class Index1(RungeKuttaIntegrator):
         q, qd = y[:n], y[n:2 * n]
         qdd, _, power = self.system.accelerations(q, qd, t, self.stab)
         self._s = s = cp.measure_from_schur(self.system.pivot_ratio)
-        if self._in_trial:
-            self._stages_s.append((s, t, y.copy()))
         self._trial_s = min(self._trial_s, s)
         near = s < self.policy.tangent  # (a switch of 0 is off)
         if self._tangent or (not self._in_trial and (self._step_tangent or near)):
@@ -200,8 +192,7 @@ class Index1(RungeKuttaIntegrator):
         to that much.  The policy's two round-off rules (module doc): the noise of (v, vd)
         probed and taken off (:meth:`_stage_noise`) where the norm exceeds ``noise_err``
         and no stage came below ``noise_s``; the q part left out once the passage's steps
-        are cut below ``cut`` x its first tangent step.  The error the stages' common
-        round-off makes in the step itself is added (:meth:`_stage_roundoff_norm`)."""
+        are cut below ``cut`` x its first tangent step."""
         if not self._tangent:
             return super()._error_norm(h, y_new)
         n, C = self.n, self._C
@@ -218,8 +209,6 @@ class Index1(RungeKuttaIntegrator):
                 if err_v > 1.0 >= floored:
                     self.counters["noise_limited_steps"] += 1
                 err_v = floored
-        # what the stages' round-off makes in the step itself, which the estimate misses
-        err_v += self._stage_roundoff_norm(h, scale)
         if self._tangent_h0 is None:
             self._tangent_h0 = h
         if h < self.policy.cut * self._tangent_h0:
@@ -227,40 +216,6 @@ class Index1(RungeKuttaIntegrator):
         scale_q = (self.atol + self.newton_tol
                    + self.rtol * np.maximum(np.abs(self.y[:n]), np.abs(y_new[:n])))
         return max(err_v, self.tableau.error_norm(self.K[:, :n], h, scale_q))
-
-    def _stage_roundoff_norm(self, h, scale):
-        """The scaled norm of the error that the stages' round-off makes in a tangent step's
-        (v, vd) = (C q, C qd), a bound the embedded estimate cannot give.
-
-        A stage's C qdd carries round-off delta_i ~ eps s_i^-3 (the three solves of the
-        policy's ``tangent``), and the stages of one step near the point carry errors of
-        one origin (the computed constraint set's curvature, :class:`changepoints.Approach`):
-        in the embedded estimate h sum_i E_i delta_i they largely cancel, while the step
-        itself takes vd by h sum_i b_i delta_i and v, through the later stages' velocities,
-        by h^2 sum_i (b^T A)_i delta_i.  Measured: a DOP853 step with a stage at s = 5.4e-5
-        with estimate 0.65 and a true error of tens of tolerances.  So delta is probed at
-        the stage with the smallest s (:meth:`_stage_noise`: n (k,), per component of C
-        qdd, in (m or rad)/s^2), carried to stage i by the s^-3 law, n_i = n (s_min /
-        s_i)^3 (at most n), and summed with absolute weights (errors of one sign):
-        r_vd = h sum_i |b_i| n_i, r_v = h^2 sum_i |(b^T A)_i| n_i, in m or rad (/s) like the
-        error test's scale.  0 where the probe's completions fail."""
-        tab = self.tableau
-        ns = tab.n_stages  # (the stage after y_new is the next step's)
-        s, t, y = zip(*self._stages_s[:ns])
-        s = np.asarray(s)
-        i = int(np.argmin(s))
-        if not s[i] < s[0]:
-            return 0.0
-        noise = self._stage_noise(t[i], y[i])
-        if noise is None:
-            return 0.0
-        n_vdd = noise[self._C.shape[0]:]
-        w = np.maximum((s[i] / np.maximum(s, s[i])) ** 3 - (s[i] / s[0]) ** 3, 0.0)
-        bA = np.zeros(ns)
-        bA[:tab.A.shape[1]] = tab.B @ tab.A
-        r_vd = h * (np.abs(tab.B[:w.size]) @ w) * n_vdd
-        r_v = h * h * (np.abs(bA[:w.size]) @ w) * n_vdd
-        return rms_norm(np.concatenate([r_v, r_vd]), scale)
 
     def _stage_noise(self, t, y):
         """(2k,) the round-off of a tangent stage's derivative (C qd, C qdd) at y, per
@@ -428,7 +383,6 @@ class Index1(RungeKuttaIntegrator):
     def _trial(self, h):
         self._in_trial = True
         self._trial_s = np.inf  # the smallest measure of the trial's stages
-        self._stages_s = [(self._s_start, self.t, self.y)]  # (s, t, y) of each stage (_rhs)
         try:
             return super()._trial(h)
         finally:
@@ -456,7 +410,6 @@ class Index1(RungeKuttaIntegrator):
             # belongs to another configuration: a new one is taken where it is needed
             self._C = None
         self._step_start = (self.t, self.q)
-        self._s_start = self._s  # (from f at the step's start; a rejected trial moves _s)
         self._step_tangent = False  # (the last step's dense output has been taken)
         approach = self._approach if self.policy.tangent > 0.0 else None
         h = approach.step(self.h_abs) if approach else None
