@@ -561,3 +561,18 @@ def chain_deck(n, t_end=2.0, step=None, angle=0.3, g=9.81):
                      f"{{{prev}: {{P: {pp}}}, link{i}: {{P: [0, 0.25, 0]}}}}}}")
     lines += ["analysis:", f"  dynamic: {{t_end: {t_end!r}, step: {step!r}}}", ""]
     return "\n".join(lines)
+
+
+def kernel_functions(lib):
+    """The library's exported functions: every non-static ``mb_*`` function defined in the
+    measured checkout's mbsim/fast/*.c (the C kernels of whatever version is measured),
+    less the two that only describe the build."""
+    import re
+
+    found = []
+    for src in sorted((ROOT / "mbsim" / "fast").glob("*.c")):
+        for m in re.finditer(r"^(?!static)[A-Za-z_][\w \t*]*?\b(mb_\w+)\s*\(",
+                             src.read_text(), re.M):
+            if m[1] not in found and m[1] not in ("mb_source_hash", "mb_struct_size"):
+                found.append(m[1])
+    return [n for n in found if hasattr(lib, n)]

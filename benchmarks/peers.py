@@ -95,6 +95,7 @@ from common import (  # noqa: E402
     exudyn_solve,
     figure,
     figure_failed,
+    kernel_functions,
     load,
     mbsim_command,
     mbsim_env,
@@ -554,21 +555,6 @@ def user_case(a):
 
 
 # ------------------------------------------------------------------ compiled share
-def kernel_functions(lib):
-    """The library's exported functions: every non-static ``mb_*`` function defined in the
-    measured checkout's mbsim/fast/*.c (the C kernels of whatever version is measured),
-    less the two that only describe the build."""
-    import re
-
-    found = []
-    for src in sorted((ROOT / "mbsim" / "fast").glob("*.c")):
-        for m in re.finditer(r"^(?!static)[A-Za-z_][\w \t*]*?\b(mb_\w+)\s*\(",
-                             src.read_text(), re.M):
-            if m[1] not in found and m[1] not in ("mb_source_hash", "mb_struct_size"):
-                found.append(m[1])
-    return [n for n in found if hasattr(lib, n)]
-
-
 def compiled_share(a):
     """cProfile of `mbsim run models/governor.yaml --mode dynamic -o FILE`'s work in process
     (load the deck, run, write), after one warm-up run (imports and the kernels' loading are

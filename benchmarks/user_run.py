@@ -55,7 +55,7 @@ import numpy as np
 # else this tree), put first on sys.path by common
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import ROOT, figure, run_with_deck  # noqa: E402
+from common import ROOT, figure, kernel_functions, run_with_deck  # noqa: E402
 
 DECKS = "governor,slider_crank:free,vehicle"
 PHASES = ("set-up", "trajectory", "estimate", "outputs", "shapes", "write")
@@ -127,20 +127,6 @@ def measure(deck, scene, repeats, tmp):
     return got, t_span, len(res.t), len(objects)
 
 
-def kernel_names(lib):
-    """Every non-static ``mb_*`` function of the measured checkout's mbsim/fast/*.c that its
-    library exports, less the two that only describe the build (as peers.py's share)."""
-    import re
-
-    found = []
-    for src in sorted((ROOT / "mbsim" / "fast").glob("*.c")):
-        for m in re.finditer(r"^(?!static)[A-Za-z_][\w \t*]*?\b(mb_\w+)\s*\(",
-                             src.read_text(), re.M):
-            if m[1] not in found and m[1] not in ("mb_source_hash", "mb_struct_size"):
-                found.append(m[1])
-    return [n for n in found if hasattr(lib, n)]
-
-
 def split(deck, scene, repeats, tmp):
     """{phase: (total ms, C ms) per run, medians} of load + run + write with a fresh model
     each time, and the C share of the whole (list over the repeats)."""
@@ -188,7 +174,7 @@ def split(deck, scene, repeats, tmp):
         hdf5.write_result(res, out)
 
     user_run()  # warm-up
-    names = kernel_names(lib)
+    names = kernel_functions(lib)
     originals = [(lib, n, getattr(lib, n)) for n in names]
     for n in names:
         setattr(lib, n, kernel(getattr(lib, n)))
