@@ -570,7 +570,7 @@ def test_two_processes_writing_one_output(tmp_path):
         first.wait(timeout=120)
         reader.join(timeout=10)
     assert first.returncode == 1, "".join(lines)  # interrupted, outputs kept
-    assert out.is_file() and not lock.exists()
+    assert out.is_file() and not lock.exists(), "".join(lines)
 
 
 def test_a_second_sweep_into_a_folder_in_use_is_refused(tmp_path):

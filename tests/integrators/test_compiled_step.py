@@ -37,6 +37,7 @@ EPS = np.finfo(float).eps
 REL = 1e-12  # one step's round-off bound between the two paths (module doc)
 ROOT = Path(__file__).resolve().parents[2]
 FLOOR = 1e-12  # m: round-off of O(1) positions (tests/integrators/test_error_estimate.py)
+PASSES_SINGULAR_POSITIONS = {"parallel_fourbar"}  # the reference problems with flat passages
 
 
 def close(a, b):
@@ -169,8 +170,9 @@ def test_both_paths_meet_the_reference(name, method, rtol, h):
     methods: positions within 1e3 x rtol (the bound of
     tests/integrators/test_free_body_and_top.py for runs of thousands of steps), and the
     two paths' errors alike (within a factor 3, or both below FLOOR: near round-off they
-    may take other steps).  The fixed-step RK4 takes the same steps in both paths: its two
-    errors agree to 1e-6 relative (round-off against an error of ~h^4)."""
+    may take other steps), except through singular positions, where each is held to the
+    singular-passage bound 10 rtol + 1e-9 m.  The fixed-step RK4 takes the same steps in
+    both paths: its two errors agree to 1e-6 relative (round-off against an error of ~h^4)."""
     pb = M.reference_problem(name)
     opts = {"t_end": pb.t_end, "step": pb.step, "q0": pb.q0, "qd0": pb.qd0,
             "integrator": method, "error_estimate": False}
@@ -188,6 +190,13 @@ def test_both_paths_meet_the_reference(name, method, rtol, h):
         assert c == pytest.approx(p, rel=1e-6, abs=FLOOR)
         return
     assert max(errors) <= 1e3 * rtol, errors
+    if name in PASSES_SINGULAR_POSITIONS:
+        # at a flat position round-off picks the steps (the first steps' error norms are
+        # round-off, summed in another order by C and numpy) and what each passage leaves
+        # differs between the paths (docs/benchmarks.md, issue-24 table's notes): each is
+        # held to the singular-passage bound instead (test_singular_loops.py)
+        assert max(errors) <= 10 * rtol + 1e-9, errors
+        return
     assert max(c, p) <= FLOOR or c <= 3 * max(p, FLOOR) and p <= 3 * max(c, FLOOR), errors
 
 
