@@ -68,7 +68,7 @@ def schur_structure_by_loops(rb, rows, nb, held=()):
     a sorted list of (u, 7 s, body), the incidences of held bodies from other rows set aside,
     then per body its incidences g1 x g2 with pos[u1] >= pos[u2], one tuple at a time (every
     column: ``pair_code`` of ALL_COLUMNS)."""
-    from mbsim.fast.dynamics import ALL_COLUMNS, CROSS, pair_code
+    from mbsim.fast.dynamics import ALL_COLUMNS, with_held_incidences
 
     ma = rows.size
     own = {b: set() for b in held}
@@ -100,14 +100,7 @@ def schur_structure_by_loops(rb, rows, nb, held=()):
                     pairs.append((off[pu] + pv - fc[pu], g1, g2,
                                   pair_code(ALL_COLUMNS, ALL_COLUMNS)))
     pairs = np.array(pairs, dtype=np.int64).reshape(-1, 4)
-    if cross:
-        inc = np.concatenate([inc, np.array(cross, dtype=np.int64) + [0, CROSS, 0]])
-        inc = inc[np.lexsort((inc[:, 0], inc[:, 1] >= CROSS, inc[:, 2]))]
-        new = np.empty(inc.shape[0], dtype=np.int64)
-        regular = np.flatnonzero(inc[:, 1] < CROSS)
-        new[:regular.size] = regular
-        if pairs.size:
-            pairs[:, 1:3] = new[pairs[:, 1:3]]
+    inc, pairs = with_held_incidences(inc, cross, pairs)  # the same rule for held bodies
     sidx = np.stack([np.asarray(rows, dtype=np.int64), order, fc, off])
     return sidx, inc, pairs
 
@@ -131,9 +124,22 @@ def test_the_schur_structure_is_the_loops_on_random_row_body_tables():
             assert np.array_equal(got, want)
 
 
+def pair_code(mask_u, mask_v):
+    """pair_codes' rule for one pair, with Python integers: the columns where the product
+    can be nonzero, mask_v & (mask_u | p columns); the r column (0-2, 7: none) where that
+    leaves at most one r column and all four p columns, else -1 - the mask."""
+    from mbsim.fast.dynamics import P_COLUMNS
+
+    mask = int(mask_v) & (int(mask_u) | P_COLUMNS)
+    r = mask & ~P_COLUMNS
+    if mask & P_COLUMNS == P_COLUMNS and r in (0, 1, 2, 4):
+        return r.bit_length() - 1 if r else 7
+    return -1 - mask
+
+
 def test_pair_codes_are_pair_code_on_every_pair_of_masks():
-    """The arrays' pair_codes equals the scalar pair_code on all 128 x 128 column masks."""
-    from mbsim.fast.dynamics import pair_code, pair_codes
+    """The arrays' pair_codes equals the rule taken pair by pair on all 128 x 128 masks."""
+    from mbsim.fast.dynamics import pair_codes
 
     u, v = np.meshgrid(np.arange(128), np.arange(128), indexing="ij")
     want = np.array([[pair_code(a, b) for b in range(128)] for a in range(128)])

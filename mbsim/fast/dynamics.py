@@ -45,7 +45,7 @@ Tables (besides the constraint tables of :mod:`mbsim.fast.constraints`), built o
   (:func:`schur_structure`);
 - ``pairs`` (np, 4) int64: one line per (incidence g_u, incidence g_v) of the same body
   with pos(u) >= pos(v): envelope index of S[u, v], g_u, g_v, and the columns of the
-  product (Mt^-1 Phi_q^T)[g_u] . Phi_q[g_v] that can be nonzero (``pair_code``).  The
+  product (Mt^-1 Phi_q^T)[g_u] . Phi_q[g_v] that can be nonzero (``pair_codes``).  The
   other products are exact zeros, which the C code skips (adding +-0 to a sum that starts
   at +0 changes no bit).
 """
@@ -504,21 +504,13 @@ def column_masks(ci, m):
     return masks
 
 
-def pair_code(mask_u, mask_v):
-    """kernels.c's pair_dot code of the product (Mt^-1 Phi_q^T)[g_u] . Phi_q[g_v] of two
-    incidences on one body whose rows of Phi_q can be nonzero in the columns ``mask_u``,
-    ``mask_v`` (``column_masks``): it can be nonzero where g_v's row can, and, in the r
-    columns (where Mt^-1 is diagonal), where g_u's can too.  The r column (0-2, 7: none)
-    when that leaves at most one r column and all four p columns; else -1 - the mask."""
-    mask = int(mask_v) & (int(mask_u) | P_COLUMNS)
-    r = mask & ~P_COLUMNS
-    if mask & P_COLUMNS == P_COLUMNS and r in (0, 1, 2, 4):
-        return r.bit_length() - 1 if r else 7
-    return -1 - mask
-
-
 def pair_codes(mask_u, mask_v):
-    """:func:`pair_code` of arrays of masks, element by element."""
+    """kernels.c's pair_dot codes of the products (Mt^-1 Phi_q^T)[g_u] . Phi_q[g_v] of pairs
+    of incidences on one body whose rows of Phi_q can be nonzero in the columns ``mask_u``,
+    ``mask_v`` (arrays of ``column_masks``): a product can be nonzero where g_v's row can,
+    and, in the r columns (where Mt^-1 is diagonal), where g_u's can too.  The code is the r
+    column (0-2, 7: none) where that leaves at most one r column and all four p columns;
+    else -1 - the mask."""
     mask = np.asarray(mask_v, dtype=np.int64) & (np.asarray(mask_u, dtype=np.int64) | P_COLUMNS)
     r = mask & ~P_COLUMNS
     coded = ((mask & P_COLUMNS) == P_COLUMNS) & np.isin(r, (0, 1, 2, 4))
@@ -542,7 +534,7 @@ def held_bodies(model, rows):
 def schur_structure(rb, rows, nb, ci=None, held=()):
     """(sidx (4, m_a), inc (ninc, 3), pairs (np, 4)) of the Schur matrix on ``rows`` (module
     doc): reverse Cuthill-McKee order, envelope, incidences (row, column offset, body) and
-    the products that fill the envelope, with the columns they need (``pair_code`` of the
+    the products that fill the envelope, with the columns they need (``pair_codes`` of the
     kernels' columns, ``column_masks(ci)``; without ``ci`` every column).
 
     held: bodies fixed by their own rows (:func:`held_bodies`).  A held body b has qdd_b = 0,
@@ -626,14 +618,21 @@ def _schur_structure(rb, rows, nb, ci, held):
         np.stack([off[pu] + pv - fc[pu], g1, g2, pair_codes(cols[g1], cols[g2])], axis=1),
         dtype=np.int64)
     sidx = np.ascontiguousarray(np.stack([np.asarray(rows, dtype=np.int64), order, fc, off]))
-    if cross.size:  # after the body's own incidences, its group kept (kernels.c)
-        cross = cross + np.array([0, CROSS, 0])
-        inc = np.concatenate([inc, cross])
-        inc = inc[np.lexsort((inc[:, 0], inc[:, 1] >= CROSS, inc[:, 2]))]
-        # pairs index incidences: renumber them after the sort
-        new = np.empty(inc.shape[0], dtype=np.int64)
-        regular = np.flatnonzero(inc[:, 1] < CROSS)
-        new[:regular.size] = regular
-        if pairs.size:
-            pairs[:, 1:3] = new[pairs[:, 1:3]]
+    inc, pairs = with_held_incidences(inc, cross, pairs)
     return sidx, inc, pairs
+
+
+def with_held_incidences(inc, cross, pairs):
+    """(inc, pairs) with the incidences ``cross`` (on held bodies, left out of S) flagged by
+    CROSS and placed after each body's own incidences (its group kept: kernels.c), the
+    pairs' incidence numbers renumbered for that order."""
+    if not len(cross):
+        return inc, pairs
+    inc = np.concatenate([inc, np.asarray(cross, dtype=np.int64) + np.array([0, CROSS, 0])])
+    inc = inc[np.lexsort((inc[:, 0], inc[:, 1] >= CROSS, inc[:, 2]))]
+    new = np.empty(inc.shape[0], dtype=np.int64)
+    regular = np.flatnonzero(inc[:, 1] < CROSS)
+    new[:regular.size] = regular
+    if pairs.size:
+        pairs[:, 1:3] = new[pairs[:, 1:3]]
+    return inc, pairs

@@ -22,7 +22,7 @@
  *                  (offset + CROSS: left out of S, a body held by its own rows);
  *   pairs (np, 4): envelope index of S[u, v], incidence g_u, incidence g_v, and the bit
  *                      columns where XG[g_u] * JG[g_v] can be nonzero for the kernels' Phi_q
- *                      (pair_dot's code; mbsim/fast/dynamics.py: pair_code).
+ *                      (pair_dot's code; mbsim/fast/dynamics.py: pair_codes).
  * (mbsim/fast/constraints.py and dynamics.py build them; their module docs say more.)
  *
  * Equations: Haug, Computer-Aided Kinematics and Dynamics of Mechanical Systems (1989),
@@ -657,7 +657,7 @@ static inline void apply_minv(const mb_model *M, int unit, idx b, const double *
 
 /* x . y over one body's 7 columns (x = Mt^-1 times one row of Phi_q, y another row, both
  * padded to 8 with a zero), in the order c = 0, 1, .., 6, with the products that are exact
- * zeros left out (pairs' code, mbsim/fast/dynamics.py: pair_code): where y is an exact zero
+ * zeros left out (pairs' code, mbsim/fast/dynamics.py: pair_codes): where y is an exact zero
  * of the kernels' Phi_q, or, in the r columns, where Mt^-1 is diagonal, x is.  Adding a +-0
  * product to a sum that starts at +0 changes no bit (the sum never becomes -0), so the
  * result is the full sum's to the bit and the Schur matrix the same.  code >= 0: the r
