@@ -90,6 +90,8 @@ def run_model(model, mode: str, options=None, deck=None) -> Result:
         result = fn(model, options)
     except (ValueError, FloatingPointError, ArithmeticError) as exc:
         _overflow(mode, exc)
+    except KeyboardInterrupt:  # before the analysis' own output loop, which keeps its outputs
+        result = interrupted_result(mode)
     context = options.context
     _apply_only(result, context.only)
     result.deck_text = context.text
@@ -99,6 +101,16 @@ def run_model(model, mode: str, options=None, deck=None) -> Result:
     log.info("%s: %s in %.3g s; %s", mode, result.status, result.wall_time,
              ", ".join(f"{k} {v}" for k, v in result.counters.items()) or "no counters")
     return result
+
+
+def interrupted_result(mode: str) -> Result:
+    """The result of a run stopped by Ctrl-C or SIGTERM before its first output (while
+    it assembled or set up): no output time, marked incomplete, so that it is still written
+    and says why (the analyses catch an interrupt in their output loops themselves)."""
+    import numpy as np
+
+    return Result(mode, np.empty(0), status=STATUS_INCOMPLETE,
+                  message="interrupted (Ctrl-C or SIGTERM) before the first output")
 
 
 def _overflow(mode: str, exc: Exception) -> None:

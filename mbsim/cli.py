@@ -195,6 +195,10 @@ class LazyGroup(click.Group):
         errstate = _NoErrstate() if help_only else __import__("numpy").errstate(all="ignore")
         errstate.__enter__()
         logging.captureWarnings(True)
+        # the commands set SIGPIPE's action for the process (`main`, `sweep`); an in-process
+        # call (a script, the tests) gets its own back, or a later pipe to a gone worker
+        # would end that process silently
+        sigpipe = signal.getsignal(signal.SIGPIPE) if hasattr(signal, "SIGPIPE") else None
         try:
             rv = super().main(rest, prog_name, complete_var, False, **extra)
         except _NO_ARGS as exc:  # `mbsim` alone: the help, as click prints it
@@ -213,6 +217,8 @@ class LazyGroup(click.Group):
             sys.exit(exc.exit_code)
         finally:
             sys.stdout, sys.stderr = old_out, old_err
+            if sigpipe is not None and signal.getsignal(signal.SIGPIPE) != sigpipe:
+                signal.signal(signal.SIGPIPE, sigpipe)
             logging.captureWarnings(False)
             errstate.__exit__(None, None, None)
         sys.exit(rv if isinstance(rv, int) else EXIT_OK)
@@ -280,13 +286,13 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
 
     Example: mbsim run models/governor.yaml --mode dynamic --t-end 2 -o gov.h5
     """
-    from mbsim.api import output_path, run_model
+    from mbsim.api import interrupted_result, output_path, run_model
     from mbsim.lock import OutputLock, lock_path
     from mbsim.output import write_result
     from mbsim.output.hdf5 import prepare_output
     from mbsim.progress import terminal_progress
 
-    lock = None
+    lock = signals = None
     try:
         spec, model = _load(deck, sets, scene, studies=False)  # `mbsim check` validates them
         out = output_path(output, deck, mode, spec.parameters, scene)
@@ -296,7 +302,7 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         prepare_output(out)  # before the analysis: a bad -o costs nothing
         # SIGTERM as Ctrl-C from before the lock is taken: a kill at any point after it
         # goes through the finally below, never leaving the lock behind
-        with _sigterm_as_interrupt():
+        with _Interrupts() as signals:
             # one writer per file: a second run to the same -o is refused (exit 2) while
             # this one holds OUT.lock (released below, also on errors and Ctrl-C)
             lock = OutputLock(lock_path(out), f"output {out}").acquire()
@@ -305,21 +311,31 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
                                      else progress, label=mode)
             if prog is not None:
                 opts = opts.replace(progress=prog)  # progress(t, t_end) per output
+            result = None
             try:
                 result = run_model(model, mode, opts)
+                signals.hold()  # from here a signal waits until the file is written
+            except KeyboardInterrupt:  # outside the analysis' own handling of it
+                signals.hold()
+                if result is None:
+                    result = interrupted_result(mode)
             finally:
                 if prog is not None:
                     prog.close()
-        result.settings.pop("progress", None)  # an analysis that stored it as a setting
-        result.settings.setdefault("overrides", _parse_sets(sets))
-        if scene:
-            result.settings.setdefault("scene", scene)
-        write_result(result, out)
+            result.settings.pop("progress", None)  # an analysis that stored it as a setting
+            result.settings.setdefault("overrides", _parse_sets(sets))
+            if scene:
+                result.settings.setdefault("scene", scene)
+            write_result(result, out)
     except MbsimError as exc:
         _fail(exc, deck)
     finally:
         if lock is not None:
             lock.release()
+    if signals is not None and signals.held:
+        click.echo(_one_line(f"error: {deck}: interrupted (Ctrl-C or SIGTERM) after the "
+                             f"analysis; its results are kept in {out}"), err=True)
+        sys.exit(EXIT_FAILED)
     if not quiet:
         _warn(result.summary.get("warnings", ()))  # standard error, as cli.md says
     if make_plot:
@@ -327,32 +343,42 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
     if not quiet:
         _summary(result, out)
     if not result.complete:
-        click.echo(_one_line(f"error: {deck}: {result.message} (results up to t = "
-                   f"{result.t[-1] if len(result.t) else float('nan'):.6g} s kept in {out}, "
-                   "marked incomplete)"), err=True)  # fmt: skip
+        kept = (f"results up to t = {result.t[-1]:.6g} s kept in {out}" if len(result.t)
+                else f"no output reached; {out} written")
+        click.echo(_one_line(f"error: {deck}: {result.message} ({kept}, marked incomplete)"),
+                   err=True)
         sys.exit(EXIT_FAILED)
 
 
-class _sigterm_as_interrupt:  # noqa: N801 - used as a statement: `with _sigterm_as_interrupt():`
-    """SIGTERM (kill, a CI timeout) during an analysis ends it as Ctrl-C does: the analyses
-    catch KeyboardInterrupt and return the outputs reached, marked incomplete, which are
-    then written.  Only in the main thread (signal handlers cannot be set elsewhere)."""
+class _Interrupts:
+    """Ctrl-C and SIGTERM (kill, a CI timeout) while a run holds its output.
+
+    During the analysis both raise KeyboardInterrupt: the analyses catch it and return the
+    outputs reached, marked incomplete.  After :meth:`hold` (the analysis has returned)
+    a signal only sets ``held``: the results file is written whole, and the caller then
+    ends the run.  Only in the main thread (signal handlers cannot be set elsewhere)."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
     def __enter__(self):
         import threading
 
-        self.old = None
+        self.old, self.raising, self.held = {}, True, False
         if threading.current_thread() is threading.main_thread():
-            self.old = signal.signal(signal.SIGTERM, self._raise)
+            self.old = {sig: signal.signal(sig, self._handle) for sig in self.SIGNALS}
         return self
 
-    @staticmethod
-    def _raise(signum, frame):
-        raise KeyboardInterrupt
+    def _handle(self, signum, frame):
+        if self.raising:
+            raise KeyboardInterrupt
+        self.held = True
+
+    def hold(self):
+        self.raising = False
 
     def __exit__(self, *exc):
-        if self.old is not None:
-            signal.signal(signal.SIGTERM, self.old)
+        for sig, old in self.old.items():
+            signal.signal(sig, old)
         return False
 
 

@@ -573,6 +573,51 @@ def test_two_processes_writing_one_output(tmp_path):
     assert out.is_file() and not lock.exists(), "".join(lines)
 
 
+def test_an_interrupt_before_the_first_output_still_writes_the_file(tmp_path, monkeypatch):
+    """Ctrl-C or SIGTERM (raised as KeyboardInterrupt by the run's handler) while the
+    analysis assembles, before its output loop catches it: one error line, exit 1, and
+    a file marked incomplete with no output time, the lock released."""
+    import h5py
+
+    import mbsim.analyses.kinematic as kinematic
+
+    def interrupted_while_assembling(model, options):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(kinematic, "kinematic", interrupted_while_assembling)
+    out = tmp_path / "r.h5"
+    res = cli("run", SLIDER, "-m", "kinematic", "-o", out, "--no-progress")
+    one_error(res, 1, "interrupted", "no output reached", str(out))
+    with h5py.File(out, "r") as f:
+        assert f.attrs["status"] == "incomplete" and f["time"].shape == (0,)
+    assert not (tmp_path / "r.h5.lock").exists()
+
+
+def test_a_signal_while_the_results_are_written_waits_for_the_file(tmp_path, monkeypatch):
+    """SIGTERM after the analysis has returned does not cut the file short: it is written
+    whole (complete), then the run ends with one error line, exit 1."""
+    import signal
+
+    import h5py
+
+    import mbsim.output
+
+    write = mbsim.output.write_result
+
+    def terminated_while_writing(result, path):
+        # the run's own handler must be in place, else the signal would end pytest
+        assert callable(signal.getsignal(signal.SIGTERM))
+        os.kill(os.getpid(), signal.SIGTERM)
+        return write(result, path)
+
+    monkeypatch.setattr(mbsim.output, "write_result", terminated_while_writing)
+    out = tmp_path / "r.h5"
+    res = cli("run", SLIDER, "-m", "kinematic", "--t-end", "0.05", "-o", out, "--no-progress")
+    one_error(res, 1, "interrupted", "results are kept in", str(out))
+    with h5py.File(out, "r") as f:
+        assert f.attrs["status"] == "complete" and f["time"].shape[0] > 1
+
+
 def test_a_second_sweep_into_a_folder_in_use_is_refused(tmp_path):
     out = tmp_path / "sw"
     out.mkdir()
