@@ -18,8 +18,8 @@ lines (common.figure) for before_after.py (registered there as ``passages``).
 --checkout DIR: the mbsim measured (default $MBSIM_ROOT, else this script's checkout): it
 goes first on sys.path, and its models/parallel_fourbar.yaml is the deck.  --starts takes
 one K or one K per rtol (the tight rtols cost the most); --seeds 3,4 runs those starts
-alone (a setting split over processes; the figures are then of those starts only).  --ulps 0 runs the assembled start
-K times (the run's own repeatability).
+alone (a setting split over processes; the figures are then of those starts only).
+--ulps 0 runs the assembled start K times (the run's own repeatability).
 
 --trace: where the error arises.  Every accepted step the Python driver takes (the steps at
 and across a passage; the C loop's stretches between passages count as one record each) is
@@ -48,6 +48,8 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 ULPS = 4  # singular_loops.py's default perturbation (mbsim's ROUNDOFF_ULPS)
+WINDOW = 10e-3  # s: --trace counts a stretch within this of a passage as the passage's
+# (the crank turns at about 15 rad/s: 0.15 rad, where the measure s ~ 0.04 theta is 6e-3)
 
 
 def parse(argv):
@@ -63,6 +65,8 @@ def parse(argv):
     ap.add_argument("--ulps", type=float, default=ULPS)
     ap.add_argument("--integrators", default="projection-dop853")
     ap.add_argument("--trace", action="store_true", help="where the error arises (above)")
+    ap.add_argument("--save", type=Path, help="--trace: also write each run's records "
+                    "(t, coupler q and qd, stage s, tangent) to DIR/<loops>_<rtol>_<start>.npz")
     ap.add_argument("--quick", action="store_true", help="smoke test: 4 loops, 2 s, 2 starts")
     return ap.parse_args(argv)
 
@@ -82,8 +86,10 @@ def main(argv=None):
     if len(ks) != len(rtols):
         sys.exit("error: --starts: one K, or one K per rtol")
     load = os.getloadavg()
-    print(f"command: {' '.join([sys.executable, str(Path(__file__).resolve())] + (sys.argv[1:] if argv is None else list(argv)))}")
-    print(f"checkout: {ROOT} ({_describe(ROOT)}); {time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}; "
+    args = sys.argv[1:] if argv is None else list(argv)
+    print(f"command: {' '.join([sys.executable, str(Path(__file__).resolve())] + args)}")
+    now = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
+    print(f"checkout: {ROOT} ({_describe(ROOT)}); {now}; "
           f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} CPUs",
           flush=True)
     case = FourBar(a.loops, a.t_end)
@@ -108,6 +114,9 @@ def main(argv=None):
                                                           else ""), flush=True)
                 if a.trace and "passages" in out:
                     _print_trace(out)
+                    if a.save:
+                        a.save.mkdir(parents=True, exist_ok=True)
+                        np.savez(a.save / f"{a.loops}_{rtol:.0e}_{seed}.npz", **out["rows"])
             label = f"{tag} {name} rtol {rtol:.0e}"
             if errs:
                 gm = float(np.exp(np.mean(np.log(errs))))
@@ -140,7 +149,6 @@ class FourBar:
     def __init__(self, loops, t_end):
         from scipy.integrate import solve_ivp
 
-        from common import ROOT
         from mbsim.analyses.initial import initial_state
         from mbsim.api import load_model
         from peers import fourbar_deck
@@ -150,7 +158,6 @@ class FourBar:
             path = Path(tmp) / f"parallel_fourbar_{loops}.yaml"
             path.write_text(fourbar_deck(loops, t_end))
             spec, self.model = load_model(path)
-        del ROOT
         p = spec.parameters
         self.L, mc, M, self.s = (float(p[k]) for k in ("L", "mc", "M", "s"))
         g = float(-self.model.gravity[1])
@@ -234,32 +241,31 @@ class FourBar:
             dth = (th - ref[0] + math.pi) % (2 * math.pi) - math.pi
             e_T.append(float(self.flow(ti)[0] @ np.array([dth, w - ref[1]])))
         e_T = np.array(e_T)
+        saved = {"t": t, "s": s_min, "tangent": tangent, "e_T": e_T,
+                 "q": np.array([r[1][7 * b:7 * b + 7] for r in rows]),
+                 "qd": np.array([r[2][7 * b:7 * b + 7] for r in rows])}
         # the passages: theta of the reduction through k pi
         grid = np.linspace(0, self.t_end, int(self.t_end * 2000) + 1)
         k = np.floor(self.ref.sol(grid)[0] / math.pi)
         tp = grid[1:][np.diff(k) != 0]
         contrib = np.diff(e_T)
+        # a passage owns the stretches (t[i], t[i+1]] that come within WINDOW of it (the
+        # approach, the tangent steps and the step across); the rest is "between"
         owner = np.full(contrib.size, -1)
         for j, tk in enumerate(tp):
-            i = np.searchsorted(t, tk)  # the stretch t[i-1] .. t[i] holds the passage
-            if 0 < i < t.size:
-                owner[i - 1] = j
+            owner[(t[1:] > tk - WINDOW) & (t[:-1] < tk + WINDOW)] = j
         per = {}
         for i, j in enumerate(owner):
             if j >= 0:
                 d = per.setdefault(j, {"t": tp[j], "e": 0.0, "s": np.inf, "tangent": 0})
                 d["e"] += contrib[i]
-        # the steps of a passage: the records whose stretch (t[i-1], t[i]] comes within
-        # 5 ms of it
-        t_prev = np.concatenate([[-np.inf], t[:-1]])
-        for j, d in per.items():
-            near = (t > d["t"] - 5e-3) & (t_prev < d["t"] + 5e-3) & np.isfinite(s_min)
-            d["s"] = float(s_min[near].min()) if near.any() else math.nan
-            d["tangent"] = int(tangent[near].sum())
+                if np.isfinite(s_min[i + 1]):
+                    d["s"] = min(d["s"], float(s_min[i + 1]))
+                d["tangent"] += int(tangent[i + 1])
         between = float(contrib[owner < 0].sum())
         return {"passages": sorted(per.values(), key=lambda d: -abs(d["e"])),
                 "between": between, "final": float(e_T[-1] - e_T[0]), "records": t.size,
-                "count": tp.size}
+                "count": tp.size, "rows": saved}
 
 
 def _print_trace(out):
