@@ -147,11 +147,11 @@ class FourBar:
     """The deck of peers.fourbar_deck, assembled once, and its exact reduction."""
 
     def __init__(self, loops, t_end):
+        from peers import fourbar_deck
         from scipy.integrate import solve_ivp
 
         from mbsim.analyses.initial import initial_state
         from mbsim.api import load_model
-        from peers import fourbar_deck
 
         self.loops, self.n, self.t_end = loops, loops + 1, t_end
         with tempfile.TemporaryDirectory() as tmp:
