@@ -67,6 +67,8 @@ def parse(argv):
     ap.add_argument("--trace", action="store_true", help="where the error arises (above)")
     ap.add_argument("--save", type=Path, help="--trace: also write each run's records "
                     "(t, coupler q and qd, stage s, tangent) to DIR/<loops>_<rtol>_<start>.npz")
+    ap.add_argument("--summary", type=Path, help="no runs: the passages of the records "
+                    "--save wrote to DIR, by the smallest stage measure s of their steps")
     ap.add_argument("--quick", action="store_true", help="smoke test: 4 loops, 2 s, 2 starts")
     return ap.parse_args(argv)
 
@@ -93,6 +95,8 @@ def main(argv=None):
           f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} CPUs",
           flush=True)
     case = FourBar(a.loops, a.t_end)
+    if a.summary:
+        return summary(case, a.summary)
     print(f"{a.loops} loops ({case.n} cranks, nq = {case.model.nq}), {a.t_end:g} s; start "
           f"perturbed by {a.ulps:g} ulps; reduction's |Phi(T, 0)| = {case.sensitivity():.3g} "
           f"(theta, theta' to theta at T)", flush=True)
@@ -244,6 +248,11 @@ class FourBar:
         saved = {"t": t, "s": s_min, "tangent": tangent, "e_T": e_T,
                  "q": np.array([r[1][7 * b:7 * b + 7] for r in rows]),
                  "qd": np.array([r[2][7 * b:7 * b + 7] for r in rows])}
+        return dict(self.attribute(t, s_min, tangent, e_T), rows=saved)
+
+    def attribute(self, t, s_min, tangent, e_T):
+        """The contributions Phi(T, t1) e1 - Phi(T, t0) e0 of the stretches between records
+        summed per passage (the stretches within ``WINDOW`` of it) and between passages."""
         # the passages: theta of the reduction through k pi
         grid = np.linspace(0, self.t_end, int(self.t_end * 2000) + 1)
         k = np.floor(self.ref.sol(grid)[0] / math.pi)
@@ -265,7 +274,41 @@ class FourBar:
         between = float(contrib[owner < 0].sum())
         return {"passages": sorted(per.values(), key=lambda d: -abs(d["e"])),
                 "between": between, "final": float(e_T[-1] - e_T[0]), "records": t.size,
-                "count": tp.size, "rows": saved}
+                "count": tp.size}
+
+
+S_BINS = (0.0, 1e-5, 3e-5, 1e-4, 1e-3, np.inf)  # --summary's bins of the smallest stage s
+
+
+def summary(case, folder):
+    """Per rtol, over every saved run of `case`'s loops: the passages by the smallest stage
+    measure s of their steps (count, median and largest |contribution| to the angle at T,
+    rad), and how much of each run's |angle error at T| its worst passage carries."""
+    by_rtol = {}
+    for f in sorted(folder.glob(f"{case.loops}_*.npz")):
+        rtol = float(f.stem.split("_")[1])
+        d = np.load(f)
+        out = case.attribute(d["t"], d["s"], d["tangent"], d["e_T"])
+        by_rtol.setdefault(rtol, []).append((f.stem, out))
+    for rtol, runs in sorted(by_rtol.items(), reverse=True):
+        ps = [p for _, out in runs for p in out["passages"]]
+        s = np.array([p["s"] for p in ps])
+        e = np.abs([p["e"] for p in ps])
+        print(f"rtol {rtol:.0e}, {len(runs)} runs, {len(ps)} passages; |contribution to the "
+              f"angle at T| rad by the smallest stage s in the passage's steps:")
+        for lo, hi in zip(S_BINS, S_BINS[1:]):
+            m = (s >= lo) & (s < hi)
+            if m.any():
+                print(f"    s in [{lo:.0e}, {hi:.0e}): {m.sum():4d} passages, median "
+                      f"{np.median(e[m]):.2e}, largest {e[m].max():.2e}, sum "
+                      f"{e[m].sum():.2e}", flush=True)
+        for name, out in runs:
+            w = out["passages"][0]
+            print(f"    {name}: angle error at T {out['final']:+.2e} rad, worst passage t "
+                  f"{w['t']:.3f} s {w['e']:+.2e} rad (smallest stage s {w['s']:.1e}, "
+                  f"{w['tangent']} tangent records), between passages {out['between']:+.2e}",
+                  flush=True)
+    return 0
 
 
 def _print_trace(out):
