@@ -1,8 +1,12 @@
 """The 40-loop four-bar's error at t_end over perturbed starts (issue 23, singular passages).
 
     python benchmarks/passage_scatter.py [--checkout DIR] [--loops 40] [--t-end 20]
-        [--rtols 1e-6,1e-7,1e-8,1e-9,1e-10] [--starts 5 | --starts 5,5,5,3,3] [--ulps 4]
-        [--integrators projection-dop853] [--trace] [--quick]
+        [--rtols 1e-6,1e-7,1e-8,1e-9,1e-10] [--starts 5 | --starts 5,5,5,3,3] [--seeds 1,2]
+        [--ulps 4] [--integrators projection-dop853] [--trace [--save DIR]] [--quick]
+    python benchmarks/passage_scatter.py [--checkout DIR] [--loops 40] --summary DIR
+
+e.g. the after side of docs/benchmarks.md's "Passages over perturbed starts (issue 23)":
+``python benchmarks/passage_scatter.py --checkout /work/main --starts 5``.
 
 The error at t_end of peers.py's fourbar40 case (``peers.fourbar_deck``: `loops` + 1 cranks
 on one coupler, 20 s, 98 flat passages; error = the largest position error of a body at
@@ -69,13 +73,18 @@ def parse(argv):
                     "(t, coupler q and qd, stage s, tangent) to DIR/<loops>_<rtol>_<start>.npz")
     ap.add_argument("--summary", type=Path, help="no runs: the passages of the records "
                     "--save wrote to DIR, by the smallest stage measure s of their steps")
-    ap.add_argument("--quick", action="store_true", help="smoke test: 4 loops, 2 s, 2 starts")
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke test: 3 loops (4 cranks), 2 s, 2 starts")
     return ap.parse_args(argv)
 
 
 def main(argv=None):
     a = parse(argv)
     if a.checkout:
+        if not (a.checkout / "mbsim" / "__init__.py").exists():
+            sys.stderr.write(f"error: --checkout {a.checkout}: not an mbsim checkout (no "
+                             f"mbsim/__init__.py)\n")
+            return 2
         os.environ["MBSIM_ROOT"] = str(a.checkout.resolve())
     sys.path.insert(0, str(HERE))
     from common import ROOT, figure, figure_failed  # noqa: PLC0415 (ROOT read from the env)
@@ -86,7 +95,9 @@ def main(argv=None):
     ks = [int(k) for k in a.starts.split(",")]
     ks = ks * len(rtols) if len(ks) == 1 else ks
     if len(ks) != len(rtols):
-        sys.exit("error: --starts: one K, or one K per rtol")
+        sys.stderr.write(f"error: --starts {a.starts}: one K, or one K for each of the "
+                         f"{len(rtols)} rtols\n")
+        return 2
     load = os.getloadavg()
     args = sys.argv[1:] if argv is None else list(argv)
     print(f"command: {' '.join([sys.executable, str(Path(__file__).resolve())] + args)}")
@@ -128,7 +139,7 @@ def main(argv=None):
                       f"geometric mean {gm:.3g}, min {min(errs):.3g}, max {max(errs):.3g}; "
                       f"CPU s per run median {np.median(cpus):.1f}", flush=True)
                 figure(f"{label} error (min..max of starts)", errs, "m")
-                figure(f"{label} error, geometric mean", gm, "m",
+                figure(f"{label} error, geometric mean", errs, "m",
                        spread=(gm, min(errs), max(errs)))
                 figure(f"{label} CPU per run", cpus, "CPU s")
             for note in notes:
