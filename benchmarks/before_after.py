@@ -64,6 +64,7 @@ SCRIPTS = {
                         None),  # peers' --quick runs N = 4 only: peers_chains covers it
     "fourbar40": ("peers.py", ["--cases", "fourbar40", "--max-cpu", "150"],
                   ["--cases", "fourbar40", "--quick"]),
+    "passages": ("passage_scatter.py", ["--starts", "5,5,5,3,3"], ["--quick"]),  # issue 23
 }
 DEFAULT_SCRIPTS = tuple(SCRIPTS)
 
