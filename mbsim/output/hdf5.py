@@ -172,16 +172,17 @@ def _put(group: h5py.File | h5py.Group, name: str, data) -> h5py.h5d.DatasetID:
 
 def _strings(group: h5py.File | h5py.Group, name: str, items) -> h5py.h5d.DatasetID:
     """``name`` (no slash) in ``group``: the strings ``items`` (a list: (n,); one str: a
-    scalar) as fixed-length, null-padded UTF-8 (the longest's length in bytes).  Read as any
-    HDF5 string (``.asstr()``); written in about a fifth of the time of variable-length
-    strings, which h5py converts one by one."""
+    scalar) as fixed-length, null-padded UTF-8 (the longest's length in bytes), or as
+    variable-length where padding would more than double the bytes (:func:`_string_column`).
+    Read as any HDF5 string (``.asstr()``); fixed-length ones are written in about a fifth of
+    the time of variable-length strings, which h5py converts one by one."""
     scalar = isinstance(items, str)
-    data, tid = _fixed_strings([items] if scalar else items)
+    data, tid, mtid = _string_column([items] if scalar else items)
     data = data.reshape(()) if scalar else data
     space = _scalar_space() if scalar else h5py.h5s.create_simple(data.shape)
     ds = h5py.h5d.create(group.id, name.encode(), tid, space)
     if data.size:
-        ds.write(h5py.h5s.ALL, h5py.h5s.ALL, data, mtype=tid)
+        ds.write(h5py.h5s.ALL, h5py.h5s.ALL, data, mtype=mtid)
     return ds
 
 
@@ -240,6 +241,24 @@ def _scalar_space() -> h5py.h5s.SpaceID:
     return _SCALAR[0]
 
 
+VLEN_ENTRY = 32  # bytes a variable-length string costs besides its text: its (length, heap
+# id) in the row and its global-heap object's header, 16 each
+
+
+def _string_column(items) -> tuple[np.ndarray, h5py.h5t.TypeID, h5py.h5t.TypeID]:
+    """(data, file type, memory type) of the strings ``items``: fixed-length (
+    :func:`_fixed_strings`), unless padding every entry to the longest would take more than
+    twice the bytes of variable-length strings (the text plus VLEN_ENTRY each): one long
+    entry among many short ones, as the components of constraints/lam (every row's name) in
+    a channel table of a large model, would make the column O(n^2) in bytes."""
+    texts = [str(s) for s in items]
+    lengths = [len(s) for s in texts]  # characters: bytes for ASCII, decided before padding
+    if len(texts) * max(lengths, default=0) > 2 * (sum(lengths) + VLEN_ENTRY * len(texts)):
+        return np.array(texts, dtype=_STR), _VSTR_FILE, _VSTR_MEMORY
+    data, tid = _fixed_strings(texts)
+    return data, tid, tid
+
+
 def _fixed_strings(items) -> tuple[np.ndarray, h5py.h5t.TypeStringID]:
     """(bytes array (n,), its HDF5 type): ``items`` as UTF-8, fixed-length at the longest's
     length in bytes (at least 1)."""
@@ -267,28 +286,31 @@ def _string_type(size: int) -> h5py.h5t.TypeStringID:
 def _table(group: h5py.File | h5py.Group, name: str,
            columns: dict[str, Any]) -> h5py.h5d.DatasetID:
     """``name`` (no slash) in ``group``: one compound dataset (n,) with a field per entry of
-    ``columns`` (equal lengths), strings (lists of str) as fixed-length, null-padded UTF-8,
+    ``columns`` (equal lengths), strings (lists of str) as fixed-length, null-padded UTF-8
+    (variable-length where padding would more than double the bytes: :func:`_string_column`),
     numbers (arrays) in their own type: a table of n rows is one HDF5 object, not one per
     column.  Read back with :func:`_read_table` (or h5py: ``f[name][()]['field']``)."""
     fields, tids, data = [], [], []
     for key, items in columns.items():
         if isinstance(items, np.ndarray):
             arr = np.ascontiguousarray(items)
-            tid = _number_type(arr.dtype)
+            tid = mtid = _number_type(arr.dtype)
         else:
-            arr, tid = _fixed_strings(items)
+            arr, tid, mtid = _string_column(items)
         fields.append((key, arr.dtype))
-        tids.append(tid)
+        tids.append((tid, mtid))
         data.append(arr)
     rows = np.empty(len(data[0]) if data else 0, dtype=np.dtype(fields))
     for (key, _), arr in zip(fields, data):
         rows[key] = arr
-    ctid = h5py.h5t.create(h5py.h5t.COMPOUND, rows.dtype.itemsize)
-    for (key, _), tid in zip(fields, tids):
+    ctid = h5py.h5t.create(h5py.h5t.COMPOUND, rows.dtype.itemsize)  # in the file
+    mtid = h5py.h5t.create(h5py.h5t.COMPOUND, rows.dtype.itemsize)  # in memory
+    for (key, _), (tid, memory) in zip(fields, tids):
         ctid.insert(key.encode(), rows.dtype.fields[key][1], tid)
+        mtid.insert(key.encode(), rows.dtype.fields[key][1], memory)
     ds = h5py.h5d.create(group.id, name.encode(), ctid, h5py.h5s.create_simple(rows.shape))
     if rows.size:
-        ds.write(h5py.h5s.ALL, h5py.h5s.ALL, rows, mtype=ctid)
+        ds.write(h5py.h5s.ALL, h5py.h5s.ALL, rows, mtype=mtid)
     return ds
 
 
@@ -611,8 +633,8 @@ def _read_table(ds: h5py.Dataset) -> dict[str, Any]:
     """The columns of a table written by :func:`_table`: strings as lists of str, numbers as
     arrays."""
     rows = ds[()]
-    return {key: ([b.decode() for b in rows[key]] if rows.dtype[key].kind == "S"
-                  else np.asarray(rows[key]))
+    return {key: ([b.decode() if isinstance(b, bytes) else b for b in rows[key]]
+                  if rows.dtype[key].kind in "SO" else np.asarray(rows[key]))
             for key in rows.dtype.names}  # fmt: skip
 
 

@@ -210,6 +210,27 @@ def test_a_model_of_thousands_of_channels_writes(tmp_path):
         assert len(f) < 20  # a few datasets and groups at the root, not one per channel
 
 
+def test_one_long_string_among_thousands_does_not_pad_the_table(tmp_path):
+    """A 4096-link chain's constraints/lam names its 28 000 rows in one components entry
+    (about 300 kB); padded to it, the channel table's 29 000 rows would take 9 GB.  Such a
+    column is written variable-length: the file stays in proportion to its text, and reads
+    back the same, with h5py alone too."""
+    n, rows = 4000, [f"SPH{i}.{c}" for i in range(3000) for c in "xyz"]
+    r = Result(mode="dynamic", t=np.linspace(0, 1, 2))
+    for i in range(n):
+        r.add(f"bodies/link{i}/r", np.zeros((2, 3)), "m", "centroid", ("x", "y", "z"))
+    r.add("constraints/lam", np.zeros((2, len(rows))), "", "multipliers", rows)
+    path = write_result(r, tmp_path / "long.h5")
+    text = sum(len(json.dumps(list(c.components))) for c in r.channels.values())
+    assert path.stat().st_size < 4 * (text + 100 * (n + 1))  # padded: n x 150 kB = 600 MB
+    back = read_result(path)
+    assert back.channels["constraints/lam"].components == tuple(rows)
+    assert back.channels["bodies/link3999/r"].components == ("x", "y", "z")
+    with h5py.File(path, "r") as f:
+        ch = f["channels"][()]
+        assert json.loads(ch["components"][-1]) == rows and ch["name"][0] == b"bodies/link0/r"
+
+
 def test_files_of_layout_version_1_are_read(tmp_path):
     """A file of the old layout (written here by old_layout.write_v1, the version-1 writer
     as it was) reads back into the same Result through read_result, list_channels and
