@@ -224,6 +224,23 @@ class Policy:
             rank_lost=n * EPS)
 
     @staticmethod
+    def stage_reach(tableau, h):
+        """(n_stages + 1, 2): how far an error a in one stage's acceleration reaches the end
+        of a step of size h (s): y_new = y + h sum b_i K_i moves the end's velocities by h
+        |b_i| a and its positions by h^2 |(b^T A)_i| a (columns: s, s^2; rows: the stages at
+        tableau.C, then the step's end).  The end is the next step's start, whose derivative
+        enters that step with b_0: its row takes stage 0's reach; stage 0 (this step's
+        start, a state already taken) gets none.  Zero rows (DOP853's stages 2-5) reach the
+        end only through later stages."""
+        b = np.abs(tableau.B)
+        bA = np.abs(tableau.B @ tableau.A[: b.size, : b.size])
+        reach = np.zeros((b.size + 1, 2))
+        reach[:-1, 0], reach[:-1, 1] = h * b, h * h * bA
+        reach[-1] = reach[0]
+        reach[0] = 0.0
+        return reach
+
+    @staticmethod
     def projection_kept(proj_tol):
         """The residual max |Phi| (m) up to which an index-1 projection with tolerance
         proj_tol that stops moving is kept (Index1._project, and the compiled step through
@@ -493,6 +510,70 @@ class Approach:
             moved = clear_step(self.stages, d, d * (1 + EPS ** 0.5), h_cap)[0]
         self.tried = moved
         return moved
+
+
+def crossing_in_step(c, s, s0, s1, h, agree=0.25):
+    """(d, r) of a change point crossed inside a step of size h, read off the measure of
+    its states and stages: s0, s1 (at its start and end), s (at the stage times c h, c in
+    (0, 1)); d (s) from the start, r (1/s) the speed |ds/dt|.  s is linear in the distance
+    to the point, so a crossing makes s = r |t - d| (a V): r = (s0 + s1) / h and d = s0 / r
+    from the step's ends, checked against the slopes the stages give on either side (each
+    within ``agree`` of r; a side without a stage more than a quarter step from d is not
+    checked, but one side must be).  None where the stages do not show that V, as where the
+    motion turns short of the point (a dwell: s falls and rises again without reaching 0,
+    its slopes at the ends are not those of the ends' V)."""
+    if not (s0 > 0.0 and s1 > 0.0 and h > 0.0):
+        return None
+    r = (s0 + s1) / h
+    d = s0 / r
+    t = np.asarray(c) * h
+    s = np.asarray(s)
+    checked = 0
+    before = np.flatnonzero((t > 0.0) & (t < 0.5 * d))
+    if before.size:
+        i = before[0]  # the stage nearest the start: the slope of the falling side
+        if abs((s0 - s[i]) / t[i] - r) > agree * r:
+            return None
+        checked += 1
+    after = np.flatnonzero((t < h) & (t > 0.5 * (d + h)))
+    if after.size:
+        i = after[-1]  # the stage nearest the end: the slope of the rising side
+        if abs((s1 - s[i]) / (h - t[i]) - r) > agree * r:
+            return None
+        checked += 1
+    return (d, r) if checked else None
+
+
+def clear_of_crossing(c, weights, d, r, h):
+    """The step h' in [d (1 + sqrt eps), h] that takes the crossing of :func:`crossing_in_step`
+    with its stages clear of the point, or None where no step does (a dwell) or the step h
+    already does.  c: the stage times (0 and 1 included: the step's ends are states of the
+    run); weights: (len(c), 2), the tangent round-off of each stage carried to the step's
+    end (Policy.stage_reach) in tolerances at s = 1 (dimensionless), its columns scaling
+    with the step as h and h^2: stage i is clear of the point where its distance |c_i h' -
+    d| at the speed r leaves s above its clearance s_c = w_i(h')^(1/3) (round-off ~ s^-3,
+    class Policy, ``tangent``: there it carries one tolerance).  Among the steps that clear
+    every stage, the longest."""
+    c = np.asarray(c, float)
+    w = np.asarray(weights, float)
+    live = w.max(axis=1) > 0.0
+    if not live.any() or not 0.0 < d < h:
+        return None
+
+    def clear(hp):
+        f = hp / h
+        s_c = np.maximum(w[live, 0] * f, w[live, 1] * f * f) ** (1.0 / 3.0)
+        return bool((r * np.abs(c[live] * hp - d) >= s_c).all())
+
+    if clear(h):
+        return None
+    lo = d * (1.0 + EPS ** 0.5)
+    cands = np.concatenate([d / (0.5 * (c[1:] + c[:-1])), np.linspace(lo, h, 257)])
+    cands = np.sort(cands[(cands >= lo) & (cands < h)])[::-1]
+    for hp in cands:
+        if clear(hp):
+            return float(hp)
+    return None
 
 
 def crossing_time(approach):
