@@ -211,7 +211,7 @@ class Policy:
         elif family == "gcp":
             s = cls.law(rtol)
         else:
-            s = max(float(np.sqrt(SCHUR_PIVOT_FLOOR)), float(cls.law(rtol) ** 2))
+            s = cls.index1_law(rtol, k)
         return cls(
             tangent=s if tangent else 0.0,
             noise_s=cls.law(1.0),
@@ -233,7 +233,8 @@ class Policy:
         start, a state already taken) gets none.  Zero rows (DOP853's stages 2-5) reach the
         end only through later stages."""
         b = np.abs(tableau.B)
-        bA = np.abs(tableau.B @ tableau.A[: b.size, : b.size])
+        bA = np.zeros(b.size)  # (A: (n_stages, n_stages - 1) when the last column is 0)
+        bA[: tableau.A.shape[1]] = np.abs(tableau.B @ tableau.A[: b.size])
         reach = np.zeros((b.size + 1, 2))
         reach[:-1, 0], reach[:-1, 1] = h * b, h * h * bA
         reach[-1] = reach[0]
