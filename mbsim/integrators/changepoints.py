@@ -49,6 +49,10 @@ EPS = float(np.finfo(float).eps)
 SCHUR_PIVOT_FLOOR = 1e-8  # mbsim/fast/kernels.c PIVOT_FLOOR: the Schur factor's smallest
 # pivot / diagonal below which the kernels raise the pivot
 DEFAULT_RTOL = 1e-6  # mbsim.analyses.dynamic.DEFAULTS: the rtol of a run that asks none
+NEWTON_MARGIN = 1e-2  # the completion's Newton stop as a fraction of atol: Hairer & Wanner,
+# Solving ODEs II, Sec. IV.8 (the simplified Newton iteration of implicit RK methods), stop
+# at kappa x Tol with kappa in [1e-2, 1e-1], so that the iteration error is a fraction of
+# what the error test accepts; the low end, as the completion's error enters every stage
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,12 +204,13 @@ class Policy:
                    float(np.sqrt(EPS * rtol ** -(1.0 - 1.0 / k))))
 
     @classmethod
-    def for_run(cls, family, rtol, atol, fixed, tangent=True, *, exponent, n):
+    def for_run(cls, family, rtol, atol, fixed, tangent=True, *, exponent, n, q_scale=1.0):
         """The policy of a run: family 'gcp' | 'index-1'; fixed: a fixed-step run;
         tangent: False takes no tangent coordinates (index-1 option ``tangent_steps``);
-        exponent: the integrator's error exponent -1/k (0: no error estimate); n: nq."""
+        exponent: the integrator's error exponent -1/k (0: no error estimate); n: nq;
+        q_scale: the size of the coordinates (m or rad; Euler parameters have norm 1)."""
         k = -1.0 / exponent if exponent and not fixed else 0.0
-        newton_tol = 1e-12 if fixed else min(1e-9, max(1e-12, 1e-2 * atol))
+        newton_tol = cls.newton_tolerance(None if fixed else atol, q_scale)
         if fixed:
             s = cls.law(DEFAULT_RTOL)
         elif family == "gcp":
@@ -222,6 +227,13 @@ class Policy:
             kept_residual=1e2 * newton_tol,
             newton_iter=2 * int(np.ceil(np.log2(-np.log10(EPS)))),
             rank_lost=n * EPS)
+
+    @staticmethod
+    def newton_tolerance(atol, q_scale):
+        """newton_tol (class doc): max(NEWTON_MARGIN atol, eps q_scale / s_f) (m or rad);
+        atol None (fixed steps): the round-off floor alone."""
+        floor = EPS * q_scale / float(np.sqrt(SCHUR_PIVOT_FLOOR))
+        return floor if atol is None else max(NEWTON_MARGIN * atol, floor)
 
     @staticmethod
     def stage_reach(tableau, h):
