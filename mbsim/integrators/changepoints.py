@@ -85,37 +85,23 @@ class Policy:
           solves, not C's reference point; tests/integrators/test_policy.py.)  So the
           Schur path is the more accurate wherever it solves the equations, i.e. above
           s_f = sqrt(SCHUR_PIVOT_FLOOR) = 1e-4: below that pivot ratio (~ s^2) the kernels
-          raise the pivot and its accelerations are off by 0.4-0.9 of max |qdd|.  What the
-          tangent coordinates have besides is an error test that takes the probed
-          round-off off (``noise_err``, index-1 ``_stage_noise``); the Schur path's error
-          test sees its round-off and cuts the steps for it.  That gives two limits, and
-          the switch must lie between them:
-          - from below, where the Schur path's round-off begins to cut the steps: a
-            relative error e of the stage accelerations moves a step's qd by ~ h e |qdd|,
-            i.e. e h / (rtol T) tolerances (|qd| ~ T |qdd|), with steps h ~ T rtol^(1/k):
-            e_S reaches one tolerance at s = sqrt(eps rtol^-(1 - 1/k)) (:meth:`index1_law`;
-            DOP853 1.3e-4, 3.5e-4, 9.7e-4 at rtol 1e-9, 1e-10, 1e-11).  Measured: with the
-            switch at the floor alone projection-dop853 at rtol 1e-11 crawled at 1.4e-5 s
-            next to the dead centre of tests/integrators/test_changepoints.py and the deck's
-            eleven passages ended 2.98e-8 m off (bound 1.5e-8 m); at 2e-4 both pass.
-          - from above, where tangent steps go wrong: a step retried in tangent coordinates
-            whose stage comes to s ~ 5e-5 can pass its error test with a true error 30 x
-            the tolerance (error norm 0.954, projection-dop853 at rtol 1e-10 under Haswell
-            with newton_tol's lower clamp moved to 2.220446e-12: a stage at s = 6.3e-5, the
-            run 2.8e-9 m off).  Measured: the four cranks at rtol 1e-9 under
-            OpenBLAS Prescott, switch 3e-4 ... 1e-3: 4.0e-8 m (2.97e-10 m at 2e-4 or less;
-            the step 0.4471 -> 0.4659 s, a stage at s = 5.4e-5, the energy up 6.6e-7 J);
-            the shaken four cranks (tests/integrators/test_index1_tangent.py::
-            test_rheonomic_linkage) at rtol 1e-10 under Haswell, switch 3e-4 or more:
-            2.54e-8 m (passes at 1e-4 ... 2.5e-4).  Which stage lands how close to the
-            point is the run's round-off, so this limit is not a law of rtol, and the
-            derived lower limit crosses it (3.5e-4 at rtol 1e-10).
-          The derived lower limit is not sharp either: at rtol 1e-10 the runs pass with
-          switches from 1e-4 up.  Until the tangent step's error test sees the error of
-          such a step, the switch is the measured law s_index1 = max(s_f, (eps /
-          rtol)^(2/3)) (the square of gcp's; 1e-4 down to rtol 2.2e-10, 1.7e-4 at 1e-10,
-          7.9e-4 at 1e-11), which passes every case above (and .ci/matrix's kernels on
-          f6fe280): a fitted exponent, not a derivation (docs/benchmarks.md).
+          raise the pivot and its accelerations are off by 0.4-0.9 of max |qdd|.  Above s_f
+          the Schur path's error test sees its round-off and cuts the steps for it, which
+          the tangent steps' test does not (it takes the probed round-off off:
+          ``noise_err``, index-1 ``_stage_noise``).  A relative error e of the stage
+          accelerations moves a step's qd by ~ h e |qdd|, i.e. e h / (rtol T) tolerances
+          (|qd| ~ T |qdd|, T the motion's time scale), with steps h ~ T rtol^(1/k): e_S =
+          eps s^-2 reaches one tolerance at s = sqrt(eps rtol^-(1 - 1/k)).  The switch is
+          that s, not below s_f: s_index1 = max(s_f, sqrt(eps rtol^-(1 - 1/k)))
+          (:meth:`index1_law`; DOP853 1e-4 down to rtol 1e-8, 1.3e-4, 3.5e-4, 9.7e-4, 2.6e-3
+          at rtol 1e-9 ... 1e-12; Dormand-Prince 5(4) 1.5e-4, 3.7e-4, 9.4e-4 at 1e-10,
+          1e-11, 1e-12).  A tangent step that crosses the point with a stage next to it is
+          placed clear of it (index-1 ``_clear_crossing``): the embedded pair's two
+          solutions share that stage, so its round-off cancels in the error estimate and
+          the test cannot see it; the stage's round-off is probed and carried to the
+          step's end (:meth:`stage_reach`), and where it exceeds the tolerance the step is
+          taken again with every stage at s >= (its round-off at s = 1)^(1/3) (the law
+          s^-3 of the three solves; :func:`clear_of_crossing`).
         A fixed-step run has no error test: nothing in it sees either path's round-off or
         the accuracy its steps deliver (rk4 at 0.25 ms: 1e-12 m on the four cranks, far
         below any default).  Its switch is where the tangent coordinates themselves meet
@@ -155,20 +141,21 @@ class Policy:
         a factor sqrt(tangent / rtol) from each (gcp 25, 530, 1.1e4; index-1 10, 100, 1300
         at rtol 1e-6, 1e-8, 1e-10).  Where tangent <= rtol the two branches lie within one
         tolerance of each other, which the error test cannot tell apart: no check (inf).
-    newton_tol: the completion's Newton tolerance on max |dq| (m or rad): 1e-2 atol within
-        [1e-12, 1e-9] (1e-12 for fixed steps, which have no atol in an error test).  Not
-        derived: a margin (the completion's error two orders below the error test's
-        absolute unit) and two clamps (the lower one near the completion's round-off eps
-        |q| / s at the kernels' floor s_f, eps / s_f = 2.2e-12 on coordinates of unit
-        size).  Measured on the four cranks at rtol 1e-6, 1e-8, 1e-10 (projection-dop853,
-        gcp-dop853, gcp-rk45): factors 1e-3 and 1e-1 and lower clamps 1e-13 and 1e-11 give
-        the same errors up to the passages' round-off, and so does eps / s_f as the lower
-        clamp, except that a change of its last bits moves stages next to the point and
-        can take projection-dop853 at rtol 1e-10 under OpenBLAS Haswell from 2.6e-11 to
-        2.8e-9 m (docs/benchmarks.md): the values are kept as they were measured.
+    newton_tol: the completion's Newton tolerance on max |dq| (m or rad):
+        max(NEWTON_MARGIN atol, eps q_scale / s_f).  The margin 1e-2 is Hairer & Wanner's
+        (Solving ODEs II, Sec. IV.8: the Newton iteration of an implicit RK step stops at
+        kappa Tol, kappa in [1e-2, 1e-1], so that its error is a fraction of what the error
+        test accepts); its low end, since the completion's error enters every stage.  The
+        floor is the round-off of a correction: the residual Phi (m) carries eps q_scale
+        (q_scale: the size of the coordinates, m, at least the Euler parameters' norm 1),
+        and a solve through A = [Phi_q; C] (or Phi_u), whose smallest singular value goes
+        as s, amplifies it by 1 / s; down to the kernels' pivot floor s_f = 1e-4 the
+        corrections can fall below eps q_scale / s_f (2.2e-12 m for q_scale = 1 m); closer
+        to the point Newton stops on the residual (:func:`newton`).  A fixed-step run has
+        no atol: the floor alone.
     kept_residual: a Newton that stops moving above its tolerance (gcp's projected
         Hermite fallback) is kept where its residual max |Phi| is within 1e2 newton_tol,
-        i.e. atol within [1e-10, 1e-7] (m): one absolute tolerance, what the error test
+        i.e. one atol (m) above the floor: one absolute tolerance, what the error test
         cannot tell from zero.  The index-1 projection's own rule is :meth:`projection_kept`.
     newton_iter: the completion's most Newton iterations: quadratic convergence doubles the
         correct digits per iteration, from one (a start within the local error) to the 16
@@ -196,10 +183,9 @@ class Policy:
 
     @staticmethod
     def index1_law(rtol, k):
-        """max(s_f, sqrt(eps rtol^-(1 - 1/k))): the s at which the Schur path's round-off
-        eps s^-2 moves an index-1 step's qd by one tolerance, the lower limit of the
-        index-1 switch (class doc, ``tangent``; not the switch itself); k: the error
-        exponent's -1/k."""
+        """The index-1 switch max(s_f, sqrt(eps rtol^-(1 - 1/k))): the s at which the Schur
+        path's round-off eps s^-2 moves an index-1 step's qd by one tolerance, not below the
+        kernels' pivot floor s_f (class doc, ``tangent``); k: the error exponent's -1/k."""
         return max(float(np.sqrt(SCHUR_PIVOT_FLOOR)),
                    float(np.sqrt(EPS * rtol ** -(1.0 - 1.0 / k))))
 

@@ -36,7 +36,9 @@ estimate of truncation error falls like h^k: what still cuts the step is the rou
 it, the error test takes off what the stages' round-off alone makes, probed by two
 completions from q perturbed by ROUNDOFF_ULPS ulps (:meth:`Index1._stage_noise`).  A motion
 that approaches the point slowly is given a step across it that keeps its stages clear of
-it (:class:`changepoints.Approach`; counter ``straddle_steps``).
+it (:class:`changepoints.Approach`; counter ``straddle_steps``); so is a tangent step that
+crosses the point with a stage whose round-off, which its error test cannot see, exceeds
+the tolerance (:meth:`Index1._clear_crossing`; the same counter).
 
 Option ``tangent_steps`` (default true; false keeps the Schur path everywhere).  Every
 threshold of these rules is the policy's (:class:`changepoints.Policy`, which derives each);
