@@ -53,6 +53,8 @@ NEWTON_MARGIN = 1e-2  # the completion's Newton stop as a fraction of atol: Hair
 # Solving ODEs II, Sec. IV.8 (the simplified Newton iteration of implicit RK methods), stop
 # at kappa x Tol with kappa in [1e-2, 1e-1], so that the iteration error is a fraction of
 # what the error test accepts; the low end, as the completion's error enters every stage
+NEWTON_FLOOR = 1e-12  # m: the completion's Newton stop at least this: measured, not derived
+# (Policy doc, ``newton_tol``)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,20 +144,21 @@ class Policy:
         at rtol 1e-6, 1e-8, 1e-10).  Where tangent <= rtol the two branches lie within one
         tolerance of each other, which the error test cannot tell apart: no check (inf).
     newton_tol: the completion's Newton tolerance on max |dq| (m or rad):
-        max(NEWTON_MARGIN atol, eps q_scale / s_f).  The margin 1e-2 is Hairer & Wanner's
+        max(NEWTON_MARGIN atol, NEWTON_FLOOR).  The margin 1e-2 is Hairer & Wanner's
         (Solving ODEs II, Sec. IV.8: the Newton iteration of an implicit RK step stops at
         kappa Tol, kappa in [1e-2, 1e-1], so that its error is a fraction of what the error
-        test accepts); its low end, since the completion's error enters every stage.  The
-        floor is the round-off of a correction: the residual Phi (m) carries eps q_scale
-        (q_scale: the size of the coordinates, m, at least the Euler parameters' norm 1),
-        and a solve through A = [Phi_q; C] (or Phi_u), whose smallest singular value goes
-        as s, amplifies it by 1 / s; down to the kernels' pivot floor s_f = 1e-4 the
-        corrections can fall below eps q_scale / s_f (2.2e-12 m for q_scale = 1 m); closer
-        to the point Newton stops on the residual (:func:`newton`).  A fixed-step run has
-        no atol: the floor alone.
+        test accepts); its low end, since the completion's error enters every stage.  No
+        ceiling: a loose atol stops Newton loosely, as the error test allows.  The floor
+        1e-12 m is measured, not derived: Newton's corrections cannot fall below the
+        round-off of the residual (eps x the coordinates' size, m) carried through A =
+        [Phi_q; C] or Phi_u (x 1 / s), which at the kernels' pivot floor s_f is eps / s_f =
+        2.2e-12 m on coordinates of 1 m; as the floor that value moves gcp-dop853's
+        stages next to the point (gcp has no :meth:`Index1._clear_crossing`) and took the
+        four cranks at rtol 1e-11 under OpenBLAS Prescott from 2.75e-11 to 6.57e-9 m
+        (docs/benchmarks.md).  A fixed-step run has no atol: the floor alone.
     kept_residual: a Newton that stops moving above its tolerance (gcp's projected
         Hermite fallback) is kept where its residual max |Phi| is within 1e2 newton_tol,
-        i.e. one atol (m) above the floor: one absolute tolerance, what the error test
+        i.e. one atol (m) above 1e-10 m: one absolute tolerance, what the error test
         cannot tell from zero.  The index-1 projection's own rule is :meth:`projection_kept`.
     newton_iter: the completion's most Newton iterations: quadratic convergence doubles the
         correct digits per iteration, from one (a start within the local error) to the 16
@@ -190,13 +193,12 @@ class Policy:
                    float(np.sqrt(EPS * rtol ** -(1.0 - 1.0 / k))))
 
     @classmethod
-    def for_run(cls, family, rtol, atol, fixed, tangent=True, *, exponent, n, q_scale=1.0):
+    def for_run(cls, family, rtol, atol, fixed, tangent=True, *, exponent, n):
         """The policy of a run: family 'gcp' | 'index-1'; fixed: a fixed-step run;
         tangent: False takes no tangent coordinates (index-1 option ``tangent_steps``);
-        exponent: the integrator's error exponent -1/k (0: no error estimate); n: nq;
-        q_scale: the size of the coordinates (m or rad; Euler parameters have norm 1)."""
+        exponent: the integrator's error exponent -1/k (0: no error estimate); n: nq."""
         k = -1.0 / exponent if exponent and not fixed else 0.0
-        newton_tol = cls.newton_tolerance(None if fixed else atol, q_scale)
+        newton_tol = cls.newton_tolerance(None if fixed else atol)
         if fixed:
             s = cls.law(DEFAULT_RTOL)
         elif family == "gcp":
@@ -215,11 +217,10 @@ class Policy:
             rank_lost=n * EPS)
 
     @staticmethod
-    def newton_tolerance(atol, q_scale):
-        """newton_tol (class doc): max(NEWTON_MARGIN atol, eps q_scale / s_f) (m or rad);
-        atol None (fixed steps): the round-off floor alone."""
-        floor = EPS * q_scale / float(np.sqrt(SCHUR_PIVOT_FLOOR))
-        return floor if atol is None else max(NEWTON_MARGIN * atol, floor)
+    def newton_tolerance(atol):
+        """newton_tol (class doc): max(NEWTON_MARGIN atol, NEWTON_FLOOR) (m or rad); atol
+        None (fixed steps): the floor alone."""
+        return NEWTON_FLOOR if atol is None else max(NEWTON_MARGIN * atol, NEWTON_FLOOR)
 
     @staticmethod
     def stage_reach(tableau, h):

@@ -98,8 +98,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             raise ValueError(f"partition: expected nullspace | lu, got {self.method!r}")
         # the change-point policy (changepoints.Policy)
         self.policy = cp.Policy.for_run("gcp", self.rtol, self.atol, self.h_fixed is not None,
-                                        exponent=self.error_exponent, n=self.n,
-                                        q_scale=max(1.0, float(np.abs(q0).max(initial=0.0))))
+                                        exponent=self.error_exponent, n=self.n)
         self.newton_tol = float(self.options.get("newton_tol", self.policy.newton_tol))
         self.counters["repartitions"] = 0
         self.counters["tangent_partitions"] = 0

@@ -88,8 +88,7 @@ class Index1(RungeKuttaIntegrator):
         # the change-point policy (changepoints.Policy; module doc: ``tangent_steps``)
         self.policy = cp.Policy.for_run("index-1", self.rtol, self.atol, self.h_fixed is not None,
                                         bool(self.options.get("tangent_steps", True)),
-                                        exponent=self.error_exponent, n=n,
-                                        q_scale=max(1.0, float(np.abs(q0).max(initial=0.0))))
+                                        exponent=self.error_exponent, n=n)
         self.newton_tol = float(self.options.get("newton_tol", self.policy.newton_tol))
         self.counters["tangent_stages"] = 0
         self.counters["noise_limited_steps"] = 0
