@@ -93,6 +93,8 @@ class Index1(RungeKuttaIntegrator):
         self.counters["tangent_stages"] = 0
         self.counters["noise_limited_steps"] = 0
         self._rng = np.random.default_rng(0)  # signs of the round-off probe (reproducible)
+        # ... and of _clear_crossing's probe, apart: the error test's draws stay its own
+        self._clear_rng = np.random.default_rng(1)
         self._s = 1.0  # the change-point measure at the latest stage (from its Schur factor)
         self._C = None  # tangent map C (k, nq) of the latest tangent-coordinate step
         self._step_start = (t0, self.q)  # (t, q) at the start of the current step
@@ -226,7 +228,7 @@ class Index1(RungeKuttaIntegrator):
                    + self.rtol * np.maximum(np.abs(self.y[:n]), np.abs(y_new[:n])))
         return max(err_v, self.tableau.error_norm(self.K[:, :n], h, scale_q))
 
-    def _stage_noise(self, t, y):
+    def _stage_noise(self, t, y, rng=None):
         """(2k,) the round-off of a tangent stage's derivative (C qd, C qdd) at y, per
         component: the spread of C qdd between two completions from q perturbed by
         ROUNDOFF_ULPS ulps (random signs), over sqrt 2 (C qd = vd holds to round-off); None
@@ -241,10 +243,11 @@ class Index1(RungeKuttaIntegrator):
         ``noise_limited_steps`` when that passes a step), as generalized-alpha's does with
         its Newton round-off.  Not where a stage of the trial came below the policy's
         ``noise_s``: there the noise is that of a crossing, unbounded, and taking it off
-        would accept steps onto the other branch."""
+        would accept steps onto the other branch.  rng: the signs' generator (default the
+        error test's)."""
         n, C = self.n, self._C
         q, qd = y[:n], y[n:2 * n]
-        rng = self._rng
+        rng = self._rng if rng is None else rng
         ulp = ROUNDOFF_ULPS * np.finfo(float).eps * max(1.0, np.abs(q).max(initial=0.0))
         a = []
         try:
@@ -422,7 +425,7 @@ class Index1(RungeKuttaIntegrator):
             t_i, y_i = self.t + h, y_new
         else:
             t_i, y_i = self.t + tab.C[i] * h, self.y + h * (self.K[:i].T @ tab.A[i, :i])
-        noise = self._stage_noise(t_i, y_i)
+        noise = self._stage_noise(t_i, y_i, self._clear_rng)
         if noise is None:
             return None
         k = self._C.shape[0]
