@@ -204,7 +204,7 @@ class Policy:
         elif family == "gcp":
             s = cls.law(rtol)
         else:
-            s = cls.index1_law(rtol, k)
+            s = max(float(np.sqrt(SCHUR_PIVOT_FLOOR)), float(cls.law(rtol) ** 2))
         return cls(
             tangent=s if tangent else 0.0,
             noise_s=cls.law(1.0),
