@@ -87,23 +87,47 @@ class Policy:
           solves, not C's reference point; tests/integrators/test_policy.py.)  So the
           Schur path is the more accurate wherever it solves the equations, i.e. above
           s_f = sqrt(SCHUR_PIVOT_FLOOR) = 1e-4: below that pivot ratio (~ s^2) the kernels
-          raise the pivot and its accelerations are off by 0.4-0.9 of max |qdd|.  Above s_f
-          the Schur path's error test sees its round-off and cuts the steps for it, which
-          the tangent steps' test does not (it takes the probed round-off off:
-          ``noise_err``, index-1 ``_stage_noise``).  A relative error e of the stage
-          accelerations moves a step's qd by ~ h e |qdd|, i.e. e h / (rtol T) tolerances
-          (|qd| ~ T |qdd|, T the motion's time scale), with steps h ~ T rtol^(1/k): e_S =
-          eps s^-2 reaches one tolerance at s = sqrt(eps rtol^-(1 - 1/k)).  The switch is
-          that s, not below s_f: s_index1 = max(s_f, sqrt(eps rtol^-(1 - 1/k)))
-          (:meth:`index1_law`; DOP853 1e-4 down to rtol 1e-8, 1.3e-4, 3.5e-4, 9.7e-4, 2.6e-3
-          at rtol 1e-9 ... 1e-12; Dormand-Prince 5(4) 1.5e-4, 3.7e-4, 9.4e-4 at 1e-10,
-          1e-11, 1e-12).  A tangent step that crosses the point with a stage next to it is
-          placed clear of it (index-1 ``_clear_crossing``): the embedded pair's two
-          solutions share that stage, so its round-off cancels in the error estimate and
-          the test cannot see it; the stage's round-off is probed and carried to the
-          step's end (:meth:`stage_reach`), and where it exceeds the tolerance the step is
-          taken again with every stage at s >= (its round-off at s = 1)^(1/3) (the law
-          s^-3 of the three solves; :func:`clear_of_crossing`).
+          raise the pivot and its accelerations are off by 0.4-0.9 of max |qdd|.  What the
+          tangent coordinates have besides is an error test that takes the probed
+          round-off off (``noise_err``, index-1 ``_stage_noise``); the Schur path's error
+          test sees its round-off and cuts the steps for it.  That gives two limits, and
+          the switch must lie between them:
+          - from below, where the Schur path's round-off begins to cut the steps: a
+            relative error e of the stage accelerations moves a step's qd by ~ h e |qdd|,
+            i.e. e h / (rtol T) tolerances (|qd| ~ T |qdd|), with steps h ~ T rtol^(1/k):
+            e_S reaches one tolerance at s = sqrt(eps rtol^-(1 - 1/k)) (:meth:`index1_law`;
+            DOP853 1.3e-4, 3.5e-4, 9.7e-4 at rtol 1e-9, 1e-10, 1e-11).  Measured: with the
+            switch at the floor alone projection-dop853 at rtol 1e-11 crawled at 1.4e-5 s
+            next to the dead centre of tests/integrators/test_changepoints.py and the deck's
+            eleven passages ended 2.98e-8 m off (bound 1.5e-8 m); at 2e-4 both pass.
+          - from above, where tangent steps go wrong: a step retried in tangent coordinates
+            whose stage comes to s ~ 5e-5 can pass its error test with a true error 30 x
+            the tolerance (error norm 0.954, projection-dop853 at rtol 1e-10 under Haswell
+            with newton_tol's lower clamp moved to 2.220446e-12: a stage at s = 6.3e-5, the
+            run 2.8e-9 m off).  Measured: the four cranks at rtol 1e-9 under
+            OpenBLAS Prescott, switch 3e-4 ... 1e-3: 4.0e-8 m (2.97e-10 m at 2e-4 or less;
+            the step 0.4471 -> 0.4659 s, a stage at s = 5.4e-5, the energy up 6.6e-7 J);
+            the shaken four cranks (tests/integrators/test_index1_tangent.py::
+            test_rheonomic_linkage) at rtol 1e-10 under Haswell, switch 3e-4 or more:
+            2.54e-8 m (passes at 1e-4 ... 2.5e-4).  Which stage lands how close to the
+            point is the run's round-off, so this limit is not a law of rtol, and the
+            derived lower limit crosses it (3.5e-4 at rtol 1e-10).
+          The derived lower limit is not sharp either: at rtol 1e-10 the runs pass with
+          switches from 1e-4 up.  Until the tangent step's error test sees the error of
+          such a step, the switch is the measured law s_index1 = max(s_f, (eps /
+          rtol)^(2/3)) (the square of gcp's; 1e-4 down to rtol 2.2e-10, 1.7e-4 at 1e-10,
+          7.9e-4 at 1e-11), which passes every case above (and .ci/matrix's kernels on
+          f6fe280): a fitted exponent, not a derivation.  The derived lower limit as the
+          switch fails at the dead centre: Dormand-Prince 5(4) at rtol 1e-11 gets 3.7e-4
+          against the measured 7.9e-4, and projection at w0 = 10.51 rad/s then takes 38-42 s
+          CPU instead of 0.75 (docs/benchmarks.md, branch switchlaw).  Against the blind spot
+          above, an index-1 tangent step that crosses the point with a stage whose probed
+          round-off exceeds the tolerance is taken again with its stages clear of the point
+          (index-1 ``_clear_crossing``; it catches such a step only where one draw of the
+          probe sees its round-off, not always): the stage's round-off is probed
+          and carried to the step's end (:meth:`stage_reach`), and the step is retried with
+          every stage at s >= (its round-off at s = 1)^(1/3) (the law s^-3 of the three
+          solves; :func:`clear_of_crossing`).
         A fixed-step run has no error test: nothing in it sees either path's round-off or
         the accuracy its steps deliver (rk4 at 0.25 ms: 1e-12 m on the four cranks, far
         below any default).  Its switch is where the tangent coordinates themselves meet
@@ -186,9 +210,10 @@ class Policy:
 
     @staticmethod
     def index1_law(rtol, k):
-        """The index-1 switch max(s_f, sqrt(eps rtol^-(1 - 1/k))): the s at which the Schur
-        path's round-off eps s^-2 moves an index-1 step's qd by one tolerance, not below the
-        kernels' pivot floor s_f (class doc, ``tangent``); k: the error exponent's -1/k."""
+        """max(s_f, sqrt(eps rtol^-(1 - 1/k))): the s at which the Schur path's round-off
+        eps s^-2 moves an index-1 step's qd by one tolerance, the lower limit of the
+        index-1 switch (class doc, ``tangent``; not the switch itself); k: the error
+        exponent's -1/k."""
         return max(float(np.sqrt(SCHUR_PIVOT_FLOOR)),
                    float(np.sqrt(EPS * rtol ** -(1.0 - 1.0 / k))))
 
