@@ -42,8 +42,8 @@ def accelerations(theta_ref):
 def with_switch(switch, integrators, rtols):
     law = cp.Policy.for_run.__func__
 
-    def for_run(cls, family, rtol, atol, fixed, tangent=True, *, exponent, n):
-        p = law(cls, family, rtol, atol, fixed, tangent, exponent=exponent, n=n)
+    def for_run(cls, family, rtol, atol, fixed, tangent=True, **kw):
+        p = law(cls, family, rtol, atol, fixed, tangent, **kw)
         if family == "index-1" and not fixed and p.tangent > 0.0 and switch is not None:
             p = dataclasses.replace(p, tangent=switch, branch_jump=cls.jump(switch, rtol))
         return p

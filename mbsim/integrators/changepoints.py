@@ -49,6 +49,12 @@ EPS = float(np.finfo(float).eps)
 SCHUR_PIVOT_FLOOR = 1e-8  # mbsim/fast/kernels.c PIVOT_FLOOR: the Schur factor's smallest
 # pivot / diagonal below which the kernels raise the pivot
 DEFAULT_RTOL = 1e-6  # mbsim.analyses.dynamic.DEFAULTS: the rtol of a run that asks none
+NEWTON_MARGIN = 1e-2  # the completion's Newton stop as a fraction of atol: Hairer & Wanner,
+# Solving ODEs II, Sec. IV.8 (the simplified Newton iteration of implicit RK methods), stop
+# at kappa x Tol with kappa in [1e-2, 1e-1], so that the iteration error is a fraction of
+# what the error test accepts; the low end, as the completion's error enters every stage
+NEWTON_FLOOR = 1e-12  # m: the completion's Newton stop at least this: measured, not derived
+# (Policy doc, ``newton_tol``)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,7 +117,17 @@ class Policy:
           such a step, the switch is the measured law s_index1 = max(s_f, (eps /
           rtol)^(2/3)) (the square of gcp's; 1e-4 down to rtol 2.2e-10, 1.7e-4 at 1e-10,
           7.9e-4 at 1e-11), which passes every case above (and .ci/matrix's kernels on
-          f6fe280): a fitted exponent, not a derivation (docs/benchmarks.md).
+          f6fe280): a fitted exponent, not a derivation.  The derived lower limit as the
+          switch fails at the dead centre: Dormand-Prince 5(4) at rtol 1e-11 gets 3.7e-4
+          against the measured 7.9e-4, and projection at w0 = 10.51 rad/s then takes 38-42 s
+          CPU instead of 0.75 (docs/benchmarks.md, branch switchlaw).  Against the blind spot
+          above, an index-1 tangent step that crosses the point with a stage whose probed
+          round-off exceeds the tolerance is taken again with its stages clear of the point
+          (index-1 ``_clear_crossing``; it catches such a step only where one draw of the
+          probe sees its round-off, not always): the stage's round-off is probed
+          and carried to the step's end (:meth:`stage_reach`), and the step is retried with
+          every stage at s >= (its round-off at s = 1)^(1/3) (the law s^-3 of the three
+          solves; :func:`clear_of_crossing`).
         A fixed-step run has no error test: nothing in it sees either path's round-off or
         the accuracy its steps deliver (rk4 at 0.25 ms: 1e-12 m on the four cranks, far
         below any default).  Its switch is where the tangent coordinates themselves meet
@@ -151,20 +167,22 @@ class Policy:
         a factor sqrt(tangent / rtol) from each (gcp 25, 530, 1.1e4; index-1 10, 100, 1300
         at rtol 1e-6, 1e-8, 1e-10).  Where tangent <= rtol the two branches lie within one
         tolerance of each other, which the error test cannot tell apart: no check (inf).
-    newton_tol: the completion's Newton tolerance on max |dq| (m or rad): 1e-2 atol within
-        [1e-12, 1e-9] (1e-12 for fixed steps, which have no atol in an error test).  Not
-        derived: a margin (the completion's error two orders below the error test's
-        absolute unit) and two clamps (the lower one near the completion's round-off eps
-        |q| / s at the kernels' floor s_f, eps / s_f = 2.2e-12 on coordinates of unit
-        size).  Measured on the four cranks at rtol 1e-6, 1e-8, 1e-10 (projection-dop853,
-        gcp-dop853, gcp-rk45): factors 1e-3 and 1e-1 and lower clamps 1e-13 and 1e-11 give
-        the same errors up to the passages' round-off, and so does eps / s_f as the lower
-        clamp, except that a change of its last bits moves stages next to the point and
-        can take projection-dop853 at rtol 1e-10 under OpenBLAS Haswell from 2.6e-11 to
-        2.8e-9 m (docs/benchmarks.md): the values are kept as they were measured.
+    newton_tol: the completion's Newton tolerance on max |dq| (m or rad):
+        max(NEWTON_MARGIN atol, NEWTON_FLOOR).  The margin 1e-2 is Hairer & Wanner's
+        (Solving ODEs II, Sec. IV.8: the Newton iteration of an implicit RK step stops at
+        kappa Tol, kappa in [1e-2, 1e-1], so that its error is a fraction of what the error
+        test accepts); its low end, since the completion's error enters every stage.  No
+        ceiling: a loose atol stops Newton loosely, as the error test allows.  The floor
+        1e-12 m is measured, not derived: Newton's corrections cannot fall below the
+        round-off of the residual (eps x the coordinates' size, m) carried through A =
+        [Phi_q; C] or Phi_u (x 1 / s), which at the kernels' pivot floor s_f is eps / s_f =
+        2.2e-12 m on coordinates of 1 m; as the floor that value moves gcp-dop853's
+        stages next to the point (gcp has no :meth:`Index1._clear_crossing`) and took the
+        four cranks at rtol 1e-11 under OpenBLAS Prescott from 2.75e-11 to 6.57e-9 m
+        (docs/benchmarks.md).  A fixed-step run has no atol: the floor alone.
     kept_residual: a Newton that stops moving above its tolerance (gcp's projected
         Hermite fallback) is kept where its residual max |Phi| is within 1e2 newton_tol,
-        i.e. atol within [1e-10, 1e-7] (m): one absolute tolerance, what the error test
+        i.e. one atol (m) above 1e-10 m: one absolute tolerance, what the error test
         cannot tell from zero.  The index-1 projection's own rule is :meth:`projection_kept`.
     newton_iter: the completion's most Newton iterations: quadratic convergence doubles the
         correct digits per iteration, from one (a start within the local error) to the 16
@@ -205,7 +223,7 @@ class Policy:
         tangent: False takes no tangent coordinates (index-1 option ``tangent_steps``);
         exponent: the integrator's error exponent -1/k (0: no error estimate); n: nq."""
         k = -1.0 / exponent if exponent and not fixed else 0.0
-        newton_tol = 1e-12 if fixed else min(1e-9, max(1e-12, 1e-2 * atol))
+        newton_tol = cls.newton_tolerance(None if fixed else atol)
         if fixed:
             s = cls.law(DEFAULT_RTOL)
         elif family == "gcp":
@@ -222,6 +240,30 @@ class Policy:
             kept_residual=1e2 * newton_tol,
             newton_iter=2 * int(np.ceil(np.log2(-np.log10(EPS)))),
             rank_lost=n * EPS)
+
+    @staticmethod
+    def newton_tolerance(atol):
+        """newton_tol (class doc): max(NEWTON_MARGIN atol, NEWTON_FLOOR) (m or rad); atol
+        None (fixed steps): the floor alone."""
+        return NEWTON_FLOOR if atol is None else max(NEWTON_MARGIN * atol, NEWTON_FLOOR)
+
+    @staticmethod
+    def stage_reach(tableau, h):
+        """(n_stages + 1, 2): how far an error a in one stage's acceleration reaches the end
+        of a step of size h (s): y_new = y + h sum b_i K_i moves the end's velocities by h
+        |b_i| a and its positions by h^2 |(b^T A)_i| a (columns: s, s^2; rows: the stages at
+        tableau.C, then the step's end).  The end is the next step's start, whose derivative
+        enters that step with b_0: its row takes stage 0's reach; stage 0 (this step's
+        start, a state already taken) gets none.  Zero rows (DOP853's stages 2-5) reach the
+        end only through later stages."""
+        b = np.abs(tableau.B)
+        bA = np.zeros(b.size)  # (A: (n_stages, n_stages - 1) when the last column is 0)
+        bA[: tableau.A.shape[1]] = np.abs(tableau.B @ tableau.A[: b.size])
+        reach = np.zeros((b.size + 1, 2))
+        reach[:-1, 0], reach[:-1, 1] = h * b, h * h * bA
+        reach[-1] = reach[0]
+        reach[0] = 0.0
+        return reach
 
     @staticmethod
     def projection_kept(proj_tol):
@@ -493,6 +535,70 @@ class Approach:
             moved = clear_step(self.stages, d, d * (1 + EPS ** 0.5), h_cap)[0]
         self.tried = moved
         return moved
+
+
+def crossing_in_step(c, s, s0, s1, h, agree=0.25):
+    """(d, r) of a change point crossed inside a step of size h, read off the measure of
+    its states and stages: s0, s1 (at its start and end), s (at the stage times c h, c in
+    (0, 1)); d (s) from the start, r (1/s) the speed |ds/dt|.  s is linear in the distance
+    to the point, so a crossing makes s = r |t - d| (a V): r = (s0 + s1) / h and d = s0 / r
+    from the step's ends, checked against the slopes the stages give on either side (each
+    within ``agree`` of r; a side without a stage more than a quarter step from d is not
+    checked, but one side must be).  None where the stages do not show that V, as where the
+    motion turns short of the point (a dwell: s falls and rises again without reaching 0,
+    its slopes at the ends are not those of the ends' V)."""
+    if not (s0 > 0.0 and s1 > 0.0 and h > 0.0):
+        return None
+    r = (s0 + s1) / h
+    d = s0 / r
+    t = np.asarray(c) * h
+    s = np.asarray(s)
+    checked = 0
+    before = np.flatnonzero((t > 0.0) & (t < 0.5 * d))
+    if before.size:
+        i = before[0]  # the stage nearest the start: the slope of the falling side
+        if abs((s0 - s[i]) / t[i] - r) > agree * r:
+            return None
+        checked += 1
+    after = np.flatnonzero((t < h) & (t > 0.5 * (d + h)))
+    if after.size:
+        i = after[-1]  # the stage nearest the end: the slope of the rising side
+        if abs((s1 - s[i]) / (h - t[i]) - r) > agree * r:
+            return None
+        checked += 1
+    return (d, r) if checked else None
+
+
+def clear_of_crossing(c, weights, d, r, h):
+    """The step h' in [d (1 + sqrt eps), h] that takes the crossing of :func:`crossing_in_step`
+    with its stages clear of the point, or None where no step does (a dwell) or the step h
+    already does.  c: the stage times (0 and 1 included: the step's ends are states of the
+    run); weights: (len(c), 2), the tangent round-off of each stage carried to the step's
+    end (Policy.stage_reach) in tolerances at s = 1 (dimensionless), its columns scaling
+    with the step as h and h^2: stage i is clear of the point where its distance |c_i h' -
+    d| at the speed r leaves s above its clearance s_c = w_i(h')^(1/3) (round-off ~ s^-3,
+    class Policy, ``tangent``: there it carries one tolerance).  Among the steps that clear
+    every stage, the longest."""
+    c = np.asarray(c, float)
+    w = np.asarray(weights, float)
+    live = w.max(axis=1) > 0.0
+    if not live.any() or not 0.0 < d < h:
+        return None
+
+    def clear(hp):
+        f = hp / h
+        s_c = np.maximum(w[live, 0] * f, w[live, 1] * f * f) ** (1.0 / 3.0)
+        return bool((r * np.abs(c[live] * hp - d) >= s_c).all())
+
+    if clear(h):
+        return None
+    lo = d * (1.0 + EPS ** 0.5)
+    cands = np.concatenate([d / (0.5 * (c[1:] + c[:-1])), np.linspace(lo, h, 257)])
+    cands = np.sort(cands[(cands >= lo) & (cands < h)])[::-1]
+    for hp in cands:
+        if clear(hp):
+            return float(hp)
+    return None
 
 
 def crossing_time(approach):

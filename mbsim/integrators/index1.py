@@ -36,7 +36,9 @@ estimate of truncation error falls like h^k: what still cuts the step is the rou
 it, the error test takes off what the stages' round-off alone makes, probed by two
 completions from q perturbed by ROUNDOFF_ULPS ulps (:meth:`Index1._stage_noise`).  A motion
 that approaches the point slowly is given a step across it that keeps its stages clear of
-it (:class:`changepoints.Approach`; counter ``straddle_steps``).
+it (:class:`changepoints.Approach`; counter ``straddle_steps``); so is a tangent step that
+crosses the point with a stage whose round-off, which its error test cannot see, exceeds
+the tolerance (:meth:`Index1._clear_crossing`; the same counter).
 
 Option ``tangent_steps`` (default true; false keeps the Schur path everywhere).  Every
 threshold of these rules is the policy's (:class:`changepoints.Policy`, which derives each);
@@ -91,6 +93,8 @@ class Index1(RungeKuttaIntegrator):
         self.counters["tangent_stages"] = 0
         self.counters["noise_limited_steps"] = 0
         self._rng = np.random.default_rng(0)  # signs of the round-off probe (reproducible)
+        # ... and of _clear_crossing's probe, apart: the error test's draws stay its own
+        self._clear_rng = np.random.default_rng(1)
         self._s = 1.0  # the change-point measure at the latest stage (from its Schur factor)
         self._C = None  # tangent map C (k, nq) of the latest tangent-coordinate step
         self._step_start = (t0, self.q)  # (t, q) at the start of the current step
@@ -100,6 +104,10 @@ class Index1(RungeKuttaIntegrator):
         self._tangent_wanted = False  # a stage of the failed trial was in the region
         self._in_trial = False
         self._trial_s = np.inf
+        self._stage_s = []  # the measure at the trial's stages 1.. and its end, in order
+        self._v_scale = None  # the error test's scale of (v, vd) in the last tangent trial
+        self._h_clear = None  # the step to try next, clear of a crossing (_clear_crossing)
+        self._cleared = False  # the current step was moved clear of a crossing
         # the approach to a change point and the step across it (changepoints.Approach)
         self.counters["straddle_steps"] = 0
         self._approach = None
@@ -148,6 +156,8 @@ class Index1(RungeKuttaIntegrator):
         qdd, _, power = self.system.accelerations(q, qd, t, self.stab)
         self._s = s = cp.measure_from_schur(self.system.pivot_ratio)
         self._trial_s = min(self._trial_s, s)
+        if self._in_trial:
+            self._stage_s.append(s)
         near = s < self.policy.tangent  # (a switch of 0 is off)
         if self._tangent or (not self._in_trial and (self._step_tangent or near)):
             qd, qdd, power = self._tangent_stage(t, q, qd)
@@ -200,6 +210,7 @@ class Index1(RungeKuttaIntegrator):
         y0 = np.concatenate([C @ self.y[:n], C @ self.y[n:2 * n]])
         y1 = np.concatenate([C @ y_new[:n], C @ y_new[n:2 * n]])
         scale = self.atol + self.rtol * np.maximum(np.abs(y0), np.abs(y1))
+        self._v_scale = scale
         err_v = self.tableau.error_norm(K, h, scale)
         if err_v > self.policy.noise_err and self._trial_s >= self.policy.noise_s:
             # what the stages' round-off alone makes is not error (_stage_noise)
@@ -217,7 +228,7 @@ class Index1(RungeKuttaIntegrator):
                    + self.rtol * np.maximum(np.abs(self.y[:n]), np.abs(y_new[:n])))
         return max(err_v, self.tableau.error_norm(self.K[:, :n], h, scale_q))
 
-    def _stage_noise(self, t, y):
+    def _stage_noise(self, t, y, rng=None):
         """(2k,) the round-off of a tangent stage's derivative (C qd, C qdd) at y, per
         component: the spread of C qdd between two completions from q perturbed by
         ROUNDOFF_ULPS ulps (random signs), over sqrt 2 (C qd = vd holds to round-off); None
@@ -232,10 +243,11 @@ class Index1(RungeKuttaIntegrator):
         ``noise_limited_steps`` when that passes a step), as generalized-alpha's does with
         its Newton round-off.  Not where a stage of the trial came below the policy's
         ``noise_s``: there the noise is that of a crossing, unbounded, and taking it off
-        would accept steps onto the other branch."""
+        would accept steps onto the other branch.  rng: the signs' generator (default the
+        error test's)."""
         n, C = self.n, self._C
         q, qd = y[:n], y[n:2 * n]
-        rng = self._rng
+        rng = self._rng if rng is None else rng
         ulp = ROUNDOFF_ULPS * np.finfo(float).eps * max(1.0, np.abs(q).max(initial=0.0))
         a = []
         try:
@@ -256,7 +268,14 @@ class Index1(RungeKuttaIntegrator):
         self._c_last = False
         c = self._compiled
         if c is None or self._tangent:
-            return super()._attempt(h)
+            out = super()._attempt(h)
+            if self._tangent and out[2] is not None:
+                h_clear = self._clear_crossing(h, out[1])
+                if h_clear is not None:  # the step again, its stages clear of the point
+                    self._h_clear, self._cleared = h_clear, True
+                    self.counters["straddle_steps"] += 1
+                    return np.nextafter(1.0, 2.0), out[1], None, None, None, None
+            return out
         t = self.t
         status = c.trial(t, h, self.y, self.f, self.policy.tangent)
         if status in (stepper.ST_ALARM, stepper.ST_CALLBACK):
@@ -372,6 +391,55 @@ class Index1(RungeKuttaIntegrator):
                                     f"(NaN or inf)", done=(Q[:i], QD[:i], W[:i]))
         return Q, QD, W
 
+    def _clear_crossing(self, h, y_new):
+        """The step to take instead of an accepted tangent step of size h (end y_new) that
+        crosses the change point with a stage too close to it, or None.  The error test of a
+        tangent step does not see the round-off of a stage next to the point: the embedded
+        pair's two solutions share that stage, and its round-off cancels in their
+        difference.  So where the stages show a crossing (changepoints.crossing_in_step),
+        the round-off of the stage nearest the point is probed (:meth:`_stage_noise`) and
+        carried to the step's end (changepoints.Policy.stage_reach) in the error test's
+        units; where it exceeds the tolerance, the step is tried again at the longest step
+        no longer than h whose stages all clear the point (changepoints.clear_of_crossing,
+        the round-off of the others from the probe by its law s^-3), once per step.  A
+        motion that dwells next to the point (no crossing, or no step clears it) and a stage
+        below the policy's ``noise_s`` (where a probe measures nothing) keep the step."""
+        tab = self.tableau
+        if (self._cleared or self.h_fixed is not None or self._v_scale is None
+                or len(self._stage_s) != tab.n_stages):
+            return None
+        n = self.n
+        s_stages = np.asarray(self._stage_s)  # stages 1 .. n_stages - 1, then the end
+        self.system.accelerations(self.y[:n], self.y[n:2 * n], self.t, self.stab)
+        s0 = cp.measure_from_schur(self.system.pivot_ratio)  # (a function of q alone)
+        crossing = cp.crossing_in_step(tab.C[1:], s_stages[:-1], s0, s_stages[-1], h)
+        if crossing is None:
+            return None
+        reach = cp.Policy.stage_reach(tab, h)
+        live = np.flatnonzero(reach[1:].max(axis=1) > 0.0) + 1
+        i = int(live[np.argmin(s_stages[live - 1])])  # the stage nearest the point
+        s_i = float(s_stages[i - 1])
+        if s_i < self.policy.noise_s:
+            return None
+        if i == tab.n_stages:
+            t_i, y_i = self.t + h, y_new
+        else:
+            t_i, y_i = self.t + tab.C[i] * h, self.y + h * (self.K[:i].T @ tab.A[i, :i])
+        noise = self._stage_noise(t_i, y_i, self._clear_rng)
+        if noise is None:
+            return None
+        k = self._C.shape[0]
+        scale_v, scale_vd = self._v_scale[:k], self._v_scale[k:]
+        unit = s_i ** 3 * np.array([rms_norm(noise[k:], scale_vd), rms_norm(noise[k:], scale_v)])
+        if float((reach[i] * unit).max()) <= s_i ** 3:
+            return None  # within the tolerance
+        return cp.clear_of_crossing(np.append(tab.C, 1.0), reach * unit, *crossing, h)
+
+    def _clip(self, h):
+        if self._h_clear is not None:  # (one trial: the step of _clear_crossing)
+            h, self._h_clear = self._h_clear, None
+        return super()._clip(h)
+
     def _tangent_map(self, t, q):
         s = self.system
         J = s.terms(q, t, phi=False).jac
@@ -383,6 +451,7 @@ class Index1(RungeKuttaIntegrator):
     def _trial(self, h):
         self._in_trial = True
         self._trial_s = np.inf  # the smallest measure of the trial's stages
+        self._stage_s = []
         try:
             return super()._trial(h)
         finally:
@@ -411,6 +480,7 @@ class Index1(RungeKuttaIntegrator):
             self._C = None
         self._step_start = (self.t, self.q)
         self._step_tangent = False  # (the last step's dense output has been taken)
+        self._cleared, self._h_clear = False, None
         approach = self._approach if self.policy.tangent > 0.0 else None
         h = approach.step(self.h_abs) if approach else None
         if h is not None:

@@ -132,6 +132,59 @@ def test_clear_step_is_the_farthest(tableau, d, lo, hi):
 
 
 @pytest.mark.parametrize("tableau", [rk.Dop853, rk.DormandPrince54])
+@pytest.mark.parametrize("d", [0.2, 0.5, 0.857])
+def test_crossing_in_step_reads_the_point_off_a_v(tableau, d):
+    """s = r |t - d| at the stages (a crossing at speed r = 7 /s, the four cranks' at their
+    flat position): d and r exactly; a motion that turns short of the point, s = s_t + a (t -
+    d)^2 with the same ends, is no crossing."""
+    h, r = 1e-2, 7.0
+    c = tableau.C[1:]
+    t = c * h
+    s0, s1 = r * d * h, r * (1 - d) * h
+    found = cp.crossing_in_step(c, r * np.abs(t - d * h), s0, s1, h)
+    assert found == pytest.approx((d * h, r), rel=1e-12)
+    s_turn = 0.2 * min(s0, s1)
+    a = (s0 - s_turn) / (d * h) ** 2
+    turn = s_turn + a * (t - d * h) ** 2
+    turn_s1 = s_turn + a * ((1 - d) * h) ** 2
+    assert cp.crossing_in_step(c, turn, s0, turn_s1, h) is None
+
+
+@pytest.mark.parametrize("tableau", [rk.Dop853, rk.DormandPrince54])
+def test_clear_of_crossing_clears_every_stage_or_keeps_the_step(tableau):
+    """The step returned is no longer than the proposed one, crosses the point and keeps
+    every stage that reaches the step's end at least its clearance (w(h')^(1/3) / r in time)
+    from it; the proposed step is kept (None) where it already does, and where no step does
+    (a slow motion: a dwell next to the point)."""
+    h, r = 1e-2, 7.0
+    c = np.append(tableau.C, 1.0)
+    reach = cp.Policy.stage_reach(tableau, h)
+    w = reach * np.array([1e-9 / h, 1e-9 / h ** 2])  # clearance 1e-3 at the stage of b = 1
+    d = c[-3] * h + 1e-6  # a stage next to the point
+    hp = cp.clear_of_crossing(c, w, d, r, h)
+    assert d < hp < h
+    f = hp / h
+    s_c = np.maximum(w[:, 0] * f, w[:, 1] * f * f) ** (1 / 3)
+    live = reach.max(axis=1) > 0
+    assert (r * np.abs(c[live] * hp - d) >= s_c[live]).all()
+    assert cp.clear_of_crossing(c, w, d, r, hp) is None  # (hp already clears it)
+    assert cp.clear_of_crossing(c, w, d, 1e-3 * r, h) is None  # too slow: a dwell
+    assert cp.clear_of_crossing(c, w, 1.5 * h, r, h) is None  # the point beyond the step
+
+
+def test_stage_reach_is_the_tableaus_weights():
+    """A stage's acceleration error a moves the step's end by h |b_i| a (velocities) and
+    h^2 |(b^T A)_i| a (positions); the end takes the start's weights, the start none."""
+    tab, h = rk.Dop853, 0.01
+    reach = cp.Policy.stage_reach(tab, h)
+    b = np.abs(tab.B)
+    assert reach[1:-1, 0] == pytest.approx(h * b[1:])
+    assert reach[1:-1, 1] == pytest.approx(h * h * np.abs(tab.B @ tab.A)[1:])  # (A: 12 x 12)
+    assert reach[-1, 0] == pytest.approx(h * b[0])
+    assert (reach[0] == 0).all()
+
+
+@pytest.mark.parametrize("tableau", [rk.Dop853, rk.DormandPrince54])
 def test_error_norm_takes_off_the_stage_noise(tableau):
     """Tableau.error_norm with ``noise``: none or zero noise gives the plain norm; the norm
     falls as the noise grows and is zero once h |E|_2 noise exceeds every component of the

@@ -97,13 +97,16 @@ def test_newton_and_rank_thresholds_follow_eps():
 @pytest.mark.parametrize("family", ["gcp", "index-1"])
 @pytest.mark.parametrize("rtol", RTOLS)
 def test_newton_tolerances_follow_atol(family, rtol):
-    """newton_tol: a hundredth of atol within [1e-12, 1e-9]; kept_residual: 1e2 newton_tol,
-    one atol within [1e-10, 1e-7]; the index-1 projection keeps a stalled projection within
-    one atol in [1e-11, 1e-7] for its default tolerance 1e-3 atol in [1e-14, 1e-10]."""
+    """newton_tol: a hundredth of atol (Hairer & Wanner IV.8's kappa), at least the measured
+    floor 1e-12 m (fixed steps: the floor alone); kept_residual: 1e2 newton_tol, one atol;
+    the index-1 projection keeps a stalled projection within one atol in [1e-11, 1e-7] for
+    its default tolerance 1e-3 atol in [1e-14, 1e-10]."""
+    fixed = cp.Policy.for_run(family, rtol, 1.0, True, exponent=EXPONENTS[0], n=28)
+    assert fixed.newton_tol == cp.NEWTON_FLOOR == 1e-12
     for atol in (1e-2 * rtol, rtol):
         p = cp.Policy.for_run(family, rtol, atol, False, exponent=EXPONENTS[0], n=28)
-        assert p.newton_tol == pytest.approx(min(1e-9, max(1e-12, 1e-2 * atol)), rel=REL)
-        assert p.kept_residual == pytest.approx(min(1e-7, max(1e-10, atol)), rel=REL)
+        assert p.newton_tol == pytest.approx(max(1e-2 * atol, 1e-12), rel=REL)
+        assert p.kept_residual == pytest.approx(1e2 * p.newton_tol, rel=REL)
         proj_tol = min(1e-10, max(1e-14, 1e-3 * atol))
         assert cp.Policy.projection_kept(proj_tol) == pytest.approx(
             min(1e-7, max(1e-11, atol)), rel=REL)
@@ -128,12 +131,13 @@ def test_policy_is_monotone_in_rtol(family):
 @pytest.mark.parametrize("family", ["gcp", "index-1"])
 def test_fixed_steps_take_the_policy_of_a_run_that_asks_no_accuracy(family):
     """No error test: the switch where the tangent coordinates' own round-off meets the
-    default rtol, whatever rtol says; no cut, no probe;
+    default rtol, whatever rtol says; no cut, no probe, the Newton stop at its floor;
     ``tangent_steps: false`` (index-1) and off() take no tangent coordinates."""
     for rtol in RTOLS:
         p = policy(family, rtol, exponent=0.0, fixed=True)
         assert p.tangent == cp.Policy.law(cp.DEFAULT_RTOL)
-        assert (p.cut, p.noise_err, p.newton_tol) == (1.0, 1.0, 1e-12)
+        assert (p.cut, p.noise_err) == (1.0, 1.0)
+        assert p.newton_tol == cp.NEWTON_FLOOR
     p = cp.Policy.for_run(family, 1e-6, 1e-8, False, tangent=False, exponent=-0.2, n=28)
     assert p.tangent == 0.0
     assert policy(family, 1e-8).off().tangent == 0.0
