@@ -193,7 +193,7 @@ def test_both_paths_meet_the_reference(name, method, rtol, h):
     if name in PASSES_SINGULAR_POSITIONS:
         # at a flat position round-off picks the steps (the first steps' error norms are
         # round-off, summed in another order by C and numpy) and what each passage leaves
-        # differs between the paths (docs/benchmarks.md, issue-24 table's notes): each is
+        # differs between the paths (docs/benchmarks.md, "Passages over perturbed starts"): each is
         # held to the singular-passage bound instead (test_singular_loops.py)
         assert max(errors) <= 10 * rtol + 1e-9, errors
         return
