@@ -3,7 +3,8 @@ second at a given error, each code at its best, plus the costs around mbsim's in
 
     python benchmarks/peers.py [--cases governor,slider_crank,chain,fourbar40,user,share,startup]
                                [--sizes 4,16,64,256,1024] [--repeats 3] [--max-cpu 30]
-                               [--refine 10] [--quick] [--json OUT]
+                               [--refine 10] [--kt-max 256] [--kt-implicit-max 16]
+                               [--exudyn-cap CPU_S] [--kt-cap CPU_S] [--quick] [--json OUT]
 
 Cases (``--cases``; default all):
 
@@ -53,7 +54,10 @@ A ladder stops once it is 10x below the smallest target or a run costs over ``--
 seconds (then that run is not repeated).  Running time: the full default run takes hours on
 two shared cores (N = 1024: the reference alone 100 CPU s; Exudyn's trials of every linear
 solver at 256 and 1024 links and on the 40 loops take minutes each); run cases or sizes
-separately (``--cases chain --sizes 256``) to spread it.
+separately (``--cases chain --sizes 256``) to spread it.  Chains:
+``--exudyn-cap`` (``--kt-cap`` for the ObjectKinematicTree) stops an Exudyn run after that
+many CPU s, from its pre-step user function (checked between steps): the run is printed as
+"cut", its CPU a lower bound on its cost, never a figure; without them no run is stopped.
 
 ``--quick``: small sizes, one repeat, short ladders, a 4-loop four-bar for 2 s; a smoke
 test of every code path.  Without exudyn
