@@ -3,7 +3,8 @@ second at a given error, each code at its best, plus the costs around mbsim's in
 
     python benchmarks/peers.py [--cases governor,slider_crank,chain,fourbar40,user,share,startup]
                                [--sizes 4,16,64,256,1024] [--repeats 3] [--max-cpu 30]
-                               [--refine 10] [--quick] [--json OUT]
+                               [--refine 10] [--kt-max 256] [--kt-implicit-max 16]
+                               [--exudyn-cap CPU_S] [--kt-cap CPU_S] [--quick] [--json OUT]
 
 Cases (``--cases``; default all):
 
@@ -53,7 +54,10 @@ A ladder stops once it is 10x below the smallest target or a run costs over ``--
 seconds (then that run is not repeated).  Running time: the full default run takes hours on
 two shared cores (N = 1024: the reference alone 100 CPU s; Exudyn's trials of every linear
 solver at 256 and 1024 links and on the 40 loops take minutes each); run cases or sizes
-separately (``--cases chain --sizes 256``) to spread it.
+separately (``--cases chain --sizes 256``) to spread it.  Chains:
+``--exudyn-cap`` (``--kt-cap`` for the ObjectKinematicTree) stops an Exudyn run after that
+many CPU s, from its pre-step user function (checked between steps): the run is printed as
+"cut", its CPU a lower bound on its cost, never a figure; without them no run is stopped.
 
 ``--quick``: small sizes, one repeat, short ladders, a 4-loop four-bar for 2 s; a smoke
 test of every code path.  Without exudyn
@@ -151,7 +155,7 @@ def run_ladder(run, settings, repeats, max_cpu, label, t_end, show=True):
         if show:
             print(f"    {label:<46} {fmt_setting(s):>9}  CPU s/s {med:9.4g} [{lo:.3g}-{hi:.3g}]"
                   f"  error {err:9.2e}" + (f"  {note}" if note else ""), flush=True)
-        if cpu * t_end > max_cpu or err < STOP * min(TARGETS):
+        if cpu * t_end > max_cpu or err < STOP * min(TARGETS) or is_cut(note):
             break
     return points
 
@@ -236,10 +240,39 @@ def reference_run(model, t_end, q0, qd0, ref):
 
 
 # ------------------------------------------------------------------ Exudyn
+CUT = "cut at the CPU cap"
+
+
+def is_cut(note):
+    return bool(note) and note.startswith(CUT)
+
+
+def capped_solve(mbs, var, t_end, setting, cap):
+    """exudyn_solve, stopped by Exudyn's pre-step user function once the run has used `cap`
+    CPU s (None: no cap, no user function).  A stopped run returns the note CUT ...: its CPU
+    time is then a lower bound on the whole run's cost."""
+    if cap is None:
+        return exudyn_solve(mbs, var, t_end, setting)
+    c0, reached = time.process_time(), {"t": 0.0, "stopped": False}
+
+    def within_cap(mbs, t):
+        reached["t"] = t
+        reached["stopped"] = time.process_time() - c0 > cap
+        return not reached["stopped"]
+
+    mbs.SetPreStepUserFunction(within_cap)
+    cpu, msg = exudyn_solve(mbs, var, t_end, setting)
+    if msg is None and reached["stopped"]:
+        msg = (f"{CUT} ({cap:g} s) at t = {reached['t']:.3g} of {t_end:g} s: "
+               f"> {cpu / t_end:.3g} CPU s/s")
+    return cpu, msg
+
+
 def exudyn_method_ladders(build, read_error, methods, t_end, a, label_prefix, dense_ok=True,
-                          ignore_singular=False):
+                          ignore_singular=False, cap=None):
     """For each method: try every linear solver (and Newton variant) at the cheapest ladder
-    point, run the fastest's ladder.  build() -> (mbs, reader); read_error(reader) -> error.
+    point, run the fastest's ladder.  build() -> (mbs, reader); read_error(reader) -> error;
+    cap: CPU s after which a run is stopped (capped_solve).
     Returns ({label: points}, [notes])."""
     ladders, notes = {}, []
     for method in methods:
@@ -251,26 +284,38 @@ def exudyn_method_ladders(build, read_error, methods, t_end, a, label_prefix, de
             if not dense_ok and var.linear != "EigenSparse":
                 continue
             mbs, reader = build()
-            cpu, msg = exudyn_solve(mbs, var, t_end, first[0])
+            cpu, msg = capped_solve(mbs, var, t_end, first[0], cap)
             trials.append((cpu if msg is None else math.inf, var, msg))
         cpu, var, msg = min(trials, key=lambda x: x[0])
+        if msg is not None and all(is_cut(m) for _, _, m in trials):
+            cut = ", ".join(f"{v.linear}{'+mN' if v.modified_newton else ''} {m[len(CUT):].strip()}"
+                            for _, v, m in trials)
+            notes.append(f"{label_prefix}{method}: every variant {CUT} at "
+                         f"{fmt_setting(first[0])}: {cut}")
+            print(f"    {notes[-1]}", flush=True)
+            continue
         if msg is not None:
             notes.append(f"{label_prefix}{method}: not applicable ({msg})")
             print(f"    {label_prefix}{method}: not applicable ({msg})", flush=True)
             continue
         tried = ", ".join(f"{v.linear}{'+mN' if v.modified_newton else ''} "
-                          f"{c / t_end:.3g}" if m is None else f"{v.linear} failed"
+                          f"{c / t_end:.3g}" if m is None else
+                          f"{v.linear}{'+mN' if v.modified_newton else ''} "
+                          + ("cut" if is_cut(m) else "failed")
                           for c, v, m in trials)
         print(f"    {label_prefix}{method}: CPU s/s at {fmt_setting(first[0])}: {tried}",
               flush=True)
 
         def run(setting, var=var):
             mbs, reader = build()
-            c, m = exudyn_solve(mbs, var, t_end, setting)
+            c, m = capped_solve(mbs, var, t_end, setting, cap)
             return c / t_end, (read_error(reader) if m is None else math.nan), m
 
         label = label_prefix + var.label
         ladders[label] = run_ladder(run, first, a.repeats, a.max_cpu, label, t_end)
+        if is_cut(ladders[label][-1]["note"]):
+            notes.append(f"{label}: {fmt_setting(ladders[label][-1]['setting'])} "
+                         f"{ladders[label][-1]['note']}")
     return ladders, notes
 
 
@@ -355,7 +400,7 @@ def chain_case(n, a):
 
         ex, notes = exudyn_method_ladders(build_cart, err_cart, EXUDYN_IMPLICIT, CHAIN_T_END,
                                           a, "exudyn Cartesian ",
-                                          dense_ok=model.nq <= DENSE_MAX_NQ)
+                                          dense_ok=model.nq <= DENSE_MAX_NQ, cap=a.exudyn_cap)
         if model.nq > DENSE_MAX_NQ:
             notes.append(f"Cartesian twin: dense linear solvers not tried (nq = {model.nq} > "
                          f"{DENSE_MAX_NQ})")
@@ -369,13 +414,14 @@ def chain_case(n, a):
                 return float(np.linalg.norm(np.array(mbs.GetSensorValues(tip)) - tip_ref))
 
             methods = EXUDYN_ADAPTIVE + EXUDYN_FIXED
-            if n <= KT_IMPLICIT_MAX_LINKS:
+            if n <= a.kt_implicit_max:
                 methods += EXUDYN_IMPLICIT
             else:
                 notes.append("ObjectKinematicTree with implicit solvers not run above "
-                             f"{KT_IMPLICIT_MAX_LINKS} links (peers.KT_IMPLICIT_MAX_LINKS)")
+                             f"{a.kt_implicit_max} links (--kt-implicit-max)")
             kt, kt_notes = exudyn_method_ladders(build_tree, err_tree, methods, CHAIN_T_END,
-                                                 a, "exudyn KinematicTree ")
+                                                 a, "exudyn KinematicTree ",
+                                                 cap=a.kt_cap if a.kt_cap else a.exudyn_cap)
             ex.update(kt)
             notes += kt_notes
         else:
@@ -734,6 +780,15 @@ def main(argv=None):
                          "first hit (0: the plain ladder)")
     ap.add_argument("--kt-max", type=int, default=KT_MAX_LINKS,
                     help="largest chain run as Exudyn's ObjectKinematicTree")
+    ap.add_argument("--kt-implicit-max", type=int, default=KT_IMPLICIT_MAX_LINKS,
+                    help="largest chain run as ObjectKinematicTree under Exudyn's implicit "
+                         "solvers")
+    ap.add_argument("--exudyn-cap", type=float, default=None, metavar="CPU_S",
+                    help="chains: stop an Exudyn run after this many CPU s (its cost is then "
+                         "a lower bound, printed as cut); default: no cap")
+    ap.add_argument("--kt-cap", type=float, default=None, metavar="CPU_S",
+                    help="chains: the same cap for the ObjectKinematicTree's runs (default: "
+                         "--exudyn-cap)")
     ap.add_argument("--loops", type=int, default=40, help="four-bar loops (fourbar40)")
     ap.add_argument("--no-exudyn", action="store_true", help="skip Exudyn even if installed")
     ap.add_argument("--quick", action="store_true",
