@@ -368,6 +368,20 @@ def deck_case(key, a):
 
 
 # ------------------------------------------------------------------ chains
+def tree_twin(model, n, tip_ref):
+    """(build, error) for exudyn_method_ladders: the chain of ``n`` links as Exudyn's
+    ObjectKinematicTree, and its tip's distance from ``tip_ref`` (m)."""
+    def build_tree():
+        _, mbs, tip = exudyn_chain_tree(model, n)
+        return mbs, (mbs, tip)
+
+    def err_tree(reader):
+        mbs, tip = reader
+        return float(np.linalg.norm(np.array(mbs.GetSensorValues(tip)) - tip_ref))
+
+    return build_tree, err_tree
+
+
 def chain_case(n, a):
     model = chain_model(n)
     q, qd = model.q0.copy(), np.zeros(model.nq)
@@ -405,14 +419,7 @@ def chain_case(n, a):
             notes.append(f"Cartesian twin: dense linear solvers not tried (nq = {model.nq} > "
                          f"{DENSE_MAX_NQ})")
         if n <= a.kt_max:
-            def build_tree():
-                _, mbs, tip = exudyn_chain_tree(model, n)
-                return mbs, (mbs, tip)
-
-            def err_tree(reader):
-                mbs, tip = reader
-                return float(np.linalg.norm(np.array(mbs.GetSensorValues(tip)) - tip_ref))
-
+            build_tree, err_tree = tree_twin(model, n, tip_ref)
             methods = EXUDYN_ADAPTIVE + EXUDYN_FIXED
             if n <= a.kt_implicit_max:
                 methods += EXUDYN_IMPLICIT

@@ -44,7 +44,7 @@ def ladders(model, a):
     """peers.chain_case's tree branch for a.methods: trials, then ladders with errors."""
     import numpy as np
     from common import chain_tip
-    from peers import CHAIN_REFERENCE, exudyn_method_ladders, reference_run
+    from peers import CHAIN_REFERENCE, exudyn_method_ladders, reference_run, tree_twin
 
     n = a.links
     q, qd = model.q0.copy(), np.zeros(model.nq)
@@ -54,14 +54,7 @@ def ladders(model, a):
           f"reference {ref_cpu:.2f} s CPU; load average "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
 
-    def build_tree():
-        _, mbs, tip = exudyn_chain_tree(model, n)
-        return mbs, (mbs, tip)
-
-    def err_tree(reader):
-        mbs, tip = reader
-        return float(np.linalg.norm(np.array(mbs.GetSensorValues(tip)) - tip_ref))
-
+    build_tree, err_tree = tree_twin(model, n, tip_ref)
     a.adaptive_tols, a.explicit_steps, a.fixed_steps = ADAPTIVE_TOLS, EXPLICIT_STEPS, FIXED_STEPS
     _, notes = exudyn_method_ladders(build_tree, err_tree, a.methods.split(","), CHAIN_T_END,
                                      a, "exudyn KinematicTree ", cap=a.cap)
