@@ -117,9 +117,12 @@ def summary(bench, exudyn_points):
         print(f"    {target:7.0e}: mbsim: {line}")
         if exudyn_points is not None:
             exu, extrapolated = cost_at(exudyn_points, target)
+            if extrapolated:  # an estimate, never made a ratio
+                print(f"             exudyn {exu:.3g} (an estimate, extrapolated past its "
+                      "ladder: no ratio)")
+                continue
             ratio = exu / ranked[0][0] if ranked and exu == exu else float("nan")
-            flag = " (extrapolated past its ladder)" if extrapolated else ""
-            print(f"             exudyn {exu:.3g}{flag}; ratio exudyn / best mbsim = {ratio:.2f}")
+            print(f"             exudyn {exu:.3g}; ratio exudyn / best mbsim = {ratio:.2f}")
 
 
 def main(argv=None):
