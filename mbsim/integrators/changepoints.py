@@ -120,14 +120,16 @@ class Policy:
           f6fe280): a fitted exponent, not a derivation.  The derived lower limit as the
           switch fails at the dead centre: Dormand-Prince 5(4) at rtol 1e-11 gets 3.7e-4
           against the measured 7.9e-4, and projection at w0 = 10.51 rad/s then takes 38-42 s
-          CPU instead of 0.75 (docs/benchmarks.md, branch switchlaw).  Against the blind spot
-          above, an index-1 tangent step that crosses the point with a stage whose probed
-          round-off exceeds the tolerance is taken again with its stages clear of the point
-          (index-1 ``_clear_crossing``; it catches such a step only where one draw of the
-          probe sees its round-off, not always): the stage's round-off is probed
-          and carried to the step's end (:meth:`stage_reach`), and the step is retried with
-          every stage at s >= (its round-off at s = 1)^(1/3) (the law s^-3 of the three
-          solves; :func:`clear_of_crossing`).
+          CPU instead of 0.75 (docs/benchmarks.md, "Change points as one component").
+          Against the blind spot above, an index-1 tangent step that crosses the point with
+          a stage whose probed round-off exceeds the tolerance is taken again with its
+          stages clear of the point (index-1 ``_clear_crossing``; it catches such a step
+          only where one draw of the probe sees its round-off, not always): the stage's
+          round-off is probed and carried to the step's end (:meth:`stage_reach`), and the
+          step is retried with every stage at s >= (its round-off at s = 1)^(1/3) (the law
+          s^-3 of the three solves; :func:`clear_of_crossing`).  What counts as a crossing
+          (:func:`crossing_in_step`: slopes within a quarter of the V's) is a geometric
+          choice, not derived.
         A fixed-step run has no error test: nothing in it sees either path's round-off or
         the accuracy its steps deliver (rk4 at 0.25 ms: 1e-12 m on the four cranks, far
         below any default).  Its switch is where the tangent coordinates themselves meet
