@@ -41,6 +41,7 @@ from mbsim.rotations import G as rot_G
 
 log = logging.getLogger(__name__)
 XYZ = "xyz"
+EPS = float(np.finfo(float).eps)
 
 
 def given_conditions(model, q):
@@ -80,15 +81,34 @@ def given_conditions(model, q):
 def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
     """(qd, info) from the constraints and the given velocities (module doc, step 2).
 
-    Below DENSE_NQ coordinates by SVDs of Phi_q and of the given conditions on its null
-    space; from there on (:func:`_sparse_velocities`) in O(nq) per given condition."""
+    On the integrators' Schur factor (:func:`_schur_velocities`: one factorisation, O(nq)
+    per given condition); by SVDs of Phi_q and of the given conditions on its null space
+    where the model has no such factor (the KKT path) or, below DENSE_NQ coordinates, where
+    that solve fails, is near singular or is not finite (the SVD path then names what is
+    not: a 1e308 point, a singular inertia)."""
     active = np.arange(model.m) if active is None else active
     data = core.make_data(model, active)
     C, c, w, labels = given_conditions(model, q)
-    if model.nq >= DENSE_NQ and not data.system.kkt:
-        h = core.nu(model, data, q, t0)
-        qd, free = _sparse_velocities(model, data, q, t0, C, c, w, rtol)
-        return qd, _report(labels, C, c, h, qd, free, rtol)
+    if not data.system.kkt:
+        # phi checked as well: the input guard of 1e308 points
+        h = core.constraints(model, data, q, t0, jac=False, nu=True).nu
+        large = model.nq >= DENSE_NQ  # (no dense SVD of a large model: its error stands)
+        try:
+            qd, free = _schur_velocities(model, data, q, t0, C, c, w, rtol)
+        except (SolveError, la.LinAlgError):
+            if large:
+                raise
+            qd = None
+        if qd is not None and (large or np.isfinite(qd).all()):
+            return qd, _report(labels, C, c, h, qd, free, rtol)
+    qd, free, h = _svd_velocities(model, data, q, t0, C, c, w, rtol)
+    return qd, _report(labels, C, c, h, qd, free, rtol)
+
+
+def _svd_velocities(model, data, q, t0, C, c, w, rtol):
+    """(qd, free velocity DOF, nu) of step 2 (module doc) by SVDs: of Phi_q, for a particular
+    solution and a basis N of its null space, then of the given conditions on N; the rest
+    by least kinetic energy with the full mass matrix."""
     T = core.constraints(model, data, q, t0, nu=True)  # input guard: 1e308 points
     H, h = T.jac, T.nu
     M = core.mass_matrix(model, data, q)
@@ -117,14 +137,15 @@ def initial_velocities(model, q, t0=0.0, active=None, rtol=1e-10):
         qd = base + free @ z2
     else:
         qd = base
-    return qd, _report(labels, C, c, h, qd, int(free.shape[1]), rtol)
+    return qd, int(free.shape[1]), h
 
 
-def _sparse_velocities(model, data, q, t0, C, c, w, rtol):
-    """(qd, free velocity DOF) of step 2 (module doc) without a basis of null(Phi_q), for
-    large models: with Mt the modified mass matrix of :mod:`mbsim.fast.dynamics` (equal to
-    M on the constraint set, where p^T pd = 0) and S = Phi_q Mt^-1 Phi_q^T (the Schur
-    factor the integrators use, sparse: linear in the size of chains and trees),
+def _schur_velocities(model, data, q, t0, C, c, w, rtol):
+    """(qd, free velocity DOF) of step 2 (module doc) without a basis of null(Phi_q), or
+    (None, None) where the Schur factor is too close to singular (below): with
+    Mt the modified mass matrix of :mod:`mbsim.fast.dynamics` (equal to M on the constraint
+    set, where p^T pd = 0) and S = Phi_q Mt^-1 Phi_q^T (the Schur factor the integrators
+    use, sparse: linear in the size of chains and trees),
 
         qd0 = Mt^-1 Phi_q^T S^-1 nu             the least-kinetic-energy solution of the
                                                 constraints alone
@@ -133,28 +154,27 @@ def _sparse_velocities(model, data, q, t0, C, c, w, rtol):
 
     and qd = qd0 + B z with z the weighted least-squares solution of C B z = c - C qd0 (a
     small nc x nc system): the given components are met as closely as the constraints allow
-    and the rest has least kinetic energy, as the dense path's answer."""
+    and the rest has least kinetic energy, as the SVD path's answer.  One factorisation of S
+    serves qd0 and every column of B.  S squares the condition of Phi_q: a solve through it
+    is off by up to eps / r relative, r its smallest pivot ratio, so the answer is None
+    (the SVD path's, off by eps / sqrt(r), is taken instead) where that could reach a
+    hundredth of rtol, the rank tolerance of this step: r < 100 eps / rtol = 2.2e-4 at
+    rtol 1e-10, i.e. within sigma_min / sigma_max ~ 0.015 of a change point (the parallel
+    four-bar's deck start has r = 1.9e-4; the governor 6.2e-3, the slider-crank 1.3e-3).
+    From DENSE_NQ coordinates on no dense SVD is made: the Schur answer stands there, as in
+    the integrators' own projections (spherical chains: r = 0.18 at 4 to 1024 links)."""
     sys = data.system
-    zero = np.zeros(model.nq)
-    qd0 = sys.project_velocities(q, zero, t0)  # = Mt^-1 J^T S^-1 nu
     nc = C.shape[0]
+    Y = sys.apply_minv(q, C.T) if nc else np.zeros((model.nq, 0))  # (nq, nc)
+    qd0, B, r = sys.least_energy_velocities(q, t0, Y)
+    if not r >= 100.0 * EPS / rtol and model.nq < DENSE_NQ:
+        return None, None
     if nc == 0:
         return qd0, model.nq - data.rows.size
-    J = core.phi_q(model, data, q, t0, sparse=True)
-    Y = sys.apply_minv(q, C.T)  # (nq, nc)
-    B = np.empty_like(Y)
-    for k in range(nc):
-        B[:, k] = Y[:, k] - _correction(sys, q, t0, J @ Y[:, k])
     G = C @ B
     z, _, rank, _ = la.lstsq(w[:, None] * G, w * (c - C @ qd0),
                              cond=rtol * max(1.0, np.abs(G).max(initial=0.0)))
     return qd0 + B @ z, model.nq - data.rows.size - int(rank)
-
-
-def _correction(sys, q, t, rhs):
-    """Mt^-1 Phi_q^T S^-1 rhs on the active rows at q (one sparse Schur solve)."""
-    sys.fc.compact(q, t, jac=True)
-    return sys._correction(rhs).copy()
 
 
 def _report(labels, C, c, h, qd, free, rtol):

@@ -205,6 +205,7 @@ def _declare(lib):
         "mb_mass_blocks": ([P], None),
         "mb_accelerations": ([P, I, I], I),
         "mb_project": ([P, I], I),
+        "mb_project_factored": ([P], None),
         "mb_struct_size": ([], ctypes.c_int64),
         "mb_rk_size": ([], ctypes.c_int64),
         "mb_rk_trial": ([P, P, ctypes.c_double, ctypes.c_double], I),

@@ -362,6 +362,29 @@ class System:
             raise SolveError(_NOT_PD)
         return self._dq
 
+    def least_energy_velocities(self, q, t, Y):
+        """(qd0, B, r) on the active rows at (q, t), with one factorisation of S for all of
+        it: qd0 = Mt^-1 Phi_q^T S^-1 nu, the velocities of least kinetic energy that meet
+        Phi_q qd = nu; B = Y - Mt^-1 Phi_q^T S^-1 Phi_q Y (nq, k), each column of Y (nq, k)
+        moved into null(Phi_q) along the least-energy direction; r the factor's smallest
+        pivot ratio (~ (sigma_min / sigma_max)^2 of Phi_q; 1 on the KKT path)."""
+        qd0 = self.project_velocities(q, np.zeros(self.nq), t).copy()  # factors S at q
+        r = 1.0 if self.kkt else float(self._out[1])
+        B = np.array(Y, dtype=np.float64).reshape(self.nq, -1)
+        if not B.shape[1]:
+            return qd0, B, r
+        Yt = np.ascontiguousarray(B.T)
+        v, lib, ptr = self._v, self.fc.lib, self.c.ptr
+        for k in range(Yt.shape[0]):
+            self._jac_times(ptr, Yt[k].ctypes.data, v.ctypes.data)  # Phi_q of the compact
+            if self.kkt:  # (the KKT path keeps no factor to solve on again)
+                B[:, k] -= self._correction(v[self.rows])
+                continue
+            self._rhs[:] = v[self.rows]
+            lib.mb_project_factored(ptr)
+            B[:, k] -= self._dq
+        return qd0, B, r
+
     def project_positions(self, q, t, tol=1e-12, max_iter=10):
         """Mass-weighted Newton projection of q onto Phi(q, t) = 0 (dq = -Mt^-1 Phi_q^T S^-1
         Phi).  Returns (q, converged, iterations, max|Phi|)."""

@@ -1,7 +1,8 @@
 """The sparse set-up of large models (mbsim.analyses.common.DENSE_NQ and up): rank and
 redundancy, assembly steps and initial velocities give the dense path's answers.
 
-Each test runs one model through both paths by moving the DENSE_NQ threshold.  Bounds: the
+Each test runs one model through both paths (by moving the DENSE_NQ threshold, or, for the
+initial velocities, by calling both).  Bounds: the
 two paths solve the same equations by different factorizations (sparse LU of J J^T or the
 Schur complement J Mt^-1 J^T vs dense QR/SVD), so they agree to round-off times the
 condition number: cond(J J^T) of a 60-link spherical chain is ~1e5, so 1e-9 relative leaves a
@@ -36,24 +37,58 @@ def _chain_with_given_velocities(n=60):
     return compile_model(spec)
 
 
-def test_sparse_initial_velocities_match_the_dense_path(monkeypatch):
+def _both_velocity_paths(model, q, active, t0=0.0, rtol=1e-10):
+    """(qd, free) of the Schur path and of the SVD path of step 2 of mbsim.analyses.initial on
+    the same conditions (the Schur path's answer None where it declines a near-singular S)."""
+    data = core.make_data(model, active)
+    C, c, w, _ = initial.given_conditions(model, q)
+    schur = initial._schur_velocities(model, data, q, t0, C, c, w, rtol)
+    qd, free, _ = initial._svd_velocities(model, data, q, t0, C, c, w, rtol)
+    return schur, (qd, free)
+
+
+def test_schur_initial_velocities_match_the_svd_path_on_a_large_chain():
     model = _chain_with_given_velocities()
     asm = assembly.assemble(model)
-    monkeypatch.setattr(initial, "DENSE_NQ", 10**9)
-    qd_d, info_d = initial.initial_velocities(model, asm.q, 0.0, asm.active_rows)
-    monkeypatch.setattr(initial, "DENSE_NQ", 10)
-    qd_s, info_s = initial.initial_velocities(model, asm.q, 0.0, asm.active_rows)
+    (qd_s, free_s), (qd_d, free_d) = _both_velocity_paths(model, asm.q, asm.active_rows)
     assert np.abs(qd_s - qd_d).max() <= 1e-9 * np.abs(qd_d).max()
-    assert info_s["free_velocity_dof"] == info_d["free_velocity_dof"]
+    assert free_s == free_d
     J = core.phi_q(model, None, asm.q)
     assert np.abs(J @ qd_s - core.nu(model, None, asm.q)).max() <= 1e-12
 
 
-def test_sparse_velocities_without_given_components_have_least_kinetic_energy(monkeypatch):
-    """No given velocity and nu = 0: the chain starts at rest (qd = 0) on both paths."""
+@pytest.mark.parametrize("deck", ["governor", "slider_crank", "vehicle", "andrews",
+                                  "compressor"])
+def test_schur_initial_velocities_match_the_svd_path_on_the_decks(deck):
+    """The decks' given velocities (the vehicle gives all 48 components, the governor 3 and
+    leaves one free) meet the constraints and the given components as the SVD path does, to
+    round-off times the Schur factor's condition: the path declines a factor whose smallest
+    pivot ratio r makes eps / r exceed rtol / 100, so the two agree to within rtol = 1e-10
+    relative."""
+    model = compile_model(load_deck(ROOT / "models" / f"{deck}.yaml"))
+    asm = assembly.assemble(model)
+    (qd_s, free_s), (qd_d, free_d) = _both_velocity_paths(model, asm.q, asm.active_rows)
+    assert qd_s is not None
+    assert np.abs(qd_s - qd_d).max() <= 1e-10 * max(1.0, np.abs(qd_d).max())
+    assert free_s == free_d
+
+
+def test_a_start_next_to_a_change_point_takes_the_svd_path():
+    """The parallel four-bar's deck start: Schur factor pivot ratio 1.9e-4, under
+    100 eps / rtol = 2.2e-4: the Schur path declines, initial_velocities gives the SVD
+    path's answer."""
+    model = compile_model(load_deck(ROOT / "models" / "parallel_fourbar.yaml"))
+    asm = assembly.assemble(model)
+    (qd_s, _), (qd_d, _) = _both_velocity_paths(model, asm.q, asm.active_rows)
+    assert qd_s is None
+    qd, _ = initial.initial_velocities(model, asm.q, 0.0, asm.active_rows)
+    assert np.array_equal(qd, qd_d)
+
+
+def test_sparse_velocities_without_given_components_have_least_kinetic_energy():
+    """No given velocity and nu = 0: the chain starts at rest (qd = 0)."""
     model = compile_model(chain_spec(60))
     asm = assembly.assemble(model)
-    monkeypatch.setattr(initial, "DENSE_NQ", 10)
     qd, info = initial.initial_velocities(model, asm.q, 0.0, asm.active_rows)
     assert np.abs(qd).max() == 0.0 and info["free_velocity_dof"] == model.nq - model.m
 
