@@ -118,9 +118,14 @@ class Policy:
           rtol)^(2/3)) (the square of gcp's; 1e-4 down to rtol 2.2e-10, 1.7e-4 at 1e-10,
           7.9e-4 at 1e-11), which passes every case above (and .ci/matrix's kernels on
           f6fe280): a fitted exponent, not a derivation.  The derived lower limit as the
-          switch fails at the dead centre: Dormand-Prince 5(4) at rtol 1e-11 gets 3.7e-4
-          against the measured 7.9e-4, and projection at w0 = 10.51 rad/s then takes 38-42 s
-          CPU instead of 0.75 (docs/benchmarks.md, "Change points as one component").
+          switch fails at the dead centre, over starts perturbed by 4 ulps (w0 = 10.51
+          rad/s, six starts each; docs/benchmarks.md, "Change points as one component"):
+          Dormand-Prince 5(4) at rtol 1e-11 gets 3.7e-4 against the law's 7.9e-4, and
+          projection crawls in 5 of 6 starts (36-119 s CPU) against 1 of 6 (40 s; the others
+          0.6-0.7 s) with the law; DOP853 at rtol 1e-10 gets 3.5e-4 against 1.7e-4, and at
+          w0 = 10.505 its errors are 2-3x the law's (6.8e-11 ... 3.1e-10 m against 3.0e-11
+          ... 1.1e-10 m).  The limit's dependence on k runs against the measurements: too
+          low for 5(4), too high for DOP853.
           Against the blind spot above, an index-1 tangent step that crosses the point with
           a stage whose probed round-off exceeds the tolerance is taken again with its
           stages clear of the point (index-1 ``_clear_crossing``; it catches such a step
