@@ -90,13 +90,14 @@ class Trajectory:
         self.t.append(float(t))
 
     def add_many(self, ts, Q, QD, W, h, system):
-        """:meth:`add` of the outputs ``ts`` (k,) of one step at once: Q, QD (k, nq) fresh
-        arrays (their rows are kept, not copied), W (k,), h the step."""
+        """:meth:`add` of the outputs ``ts`` (k,) at once: Q, QD (k, nq) fresh arrays (their
+        rows are kept, not copied), W (k,), h the step across them (a number: one step) or
+        each one's (k,)."""
         self._stacked = None
         self.q.extend(Q)
         self.qd.extend(QD)
         self.w.extend(np.asarray(W, dtype=float).tolist())
-        self.h.extend([float(h)] * len(ts))
+        self.h.extend(np.broadcast_to(np.asarray(h, dtype=float), (len(ts),)).tolist())
         self.systems.extend([system] * len(ts))
         self.t.extend(np.asarray(ts, dtype=float).tolist())
 
@@ -705,6 +706,11 @@ def step_outputs(solver, ts):
 
 
 ADVANCE_STEPS = 10000  # steps per call of Integrator.advance at most (a Ctrl-C waits for it)
+OUTPUT_WINDOW = 1024  # outputs asked of one call of advance_outputs at most (its buffers)
+OUTPUT_LOOP = True  # the outputs given by the integrator's step loop where it can
+"""(advance_outputs, index-1 projection methods in C); False: one call per output time and
+the outputs sampled here (step_outputs), as before (tests/analyses/test_output_loop.py
+compares the two)."""
 
 
 def integrate(run, times, record, max_steps, record_many=None):
@@ -725,7 +731,26 @@ def integrate(run, times, record, max_steps, record_many=None):
         chunk = 1 if watch is not None else int(max(1, min(ADVANCE_STEPS, max_steps - steps)))
         if watch is not None and run.hybrid:
             run.solver.h_max = watch.step_limit(run, run.h_max)
-        ok, msg = run.advance(times[k], chunk)
+        many = None
+        if watch is None and OUTPUT_LOOP and run.first_step is not None:
+            advance_outputs = getattr(run.solver, "advance_outputs", None)
+            if advance_outputs is not None:
+                many = advance_outputs(times[k:k + OUTPUT_WINDOW], chunk)
+        if many is None:
+            ok, msg = run.advance(times[k], chunk)
+        else:  # the outputs of the steps taken, given by the loop: recorded first
+            ok, msg, (Q, QD, W, H) = many
+            try:
+                if record_many is None:
+                    for i in range(len(W)):
+                        record(times[k], Q[i], QD[i], W[i], H[i])
+                        k += 1
+                elif len(W):
+                    record_many(times[k:k + len(W)], Q, QD, W, H)
+                    k += len(W)
+            except NUMERICAL_ERRORS as exc:  # the output's own accelerations, energies
+                return STATUS_INCOMPLETE, (f"t = {times[k]:.6g} s: evaluating the outputs "
+                                           f"failed: {exc}")
         steps += max(1, run.solver.counters["steps"] - before)
         if not ok:
             if run.restart(msg):
@@ -743,7 +768,7 @@ def integrate(run, times, record, max_steps, record_many=None):
             if ev is not None:
                 t_end = ev.t
         eps = 1e-12 * max(1.0, abs(t_end))
-        if times[k] <= t_end + eps:
+        if k < len(times) and times[k] <= t_end + eps:
             j = int(np.searchsorted(times, t_end + eps, side="right"))
             Q, QD, W, failure = step_outputs(solver, times[k:j])
             try:

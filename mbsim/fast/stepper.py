@@ -63,7 +63,7 @@ class RK(ctypes.Structure):
     )
 
 
-LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON = range(4)
+LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON, LOOP_OUTPUT = range(5)
 
 
 class Loop(ctypes.Structure):
@@ -77,7 +77,37 @@ class Loop(ctypes.Structure):
                                          "why")]
         + [(n, ctypes.c_double) for n in ("t_old", "h_last", "s")]
         + [("ends", ctypes.POINTER(ctypes.c_double))]
+        + [("times", ctypes.c_void_p)]
+        + [(n, ctypes.c_int64) for n in ("n_out", "k_out", "project_out")]
+        + [(n, ctypes.c_void_p) for n in ("Q", "QD", "W", "H", "flags", "mesh")]
+        + [(n, ctypes.c_int64) for n in ("n_mesh", "k_mesh")]
     )
+
+
+class Outputs:
+    """The output request of a :class:`Loop` (step.c: mb_loop's outputs): the output times
+    ``times`` (n,) and fresh buffers Q, QD (n, nq), W, H (n,) that the loop fills from row
+    ``loop.k_out`` on (H: the size of each output's step), from one allocation."""
+
+    def __init__(self, times, nq, project):
+        self.times = np.ascontiguousarray(times, dtype=np.float64)
+        n = self.times.size
+        self.block = np.empty(n * (2 * nq + 2))
+        b, size = self.block, n * nq
+        self.Q, self.QD = b[:size].reshape(n, nq), b[size:2 * size].reshape(n, nq)
+        self.W, self.H = b[2 * size:2 * size + n], b[2 * size + n:]
+        self.flags = np.empty(n, dtype=np.int64)
+        self.project = int(project)
+        self.k = 0  # the outputs written (Index1._loop)
+
+    def attach(self, loop: Loop):
+        """Point ``loop`` at the request (from the first output on)."""
+        loop.times, loop.n_out, loop.k_out = self.times.ctypes.data, self.times.size, 0
+        loop.project_out = self.project
+        base, size = self.block.ctypes.data, self.times.size * self.Q.shape[1]
+        loop.Q, loop.QD = base, base + 8 * size
+        loop.W, loop.H = base + 16 * size, base + 16 * size + 8 * self.times.size
+        loop.flags = self.flags.ctypes.data
 
 
 def supports(tableau) -> bool:

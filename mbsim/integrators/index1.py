@@ -309,12 +309,56 @@ class Index1(RungeKuttaIntegrator):
         controller must give up, the approach's) are taken by :meth:`step`, and so are the
         first step of a run (the driver records its size) and the steps after one below
         the stall floor (the watchdog counts them)."""
-        c, approach = self._compiled, self._approach if self.policy.tangent > 0.0 else None
-        if (c is None or not self.project or self._tangent or max_steps < 2
-                or self.status != "running"
-                or self.counters["steps"] == 0 or self.t >= self.t_bound or self._tiny_steps
-                or (approach is not None and len(approach.points) >= 2)):
+        if not self._loop_applies(max_steps):
             return self.step()
+        why, steps = self._loop(t_stop, max_steps)
+        if why == stepper.LOOP_PYTHON or not steps:
+            return self.step()
+        return True, ""
+
+    def advance_outputs(self, times, max_steps, *, project=True, mesh=None, step=None):
+        """:meth:`advance` to times[-1] that also gives the outputs at ``times`` (ascending,
+        after t) on the way, in the same C call: after each accepted step that reaches the
+        next output, the outputs up to its end, as :func:`mbsim.analyses.trajectory.
+        step_outputs` samples a step (project: each projected and checked as
+        :meth:`dense_output_many` does, bit for bit; else the plain interpolant of
+        :func:`mbsim.analyses.estimate.interpolant_many`).  ``mesh`` (ascending step ends):
+        each step ends at the next mesh point, without error control
+        (:class:`mbsim.analyses.estimate.CoarseStepper`); ``step``: the one-step fallback
+        (default :meth:`step`).  The loop stops after a step whose outputs need Python (a
+        flagged output, DOP853's extra stages stopped): that step's outputs are left to the
+        driver, whose :meth:`dense_output_many` gives them as before.
+
+        Returns None where the C loop does not apply (the caller takes its own path), else
+        (ok, message, (Q (k, nq), QD (k, nq), W (k,), H (k,))): the outputs at times[:k]
+        (H the size of each output's step), then (ok, message) as :meth:`advance`."""
+        if not self._loop_applies(max_steps):
+            return None
+        out = stepper.Outputs(times, self.n, project)
+        why, steps = self._loop(float(out.times[-1]), max_steps, out, mesh)
+        k = out.k
+        done = out.Q[:k], out.QD[:k], out.W[:k], out.H[:k]
+        if 2 * k < out.times.size:  # (the rows are kept: not the whole block for a few)
+            done = tuple(a.copy() for a in done)
+        if why == stepper.LOOP_PYTHON or not steps:
+            return (*(step or self.step)(), done)
+        return True, "", done
+
+    def _loop_applies(self, max_steps):
+        """Whether :meth:`_loop` may take the next steps (:meth:`advance`)."""
+        approach = self._approach if self.policy.tangent > 0.0 else None
+        return not (self._compiled is None or not self.project or self._tangent
+                    or max_steps < 2 or self.status != "running"
+                    or self.counters["steps"] == 0 or self.t >= self.t_bound
+                    or self._tiny_steps
+                    or (approach is not None and len(approach.points) >= 2))
+
+    def _loop(self, t_stop, max_steps, outputs=None, mesh=None):
+        """The C loop (step.c: mb_rk_steps) from the current state until t >= t_stop, and
+        the integrator's state after it; returns (LOOP_*, accepted steps).  outputs: a
+        :class:`~mbsim.fast.stepper.Outputs` request (its ``k``: the outputs written);
+        mesh: the step ends (:meth:`advance_outputs`)."""
+        c, approach = self._compiled, self._approach if self.policy.tangent > 0.0 else None
         L = stepper.Loop(
             t=self.t, t_bound=self.t_bound, t_stop=t_stop, h_abs=self.h_abs, h_max=self.h_max,
             h_min=self.h_min, h_fixed=self.h_fixed or 0.0, err_old=self._err_old,
@@ -330,7 +374,16 @@ class Index1(RungeKuttaIntegrator):
                     ctypes.POINTER(ctypes.c_double))
             ends = self._ends_buffer
             L.ends = self._ends_pointer
+        if outputs is not None:
+            outputs.attach(L)
+        if mesh is not None:
+            mesh = np.ascontiguousarray(mesh, dtype=np.float64)
+            L.mesh, L.n_mesh = mesh.ctypes.data, mesh.size
+            L.k_mesh = int(np.searchsorted(mesh, self.t + 1e-12 * max(1.0, abs(self.t)),
+                                           side="right"))
         why = c.steps(self.y, self.f, L)
+        if outputs is not None:
+            outputs.k = L.k_out
         if L.steps:
             if ends is not None:
                 self.step_ends.extend(ends[:L.steps].tolist())
@@ -338,6 +391,8 @@ class Index1(RungeKuttaIntegrator):
             self.counters["rejected_steps"] += L.rejected
             self.t, self.t_old, self.h_last = L.t, L.t_old, L.h_last
             self.h_abs, self._err_old = L.h_abs, L.err_old
+            if mesh is not None:
+                self.h_fixed = L.h_fixed
             n = self.n
             if why == stepper.LOOP_PYTHON:  # (t, y, f): the last accepted state
                 self.y, self.f = c.y.copy(), c.f.copy()
@@ -356,9 +411,7 @@ class Index1(RungeKuttaIntegrator):
             self._tiny_steps = (self._tiny_steps + 1 if L.steps == 1 else 1) if tiny else 0
             if self.t >= self.t_bound:
                 self.status = "finished"
-        if why == stepper.LOOP_PYTHON or not L.steps:
-            return self.step()
-        return True, ""
+        return why, L.steps
 
     def dense_output_many(self, times):
         """All outputs of the last step at once, in C when the step was taken there (module
