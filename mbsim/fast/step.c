@@ -542,6 +542,12 @@ typedef struct {
     const double *mesh; /* (n_mesh,) ascending */
     idx n_mesh;
     idx k_mesh;      /* in/out: where the search for the next mesh point starts */
+    /* approach: 1 to follow changepoints.Approach's near() and accepted() after every step
+     * (in place of the fixed `near`): in/out its rate, last (t, s) and entry (NaN: None);
+     * out ap_h_far, the last step whose accepted() C took (NaN: none), which reset the
+     * approach (a step that would not is left to Python: LOOP_NEAR before it) */
+    idx approach;
+    double ap_tangent, ap_rate, ap_last_t, ap_last_s, ap_entry, ap_h_far;
 } mb_loop;
 
 /* LOOP_OUTPUT: the last accepted step's outputs need Python (an output flagged by
@@ -634,6 +640,10 @@ int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
             L->h_fixed = L->h_abs =
                 (L->k_mesh < L->n_mesh ? L->mesh[L->k_mesh] : L->t_bound) - L->t;
         }
+        /* changepoints.Approach.near(h_abs) of the state before the step */
+        double near = !L->approach ? L->near
+                      : isnan(L->ap_entry) ? L->ap_tangent + 2.0 * L->h_abs * fmax(L->ap_rate, 0.0)
+                                           : L->ap_entry;
         double t = L->t, h_abs = L->h_abs < L->h_max ? L->h_abs : L->h_max, h;
         double err_old = L->err_old;
         int rejected = 0;
@@ -682,9 +692,25 @@ int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
             L->ends[L->steps - 1] = L->t;
         L->h_abs = L->h_fixed > 0.0 ? L->h_fixed : h_abs;
         L->s = R->out[O_SLAST];
-        if (L->s < L->near) {
+        if (L->s < near) {
             L->why = LOOP_NEAR;
             return L->why;
+        }
+        if (L->approach) { /* Approach.accepted(t, h, s) where it resets the approach */
+            double rate = L->ap_rate;
+            if (!isnan(L->ap_last_t) && L->t > L->ap_last_t)
+                rate = (L->ap_last_s - L->s) / (L->t - L->ap_last_t);
+            double near_h = isnan(L->ap_entry) ? L->ap_tangent + 2.0 * h * fmax(rate, 0.0)
+                                               : L->ap_entry;
+            if (!(L->s >= near_h)) {
+                L->why = LOOP_NEAR;
+                return L->why;
+            }
+            L->ap_rate = rate;
+            L->ap_last_t = L->t;
+            L->ap_last_s = L->s;
+            L->ap_entry = NAN;
+            L->ap_h_far = h;
         }
         if (h < L->stall_floor * fmax(1.0, fabs(L->t)) && L->t < L->t_bound) {
             L->why = LOOP_TINY;

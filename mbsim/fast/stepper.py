@@ -80,7 +80,9 @@ class Loop(ctypes.Structure):
         + [("times", ctypes.c_void_p)]
         + [(n, ctypes.c_int64) for n in ("n_out", "k_out", "project_out")]
         + [(n, ctypes.c_void_p) for n in ("Q", "QD", "W", "H", "flags", "mesh")]
-        + [(n, ctypes.c_int64) for n in ("n_mesh", "k_mesh")]
+        + [(n, ctypes.c_int64) for n in ("n_mesh", "k_mesh", "approach")]
+        + [(n, ctypes.c_double) for n in ("ap_tangent", "ap_rate", "ap_last_t", "ap_last_s",
+                                          "ap_entry", "ap_h_far")]
     )
 
 
