@@ -608,6 +608,9 @@ static int step_outputs(const mb_model *M, mb_rk *R, mb_loop *L, double t0, doub
                              L->Q + i * n, L->QD + i * n, L->W + i, L->flags + i) ||
                 L->flags[i])
                 return 1;
+            for (idx c = 0; c < n; c++) /* (the driver names a non-finite output) */
+                if (!isfinite(L->Q[i * n + c]) || !isfinite(L->QD[i * n + c]))
+                    return 1;
         }
     }
     for (idx i = k; i < j; i++) {
