@@ -283,14 +283,16 @@ def coarse_estimate(model, prep, opt, tr, near=None):
                 advance_outputs = getattr(comp.solver, "advance_outputs", None)
                 if advance_outputs is not None:  # the steps and their outputs in C
                     before = comp.solver.counters["steps"]
-                    many = advance_outputs(times[k:k + OUTPUT_WINDOW],
-                                           2 * mesh.size + 101 - steps, project=False,
-                                           mesh=mesh, step=comp.step)
+                    request = stepper.Outputs(times[k:k + OUTPUT_WINDOW], model.nq,
+                                              project=False)
+                    many = advance_outputs(request, 2 * mesh.size + 101 - steps, mesh=mesh,
+                                           step=comp.step)
             if many is None:
                 steps += 1
                 ok, msg = comp.step()
             else:
-                ok, msg, (Q, QD, _, _) = many
+                ok, msg = many
+                Q, QD = request.done()[:2]
                 Qc[k:k + len(Q)], QDc[k:k + len(Q)] = Q, QD
                 k += len(Q)
                 steps += max(1, comp.solver.counters["steps"] - before)

@@ -38,6 +38,7 @@ from mbsim.analyses.diagnosis import accelerations_lstsq, dropped_rows_conflict,
 from mbsim.analyses.kinematic import output_times
 from mbsim.errors import DeckError, Where
 from mbsim.events import MAX_EVENTS, MAX_EVENTS_AT_ONE_TIME, Context, Watch, extend_model
+from mbsim.fast.stepper import Outputs
 from mbsim.integrators import ALIASES, INTEGRATORS, System
 from mbsim.integrators.base import NUMERICAL_ERRORS, IntegratorFailure
 from mbsim.integrators.system import SolveError
@@ -705,6 +706,23 @@ def step_outputs(solver, ts):
     return Q, QD, W, None
 
 
+def _record_bulk(request, times, k, record, record_many):
+    """Record the outputs of an Outputs request (times[k:] on): (the next k, failure
+    message or None) (:func:`integrate`)."""
+    Q, QD, W, H = request.done()
+    try:
+        if record_many is None:
+            for i in range(len(W)):
+                record(times[k], Q[i], QD[i], W[i], H[i])
+                k += 1
+        elif len(W):
+            record_many(times[k:k + len(W)], Q, QD, W, H)
+            k += len(W)
+    except NUMERICAL_ERRORS as exc:  # the output's own accelerations, energies
+        return k, f"t = {times[k]:.6g} s: evaluating the outputs failed: {exc}"
+    return k, None
+
+
 ADVANCE_STEPS = 10000  # steps per call of Integrator.advance at most (a Ctrl-C waits for it)
 OUTPUT_WINDOW = 1024  # outputs asked of one call of advance_outputs at most (its buffers)
 OUTPUT_LOOP = True  # the outputs given by the integrator's step loop where it can
@@ -715,7 +733,13 @@ compares the two)."""
 
 def integrate(run, times, record, max_steps, record_many=None):
     """Step ``run`` (a :class:`Stepper`) to times[-1], calling ``record(t, q, qd, w, h)`` at
-    times[1:] (or ``record_many(ts, Q, QD, W, h)`` once for the outputs of a step).
+    times[1:] (or ``record_many(ts, Q, QD, W, h)`` once for the outputs of a step, or of
+    the many steps of one call of the integrator's ``advance_outputs``: then h (k,)).
+
+    Without events, an integrator with ``advance_outputs`` (index-1 projection methods in C)
+    takes the steps of up to OUTPUT_WINDOW outputs in one call and gives their outputs; what
+    it leaves (the outputs of a step that needs the Python dense output) is sampled here as
+    before (:func:`step_outputs`).
 
     With events (``run.watch``) the steps are taken one at a time and each is searched for
     events (:meth:`mbsim.events.Watch.check`); at an event the outputs before it come from
@@ -735,22 +759,19 @@ def integrate(run, times, record, max_steps, record_many=None):
         if watch is None and OUTPUT_LOOP and run.first_step is not None:
             advance_outputs = getattr(run.solver, "advance_outputs", None)
             if advance_outputs is not None:
-                many = advance_outputs(times[k:k + OUTPUT_WINDOW], chunk)
+                request = Outputs(times[k:k + OUTPUT_WINDOW], run.solver.q.size, project=True)
+                try:
+                    many = advance_outputs(request, chunk)
+                except KeyboardInterrupt:  # the outputs reached are kept (trajectory())
+                    _record_bulk(request, times, k, record, record_many)
+                    raise
         if many is None:
             ok, msg = run.advance(times[k], chunk)
         else:  # the outputs of the steps taken, given by the loop: recorded first
-            ok, msg, (Q, QD, W, H) = many
-            try:
-                if record_many is None:
-                    for i in range(len(W)):
-                        record(times[k], Q[i], QD[i], W[i], H[i])
-                        k += 1
-                elif len(W):
-                    record_many(times[k:k + len(W)], Q, QD, W, H)
-                    k += len(W)
-            except NUMERICAL_ERRORS as exc:  # the output's own accelerations, energies
-                return STATUS_INCOMPLETE, (f"t = {times[k]:.6g} s: evaluating the outputs "
-                                           f"failed: {exc}")
+            ok, msg = many
+            k, failure = _record_bulk(request, times, k, record, record_many)
+            if failure is not None:
+                return STATUS_INCOMPLETE, failure
         steps += max(1, run.solver.counters["steps"] - before)
         if not ok:
             if run.restart(msg):

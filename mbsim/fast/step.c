@@ -8,8 +8,11 @@
  * when the step is accepted, the mass-weighted projection of q and qd onto the constraints
  * and the derivative there (FSAL) (mb_rk_trial).  A second call evaluates the step's dense
  * output at all output times inside it at once, each projected as the step's end is
- * (mb_rk_dense).  A third takes accepted steps up to the next output time with the
- * step-size controller of mbsim/integrators/base.py (mb_rk_steps).  The change-point
+ * (mb_rk_dense).  A third takes accepted steps up to the last of a window of output times
+ * with the step-size controller of mbsim/integrators/base.py and the change-point
+ * approach's bookkeeping (mb_rk_steps), writing the outputs of each step as it goes (the
+ * per-sample work of mb_rk_dense, dense_sample) and, for the error estimate's coarse
+ * companion, following a mesh of step ends without error control.  The change-point
  * policy and every fallback stay in Python: a call returns as soon as something needs them
  * (a status below).
  *
@@ -575,13 +578,15 @@ static double step_factor(mb_loop *L, double err, int rejected)
 }
 
 /* Accepted steps from (t, y, f) (the buffers y, f) until t >= t_stop (or t_bound, or
- * max_steps), as RungeKuttaIntegrator._step_impl and Integrator.step take them one by one,
+ * max_steps), as RungeKuttaIntegrator._step_impl and Integrator.step take them one by one
+ * (the steps' outputs written after each, step_outputs; the approach followed, mb_loop),
  * for a family whose step is mb_rk_trial alone (index-1 outside tangent coordinates).  A
  * step that needs Python is not taken: the loop returns LOOP_PYTHON before it, with every
  * earlier step accepted (a trial's status other than accepted or rejected, a step below the
  * smallest step, max_rejects rejections, a non-finite step or state).  It also returns after
  * a step whose change-point measure is below `near` (LOOP_NEAR) and after a step below the
- * stall floor (LOOP_TINY), where the integrator's bookkeeping decides.  On return y is the
+ * stall floor (LOOP_TINY), where the integrator's bookkeeping decides (their outputs left
+ * to the driver), and after a step whose outputs need Python (LOOP_OUTPUT).  On return y is the
  * last step's start, y_new, y_acc, f_acc and K its trial (the dense output's data), and
  * t_old, h_last, t, h_abs, err_old, steps, rejected say where the loop is; after
  * LOOP_PYTHON, (t, y, f) is the last accepted state and the rest is the abandoned step's. */

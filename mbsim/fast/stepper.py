@@ -22,10 +22,13 @@ Buffers (all owned here, handed to C once):
   the last derivative, last projection residual, failure code of a factorisation;
 - ``count`` (4,): the work done (``COUNTERS``), added to ``system.counters`` after a call.
 
-A third call takes many accepted steps in a row (``steps``: up to the next output time),
-with the step-size controller of :mod:`mbsim.integrators.base` in C too (``Loop``); it
-returns before any step that needs Python, and after one where the change-point policy's
-approach or the stall watchdog must look.
+A third call takes many accepted steps in a row (``steps``: up to the last of a window of
+output times), with the step-size controller of :mod:`mbsim.integrators.base` and the
+change-point approach's bookkeeping in C too (``Loop``), and writes the outputs of each
+step as it goes (``Outputs``: projected as ``dense`` does, or the plain interpolant for the
+error estimate's companion, which also gives the loop its mesh of step ends); it returns
+before any step that needs Python, and after one where the change-point policy's approach,
+the stall watchdog or the Python dense output (a flagged output) must look.
 """
 
 from __future__ import annotations
@@ -101,6 +104,14 @@ class Outputs:
         self.flags = np.empty(n, dtype=np.int64)
         self.project = int(project)
         self.k = 0  # the outputs written (Index1._loop)
+
+    def done(self):
+        """(Q (k, nq), QD (k, nq), W (k,), H (k,)): the k outputs written (fresh rows)."""
+        k = self.k
+        out = self.Q[:k], self.QD[:k], self.W[:k], self.H[:k]
+        if 2 * k < self.times.size:  # (the rows are kept: not the whole block for a few)
+            out = tuple(a.copy() for a in out)
+        return out
 
     def attach(self, loop: Loop):
         """Point ``loop`` at the request (from the first output on)."""

@@ -316,33 +316,29 @@ class Index1(RungeKuttaIntegrator):
             return self.step()
         return True, ""
 
-    def advance_outputs(self, times, max_steps, *, project=True, mesh=None, step=None):
-        """:meth:`advance` to times[-1] that also gives the outputs at ``times`` (ascending,
-        after t) on the way, in the same C call: after each accepted step that reaches the
-        next output, the outputs up to its end, as :func:`mbsim.analyses.trajectory.
-        step_outputs` samples a step (project: each projected and checked as
-        :meth:`dense_output_many` does, bit for bit; else the plain interpolant of
+    def advance_outputs(self, outputs, max_steps, *, mesh=None, step=None):
+        """:meth:`advance` to the last of the output times of ``outputs`` (a
+        :class:`~mbsim.fast.stepper.Outputs`: ascending times after t, and the buffers) that
+        also gives the outputs on the way, in the same C call: after each accepted step that
+        reaches the next output, the outputs up to its end, as :func:`mbsim.analyses.
+        trajectory.step_outputs` samples a step (``outputs.project``: each projected and
+        checked as :meth:`dense_output_many` does, bit for bit; else the plain interpolant of
         :func:`mbsim.analyses.estimate.interpolant_many`).  ``mesh`` (ascending step ends):
         each step ends at the next mesh point, without error control
         (:class:`mbsim.analyses.estimate.CoarseStepper`); ``step``: the one-step fallback
         (default :meth:`step`).  The loop stops after a step whose outputs need Python (a
-        flagged output, DOP853's extra stages stopped): that step's outputs are left to the
-        driver, whose :meth:`dense_output_many` gives them as before.
+        flagged or non-finite output, DOP853's extra stages stopped): that step's outputs
+        are left to the driver, whose :meth:`dense_output_many` gives them as before.
 
         Returns None where the C loop does not apply (the caller takes its own path), else
-        (ok, message, (Q (k, nq), QD (k, nq), W (k,), H (k,))): the outputs at times[:k]
-        (H the size of each output's step), then (ok, message) as :meth:`advance`."""
+        (ok, message) as :meth:`advance`; ``outputs.done()`` holds the outputs given, also
+        when a Ctrl-C met in the loop's Python loads is raised after it."""
         if not self._loop_applies(max_steps):
             return None
-        out = stepper.Outputs(times, self.n, project)
-        why, steps = self._loop(float(out.times[-1]), max_steps, out, mesh)
-        k = out.k
-        done = out.Q[:k], out.QD[:k], out.W[:k], out.H[:k]
-        if 2 * k < out.times.size:  # (the rows are kept: not the whole block for a few)
-            done = tuple(a.copy() for a in done)
+        why, steps = self._loop(float(outputs.times[-1]), max_steps, outputs, mesh)
         if why == stepper.LOOP_PYTHON or not steps:
-            return (*(step or self.step)(), done)
-        return True, "", done
+            return (step or self.step)()
+        return True, ""
 
     def _loop_applies(self, max_steps):
         """Whether :meth:`_loop` may take the next steps (:meth:`advance`)."""
@@ -383,10 +379,18 @@ class Index1(RungeKuttaIntegrator):
             outputs.attach(L)
         if mesh is not None:
             mesh = np.ascontiguousarray(mesh, dtype=np.float64)
-            L.mesh, L.n_mesh = mesh.ctypes.data, mesh.size
-            L.k_mesh = int(np.searchsorted(mesh, self.t + 1e-12 * max(1.0, abs(self.t)),
-                                           side="right"))
-        why = c.steps(self.y, self.f, L)
+            L.mesh, L.n_mesh, L.k_mesh = mesh.ctypes.data, mesh.size, 0  # (C finds the next)
+        try:
+            c.steps(self.y, self.f, L)
+        finally:  # (also when a Ctrl-C met in the loads is raised after the call: the steps
+            # taken and their outputs are kept, the state the last accepted one)
+            self._after_loop(L, outputs, ends, mesh is not None)
+        return L.why, L.steps
+
+    def _after_loop(self, L, outputs, ends, mesh):
+        """The integrator's state after the C loop ``L`` (:meth:`_loop`)."""
+        c, approach = self._compiled, self._approach if self.policy.tangent > 0.0 else None
+        why = L.why
         if outputs is not None:
             outputs.k = L.k_out
         if L.steps:
@@ -396,7 +400,7 @@ class Index1(RungeKuttaIntegrator):
             self.counters["rejected_steps"] += L.rejected
             self.t, self.t_old, self.h_last = L.t, L.t_old, L.h_last
             self.h_abs, self._err_old = L.h_abs, L.err_old
-            if mesh is not None:
+            if mesh:
                 self.h_fixed = L.h_fixed
             n = self.n
             if why == stepper.LOOP_PYTHON:  # (t, y, f): the last accepted state
@@ -421,7 +425,6 @@ class Index1(RungeKuttaIntegrator):
             self._tiny_steps = (self._tiny_steps + 1 if L.steps == 1 else 1) if tiny else 0
             if self.t >= self.t_bound:
                 self.status = "finished"
-        return why, L.steps
 
     def dense_output_many(self, times):
         """All outputs of the last step at once, in C when the step was taken there (module

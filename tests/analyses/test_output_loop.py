@@ -88,3 +88,27 @@ def test_flagged_output_mid_window_goes_to_python(monkeypatch):
     _assert_same(new, old)
     assert any(why == stepper.LOOP_OUTPUT and n_out for (why, n_out, _) in calls)
     assert new.counters["output_steps"] >= 1
+
+
+def test_ctrl_c_in_the_loop_keeps_the_outputs_it_gave(monkeypatch):
+    """A Ctrl-C met in the loop's Python loads is raised once the C call is back
+    (CompiledStep._counted); here one is raised after a loop stopped at the step across
+    t = 0.5 s: the run ends as incomplete, interrupted, with every output the loop gave up to
+    that step's end, each with its monitors (all channels the same length)."""
+    spec, model = load_model("models/governor.yaml")
+    steps = stepper.CompiledStep.steps
+
+    def interrupted(self, y, f, loop):
+        if not loop.n_out:
+            return steps(self, y, f, loop)
+        loop.t_stop = 0.5
+        steps(self, y, f, loop)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(stepper.CompiledStep, "steps", interrupted)
+    res = run_model(model, "dynamic", None, spec)
+    assert res.status == "incomplete" and "interrupted (Ctrl-C)" in res.message
+    # the outputs of the steps taken: up to the end of the step across t = 0.5 s
+    h = res.channels["monitors/step_size"].data
+    assert 0.5 <= res.t[-1] <= 0.5 + h[-1] and np.all(np.isfinite(h))
+    assert all(c.data.shape[0] == len(res.t) for c in res.channels.values())
