@@ -65,7 +65,7 @@ import time as _time
 
 import numpy as np
 
-from mbsim.analyses.trajectory import Stepper, Trajectory, trajectory
+from mbsim.analyses.trajectory import OUTPUT_WINDOW, Stepper, Trajectory, trajectory
 from mbsim.fast import stepper
 from mbsim.integrators import INTEGRATORS
 from mbsim.integrators.base import NUMERICAL_ERRORS
@@ -154,6 +154,11 @@ across a singular position the error is not 2^p times the run's (four parallel c
 projection-dop853 at rtol 1e-7, one tangent stage and 5 outputs integrated to: the coarse
 estimate was 35x the true error, the companion at rtol/5 0.97x)."""
 INTERRUPTED = {}  # coarse_estimate's mark of a companion stopped by Ctrl-C
+COARSE_LOOP = True
+"""The coarse companion's steps and outputs in the integrator's C loop where it can
+(Index1.advance_outputs with its mesh, the outputs unprojected as :func:`interpolant_many`
+gives them); False: one Python call per step, as before (tests/analyses/test_output_loop.py
+compares the two)."""
 
 
 class CoarseStepper(Stepper):
@@ -273,8 +278,24 @@ def coarse_estimate(model, prep, opt, tr, near=None):
         while k < n:
             if steps > 2 * mesh.size + 100:
                 return None, "the coarse companion took more steps than its mesh has"
-            steps += 1
-            ok, msg = comp.step()
+            many = None
+            if COARSE_LOOP and comp.first_step is not None:
+                advance_outputs = getattr(comp.solver, "advance_outputs", None)
+                if advance_outputs is not None:  # the steps and their outputs in C
+                    before = comp.solver.counters["steps"]
+                    request = stepper.Outputs(times[k:k + OUTPUT_WINDOW], model.nq,
+                                              project=False)
+                    many = advance_outputs(request, 2 * mesh.size + 101 - steps, mesh=mesh,
+                                           step=comp.step)
+            if many is None:
+                steps += 1
+                ok, msg = comp.step()
+            else:
+                ok, msg = many
+                Q, QD = request.done()[:2]
+                Qc[k:k + len(Q)], QDc[k:k + len(Q)] = Q, QD
+                k += len(Q)
+                steps += max(1, comp.solver.counters["steps"] - before)
             if not ok:
                 if comp.restart(msg):
                     continue
@@ -282,7 +303,8 @@ def coarse_estimate(model, prep, opt, tr, near=None):
             s = comp.solver
             eps = 1e-12 * max(1.0, abs(s.t))
             j = int(np.searchsorted(times, s.t + eps, side="right"))
-            if j > k:  # the outputs in this step: the interpolant, at t itself the state
+            if j > k:  # the outputs in this step (after the C loop: those it left of its
+                # last step): the interpolant, at t itself the state
                 inside = times[k:j] < s.t
                 i = k + int(np.count_nonzero(inside))
                 if i > k:

@@ -38,6 +38,7 @@ from mbsim.analyses.diagnosis import accelerations_lstsq, dropped_rows_conflict,
 from mbsim.analyses.kinematic import output_times
 from mbsim.errors import DeckError, Where
 from mbsim.events import MAX_EVENTS, MAX_EVENTS_AT_ONE_TIME, Context, Watch, extend_model
+from mbsim.fast.stepper import Outputs
 from mbsim.integrators import ALIASES, INTEGRATORS, System
 from mbsim.integrators.base import NUMERICAL_ERRORS, IntegratorFailure
 from mbsim.integrators.system import SolveError
@@ -90,13 +91,14 @@ class Trajectory:
         self.t.append(float(t))
 
     def add_many(self, ts, Q, QD, W, h, system):
-        """:meth:`add` of the outputs ``ts`` (k,) of one step at once: Q, QD (k, nq) fresh
-        arrays (their rows are kept, not copied), W (k,), h the step."""
+        """:meth:`add` of the outputs ``ts`` (k,) at once: Q, QD (k, nq) fresh arrays (their
+        rows are kept, not copied), W (k,), h the step across them (a number: one step) or
+        each one's (k,)."""
         self._stacked = None
         self.q.extend(Q)
         self.qd.extend(QD)
         self.w.extend(np.asarray(W, dtype=float).tolist())
-        self.h.extend([float(h)] * len(ts))
+        self.h.extend(np.broadcast_to(np.asarray(h, dtype=float), (len(ts),)).tolist())
         self.systems.extend([system] * len(ts))
         self.t.extend(np.asarray(ts, dtype=float).tolist())
 
@@ -704,12 +706,40 @@ def step_outputs(solver, ts):
     return Q, QD, W, None
 
 
+def _record_bulk(request, times, k, record, record_many):
+    """Record the outputs of an Outputs request (times[k:] on): (the next k, failure
+    message or None) (:func:`integrate`)."""
+    Q, QD, W, H = request.done()
+    try:
+        if record_many is None:
+            for i in range(len(W)):
+                record(times[k], Q[i], QD[i], W[i], H[i])
+                k += 1
+        elif len(W):
+            record_many(times[k:k + len(W)], Q, QD, W, H)
+            k += len(W)
+    except NUMERICAL_ERRORS as exc:  # the output's own accelerations, energies
+        return k, f"t = {times[k]:.6g} s: evaluating the outputs failed: {exc}"
+    return k, None
+
+
 ADVANCE_STEPS = 10000  # steps per call of Integrator.advance at most (a Ctrl-C waits for it)
+OUTPUT_WINDOW = 1024  # outputs asked of one call of advance_outputs at most (its buffers)
+OUTPUT_LOOP = True  # the outputs given by the integrator's step loop where it can
+"""(advance_outputs, index-1 projection methods in C); False: one call per output time and
+the outputs sampled here (step_outputs), as before (tests/analyses/test_output_loop.py
+compares the two)."""
 
 
 def integrate(run, times, record, max_steps, record_many=None):
     """Step ``run`` (a :class:`Stepper`) to times[-1], calling ``record(t, q, qd, w, h)`` at
-    times[1:] (or ``record_many(ts, Q, QD, W, h)`` once for the outputs of a step).
+    times[1:] (or ``record_many(ts, Q, QD, W, h)`` once for the outputs of a step, or of
+    the many steps of one call of the integrator's ``advance_outputs``: then h (k,)).
+
+    Without events, an integrator with ``advance_outputs`` (index-1 projection methods in C)
+    takes the steps of up to OUTPUT_WINDOW outputs in one call and gives their outputs; what
+    it leaves (the outputs of a step that needs the Python dense output) is sampled here as
+    before (:func:`step_outputs`).
 
     With events (``run.watch``) the steps are taken one at a time and each is searched for
     events (:meth:`mbsim.events.Watch.check`); at an event the outputs before it come from
@@ -725,7 +755,23 @@ def integrate(run, times, record, max_steps, record_many=None):
         chunk = 1 if watch is not None else int(max(1, min(ADVANCE_STEPS, max_steps - steps)))
         if watch is not None and run.hybrid:
             run.solver.h_max = watch.step_limit(run, run.h_max)
-        ok, msg = run.advance(times[k], chunk)
+        many = None
+        if watch is None and OUTPUT_LOOP and run.first_step is not None:
+            advance_outputs = getattr(run.solver, "advance_outputs", None)
+            if advance_outputs is not None:
+                request = Outputs(times[k:k + OUTPUT_WINDOW], run.solver.q.size, project=True)
+                try:
+                    many = advance_outputs(request, chunk)
+                except KeyboardInterrupt:  # the outputs reached are kept (trajectory())
+                    _record_bulk(request, times, k, record, record_many)
+                    raise
+        if many is None:
+            ok, msg = run.advance(times[k], chunk)
+        else:  # the outputs of the steps taken, given by the loop: recorded first
+            ok, msg = many
+            k, failure = _record_bulk(request, times, k, record, record_many)
+            if failure is not None:
+                return STATUS_INCOMPLETE, failure
         steps += max(1, run.solver.counters["steps"] - before)
         if not ok:
             if run.restart(msg):
@@ -743,7 +789,7 @@ def integrate(run, times, record, max_steps, record_many=None):
             if ev is not None:
                 t_end = ev.t
         eps = 1e-12 * max(1.0, abs(t_end))
-        if times[k] <= t_end + eps:
+        if k < len(times) and times[k] <= t_end + eps:
             j = int(np.searchsorted(times, t_end + eps, side="right"))
             Q, QD, W, failure = step_outputs(solver, times[k:j])
             try:

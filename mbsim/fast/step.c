@@ -8,8 +8,11 @@
  * when the step is accepted, the mass-weighted projection of q and qd onto the constraints
  * and the derivative there (FSAL) (mb_rk_trial).  A second call evaluates the step's dense
  * output at all output times inside it at once, each projected as the step's end is
- * (mb_rk_dense).  A third takes accepted steps up to the next output time with the
- * step-size controller of mbsim/integrators/base.py (mb_rk_steps).  The change-point
+ * (mb_rk_dense).  A third takes accepted steps up to the last of a window of output times
+ * with the step-size controller of mbsim/integrators/base.py and the change-point
+ * approach's bookkeeping (mb_rk_steps), writing the outputs of each step as it goes (the
+ * per-sample work of mb_rk_dense, dense_sample) and, for the error estimate's coarse
+ * companion, following a mesh of step ends without error control.  The change-point
  * policy and every fallback stay in Python: a call returns as soon as something needs them
  * (a status below).
  *
@@ -428,6 +431,59 @@ static void interpolate(const mb_rk *R, double t0, double h, double t, double *y
     }
 }
 
+/* Whether the projection's correction at the step's end (y_acc - y_new) is blended into
+ * the step's samples: 1 when the end was moved. */
+static int dense_blend(const mb_rk *R)
+{
+    for (idx i = 0; i < 2 * R->nq + 1; i++)
+        if (R->y_acc[i] != R->y_new[i])
+            return 1;
+    return 0;
+}
+
+/* One sample of the last accepted step [t0, t0 + h] at t (the work of mb_rk_dense per
+ * output, shared with mb_rk_steps' outputs): q, qd (nq,), *w the interpolant with the
+ * end's correction blended in; when project, q and qd put on the constraints and *flag = 1
+ * where that cannot be vouched for (mb_rk_dense), else *flag = 0.  Returns ST_ACCEPTED, or
+ * what stopped it (ST_CALLBACK, ST_SOLVE: the caller gives up the step's samples). */
+static int dense_sample(const mb_model *M, mb_rk *R, double t0, double h, double t, int blend,
+                        int project, double *q, double *qd, double *w, int64_t *flag)
+{
+    idx n = R->nq, ny = 2 * n + 1;
+    double *y = R->ys;
+    interpolate(R, t0, h, t, y);
+    if (blend) {
+        double x = (t - t0) / h;
+        for (idx i = 0; i < ny; i++)
+            y[i] += x * (R->y_acc[i] - R->y_new[i]);
+    }
+    *flag = 0;
+    memcpy(q, y, (size_t)n * sizeof(double));
+    memcpy(qd, y + n, (size_t)n * sizeof(double));
+    *w = y[2 * n];
+    if (!project)
+        return ST_ACCEPTED;
+    int st = project_state(M, R, t, q, qd, 0);
+    if (st == ST_CALLBACK)
+        return st;
+    if (st) {
+        *flag = 1;
+        return ST_ACCEPTED;
+    }
+    if (rms_diff(R, q, y, n) > 1.0) { /* the projection's nonlinear part: q after all
+                                         * Newton steps against q after the first */
+        double res;
+        memcpy(R->qw, y, (size_t)n * sizeof(double));
+        int fresh = 0;
+        int ok = project_positions(M, R, t, R->qw, 1, &res, &fresh);
+        if (ok < 0)
+            return -ok;
+        if (rms_diff(R, q, R->qw, n) > 1.0)
+            *flag = 1;
+    }
+    return ST_ACCEPTED;
+}
+
 /* The dense output of the last accepted step [t0, t0 + h] at times[0..k) (inside it), each
  * sample projected as the step's end (Index1._dense_output_impl): the projection's
  * correction at the end (y_acc - y_new) blended in linearly, then q, qd put on the
@@ -439,49 +495,15 @@ static void interpolate(const mb_rk *R, double t0, double h, double t, double *y
 int mb_rk_dense(const mb_model *M, mb_rk *R, double t0, double h, idx k, const double *times,
                 double *Q, double *QD, double *W, int64_t *flags)
 {
-    idx n = R->nq, ny = 2 * n + 1;
+    idx n = R->nq;
     int st;
     if (R->dense_kind == DENSE_DOP853 && (st = dop853_coefficients(M, R, t0, h)))
         return st;
-    int blend = 0;
-    for (idx i = 0; i < ny; i++)
-        if (R->y_acc[i] != R->y_new[i])
-            blend = 1;
-    double *y = R->ys;
-    for (idx j = 0; j < k; j++) {
-        double t = times[j];
-        interpolate(R, t0, h, t, y);
-        if (blend) {
-            double x = (t - t0) / h;
-            for (idx i = 0; i < ny; i++)
-                y[i] += x * (R->y_acc[i] - R->y_new[i]);
-        }
-        flags[j] = 0;
-        double *q = Q + j * n, *qd = QD + j * n;
-        memcpy(q, y, (size_t)n * sizeof(double));
-        memcpy(qd, y + n, (size_t)n * sizeof(double));
-        W[j] = y[2 * n];
-        if (!R->project)
-            continue;
-        st = project_state(M, R, t, q, qd, 0);
-        if (st == ST_CALLBACK)
+    int blend = dense_blend(R);
+    for (idx j = 0; j < k; j++)
+        if ((st = dense_sample(M, R, t0, h, times[j], blend, (int)R->project, Q + j * n,
+                               QD + j * n, W + j, flags + j)))
             return st;
-        if (st) {
-            flags[j] = 1;
-            continue;
-        }
-        if (rms_diff(R, q, y, n) > 1.0) { /* the projection's nonlinear part: q after all
-                                             * Newton steps against q after the first */
-            double res;
-            memcpy(R->qw, y, (size_t)n * sizeof(double));
-            int fresh = 0;
-            int ok = project_positions(M, R, t, R->qw, 1, &res, &fresh);
-            if (ok < 0)
-                return -ok;
-            if (rms_diff(R, q, R->qw, n) > 1.0)
-                flags[j] = 1;
-        }
-    }
     return ST_ACCEPTED;
 }
 
@@ -506,9 +528,35 @@ typedef struct {
     double t_old, h_last, s; /* the last accepted step: start, size, measure s at its end */
     double *ends;    /* (max_steps,) out: each accepted step's end time (the run's mesh), or
                         NULL */
+    /* the outputs (n_out = 0: none): after each accepted step that reaches times[k_out],
+     * the outputs up to its end (within 1e-12 max(1, |t|)) are written, as the driver
+     * samples a step (trajectory.step_outputs): before the end the dense output, at or past
+     * it the step's end */
+    const double *times; /* (n_out,) output times, ascending */
+    idx n_out;
+    idx k_out;       /* in/out: the next output to write */
+    idx project_out; /* 1: each output projected and checked (mb_rk_dense); 0: the plain
+                        interpolant (the companion's outputs, estimate.interpolant_many) */
+    double *Q, *QD;  /* (n_out, nq) out */
+    double *W, *H;   /* (n_out,) out: the integrated power; the size of the output's step */
+    int64_t *flags;  /* (n_out,) work */
+    /* a mesh of step ends (n_mesh = 0: none): each step ends at the next mesh point after
+     * t (or t_bound), h_fixed set to it (estimate.CoarseStepper) */
+    const double *mesh; /* (n_mesh,) ascending */
+    idx n_mesh;
+    idx k_mesh;      /* in/out: where the search for the next mesh point starts */
+    /* approach: 1 to follow changepoints.Approach's near() and accepted() after every step
+     * (in place of the fixed `near`): in/out its rate, last (t, s) and entry (NaN: None);
+     * out ap_h_far, the last step whose accepted() C took (NaN: none), which reset the
+     * approach (a step that would not is left to Python: LOOP_NEAR before it) */
+    idx approach;
+    double ap_tangent, ap_rate, ap_last_t, ap_last_s, ap_entry, ap_h_far;
 } mb_loop;
 
-enum { LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON };
+/* LOOP_OUTPUT: the last accepted step's outputs need Python (an output flagged by
+ * dense_sample, or DOP853's extra stages or a sample stopped): none of them is written and
+ * k_out is its first output. */
+enum { LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON, LOOP_OUTPUT };
 
 int64_t mb_loop_size(void) { return (int64_t)sizeof(mb_loop); }
 
@@ -530,16 +578,58 @@ static double step_factor(mb_loop *L, double err, int rejected)
 }
 
 /* Accepted steps from (t, y, f) (the buffers y, f) until t >= t_stop (or t_bound, or
- * max_steps), as RungeKuttaIntegrator._step_impl and Integrator.step take them one by one,
+ * max_steps), as RungeKuttaIntegrator._step_impl and Integrator.step take them one by one
+ * (the steps' outputs written after each, step_outputs; the approach followed, mb_loop),
  * for a family whose step is mb_rk_trial alone (index-1 outside tangent coordinates).  A
  * step that needs Python is not taken: the loop returns LOOP_PYTHON before it, with every
  * earlier step accepted (a trial's status other than accepted or rejected, a step below the
  * smallest step, max_rejects rejections, a non-finite step or state).  It also returns after
  * a step whose change-point measure is below `near` (LOOP_NEAR) and after a step below the
- * stall floor (LOOP_TINY), where the integrator's bookkeeping decides.  On return y is the
+ * stall floor (LOOP_TINY), where the integrator's bookkeeping decides (their outputs left
+ * to the driver), and after a step whose outputs need Python (LOOP_OUTPUT).  On return y is the
  * last step's start, y_new, y_acc, f_acc and K its trial (the dense output's data), and
  * t_old, h_last, t, h_abs, err_old, steps, rejected say where the loop is; after
  * LOOP_PYTHON, (t, y, f) is the last accepted state and the rest is the abandoned step's. */
+/* The outputs of the step [t0, L->t] just accepted (the mb_loop fields): 0, or 1 when
+ * they need Python (LOOP_OUTPUT). */
+static int step_outputs(const mb_model *M, mb_rk *R, mb_loop *L, double t0, double h)
+{
+    idx n = R->nq, k = L->k_out, j = k, ny = 2 * n + 1;
+    double t = L->t;
+    if (k >= L->n_out || t < L->times[k])
+        return 0; /* (within the tolerance below: left to the driver, as before) */
+    double eps = 1e-12 * fmax(1.0, fabs(t));
+    while (j < L->n_out && L->times[j] <= t + eps)
+        j++;
+    idx inside = k;
+    while (inside < j && L->times[inside] < t)
+        inside++;
+    if (inside > k) {
+        if (R->dense_kind == DENSE_DOP853 && dop853_coefficients(M, R, t0, h))
+            return 1;
+        int blend = dense_blend(R);
+        for (idx i = k; i < inside; i++) {
+            if (dense_sample(M, R, t0, h, L->times[i], blend, (int)L->project_out,
+                             L->Q + i * n, L->QD + i * n, L->W + i, L->flags + i) ||
+                L->flags[i])
+                return 1;
+            for (idx c = 0; c < n; c++) /* (the driver names a non-finite output) */
+                if (!isfinite(L->Q[i * n + c]) || !isfinite(L->QD[i * n + c]))
+                    return 1;
+        }
+    }
+    for (idx i = k; i < j; i++) {
+        if (i >= inside) { /* at (or, by round-off, past) the step's end: the end */
+            memcpy(L->Q + i * n, R->y_acc, (size_t)n * sizeof(double));
+            memcpy(L->QD + i * n, R->y_acc + n, (size_t)n * sizeof(double));
+            L->W[i] = R->y_acc[ny - 1];
+        }
+        L->H[i] = h;
+    }
+    L->k_out = j;
+    return 0;
+}
+
 int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
 {
     idx ny = 2 * R->nq + 1;
@@ -551,6 +641,17 @@ int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
             memcpy(R->y, R->y_acc, (size_t)ny * sizeof(double));
             memcpy(R->f, R->f_acc, (size_t)ny * sizeof(double));
         }
+        if (L->n_mesh > 0) { /* CoarseStepper.step: to the next mesh point */
+            double eps = 1e-12 * fmax(1.0, fabs(L->t));
+            while (L->k_mesh < L->n_mesh && L->mesh[L->k_mesh] <= L->t + eps)
+                L->k_mesh++;
+            L->h_fixed = L->h_abs =
+                (L->k_mesh < L->n_mesh ? L->mesh[L->k_mesh] : L->t_bound) - L->t;
+        }
+        /* changepoints.Approach.near(h_abs) of the state before the step */
+        double near = !L->approach ? L->near
+                      : isnan(L->ap_entry) ? L->ap_tangent + 2.0 * L->h_abs * fmax(L->ap_rate, 0.0)
+                                           : L->ap_entry;
         double t = L->t, h_abs = L->h_abs < L->h_max ? L->h_abs : L->h_max, h;
         double err_old = L->err_old;
         int rejected = 0;
@@ -599,12 +700,33 @@ int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
             L->ends[L->steps - 1] = L->t;
         L->h_abs = L->h_fixed > 0.0 ? L->h_fixed : h_abs;
         L->s = R->out[O_SLAST];
-        if (L->s < L->near) {
+        if (L->s < near) {
             L->why = LOOP_NEAR;
             return L->why;
         }
+        if (L->approach) { /* Approach.accepted(t, h, s) where it resets the approach */
+            double rate = L->ap_rate;
+            if (!isnan(L->ap_last_t) && L->t > L->ap_last_t)
+                rate = (L->ap_last_s - L->s) / (L->t - L->ap_last_t);
+            double near_h = isnan(L->ap_entry) ? L->ap_tangent + 2.0 * h * fmax(rate, 0.0)
+                                               : L->ap_entry;
+            if (!(L->s >= near_h)) {
+                L->why = LOOP_NEAR;
+                return L->why;
+            }
+            L->ap_rate = rate;
+            L->ap_last_t = L->t;
+            L->ap_last_s = L->s;
+            L->ap_entry = NAN;
+            L->ap_h_far = h;
+        }
         if (h < L->stall_floor * fmax(1.0, fabs(L->t)) && L->t < L->t_bound) {
             L->why = LOOP_TINY;
+            return L->why;
+        }
+        if (L->n_out > 0 && step_outputs(M, R, L, t, h)) { /* (after NEAR and TINY, whose
+                                                               outputs the driver takes) */
+            L->why = LOOP_OUTPUT;
             return L->why;
         }
     }

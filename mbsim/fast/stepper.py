@@ -22,10 +22,13 @@ Buffers (all owned here, handed to C once):
   the last derivative, last projection residual, failure code of a factorisation;
 - ``count`` (4,): the work done (``COUNTERS``), added to ``system.counters`` after a call.
 
-A third call takes many accepted steps in a row (``steps``: up to the next output time),
-with the step-size controller of :mod:`mbsim.integrators.base` in C too (``Loop``); it
-returns before any step that needs Python, and after one where the change-point policy's
-approach or the stall watchdog must look.
+A third call takes many accepted steps in a row (``steps``: up to the last of a window of
+output times), with the step-size controller of :mod:`mbsim.integrators.base` and the
+change-point approach's bookkeeping in C too (``Loop``), and writes the outputs of each
+step as it goes (``Outputs``: projected as ``dense`` does, or the plain interpolant for the
+error estimate's companion, which also gives the loop its mesh of step ends); it returns
+before any step that needs Python, and after one where the change-point policy's approach,
+the stall watchdog or the Python dense output (a flagged output) must look.
 """
 
 from __future__ import annotations
@@ -63,7 +66,7 @@ class RK(ctypes.Structure):
     )
 
 
-LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON = range(4)
+LOOP_STOP, LOOP_NEAR, LOOP_TINY, LOOP_PYTHON, LOOP_OUTPUT = range(5)
 
 
 class Loop(ctypes.Structure):
@@ -77,7 +80,47 @@ class Loop(ctypes.Structure):
                                          "why")]
         + [(n, ctypes.c_double) for n in ("t_old", "h_last", "s")]
         + [("ends", ctypes.POINTER(ctypes.c_double))]
+        + [("times", ctypes.c_void_p)]
+        + [(n, ctypes.c_int64) for n in ("n_out", "k_out", "project_out")]
+        + [(n, ctypes.c_void_p) for n in ("Q", "QD", "W", "H", "flags", "mesh")]
+        + [(n, ctypes.c_int64) for n in ("n_mesh", "k_mesh", "approach")]
+        + [(n, ctypes.c_double) for n in ("ap_tangent", "ap_rate", "ap_last_t", "ap_last_s",
+                                          "ap_entry", "ap_h_far")]
     )
+
+
+class Outputs:
+    """The output request of a :class:`Loop` (step.c: mb_loop's outputs): the output times
+    ``times`` (n,) and fresh buffers Q, QD (n, nq), W, H (n,) that the loop fills from row
+    ``loop.k_out`` on (H: the size of each output's step), from one allocation."""
+
+    def __init__(self, times, nq, project):
+        self.times = np.ascontiguousarray(times, dtype=np.float64)
+        n = self.times.size
+        self.block = np.empty(n * (2 * nq + 2))
+        b, size = self.block, n * nq
+        self.Q, self.QD = b[:size].reshape(n, nq), b[size:2 * size].reshape(n, nq)
+        self.W, self.H = b[2 * size:2 * size + n], b[2 * size + n:]
+        self.flags = np.empty(n, dtype=np.int64)
+        self.project = int(project)
+        self.k = 0  # the outputs written (Index1._loop)
+
+    def done(self):
+        """(Q (k, nq), QD (k, nq), W (k,), H (k,)): the k outputs written (fresh rows)."""
+        k = self.k
+        out = self.Q[:k], self.QD[:k], self.W[:k], self.H[:k]
+        if 2 * k < self.times.size:  # (the rows are kept: not the whole block for a few)
+            out = tuple(a.copy() for a in out)
+        return out
+
+    def attach(self, loop: Loop):
+        """Point ``loop`` at the request (from the first output on)."""
+        loop.times, loop.n_out, loop.k_out = self.times.ctypes.data, self.times.size, 0
+        loop.project_out = self.project
+        base, size = self.block.ctypes.data, self.times.size * self.Q.shape[1]
+        loop.Q, loop.QD = base, base + 8 * size
+        loop.W, loop.H = base + 16 * size, base + 16 * size + 8 * self.times.size
+        loop.flags = self.flags.ctypes.data
 
 
 def supports(tableau) -> bool:

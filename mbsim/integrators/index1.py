@@ -309,19 +309,64 @@ class Index1(RungeKuttaIntegrator):
         controller must give up, the approach's) are taken by :meth:`step`, and so are the
         first step of a run (the driver records its size) and the steps after one below
         the stall floor (the watchdog counts them)."""
-        c, approach = self._compiled, self._approach if self.policy.tangent > 0.0 else None
-        if (c is None or not self.project or self._tangent or max_steps < 2
-                or self.status != "running"
-                or self.counters["steps"] == 0 or self.t >= self.t_bound or self._tiny_steps
-                or (approach is not None and len(approach.points) >= 2)):
+        if not self._loop_applies(max_steps):
             return self.step()
+        why, steps = self._loop(t_stop, max_steps)
+        if why == stepper.LOOP_PYTHON or not steps:
+            return self.step()
+        return True, ""
+
+    def advance_outputs(self, outputs, max_steps, *, mesh=None, step=None):
+        """:meth:`advance` to the last of the output times of ``outputs`` (a
+        :class:`~mbsim.fast.stepper.Outputs`: ascending times after t, and the buffers) that
+        also gives the outputs on the way, in the same C call: after each accepted step that
+        reaches the next output, the outputs up to its end, as :func:`mbsim.analyses.
+        trajectory.step_outputs` samples a step (``outputs.project``: each projected and
+        checked as :meth:`dense_output_many` does, bit for bit; else the plain interpolant of
+        :func:`mbsim.analyses.estimate.interpolant_many`).  ``mesh`` (ascending step ends):
+        each step ends at the next mesh point, without error control
+        (:class:`mbsim.analyses.estimate.CoarseStepper`); ``step``: the one-step fallback
+        (default :meth:`step`).  The loop stops after a step whose outputs need Python (a
+        flagged or non-finite output, DOP853's extra stages stopped): that step's outputs
+        are left to the driver, whose :meth:`dense_output_many` gives them as before.
+
+        Returns None where the C loop does not apply (the caller takes its own path), else
+        (ok, message) as :meth:`advance`; ``outputs.done()`` holds the outputs given, also
+        when a Ctrl-C met in the loop's Python loads is raised after it."""
+        if not self._loop_applies(max_steps):
+            return None
+        why, steps = self._loop(float(outputs.times[-1]), max_steps, outputs, mesh)
+        if why == stepper.LOOP_PYTHON or not steps:
+            return (step or self.step)()
+        return True, ""
+
+    def _loop_applies(self, max_steps):
+        """Whether :meth:`_loop` may take the next steps (:meth:`advance`)."""
+        approach = self._approach if self.policy.tangent > 0.0 else None
+        return not (self._compiled is None or not self.project or self._tangent
+                    or max_steps < 2 or self.status != "running"
+                    or self.counters["steps"] == 0 or self.t >= self.t_bound
+                    or self._tiny_steps
+                    or (approach is not None and len(approach.points) >= 2))
+
+    def _loop(self, t_stop, max_steps, outputs=None, mesh=None):
+        """The C loop (step.c: mb_rk_steps) from the current state until t >= t_stop, and
+        the integrator's state after it; returns (LOOP_*, accepted steps).  outputs: a
+        :class:`~mbsim.fast.stepper.Outputs` request (its ``k``: the outputs written);
+        mesh: the step ends (:meth:`advance_outputs`)."""
+        c, approach = self._compiled, self._approach if self.policy.tangent > 0.0 else None
         L = stepper.Loop(
             t=self.t, t_bound=self.t_bound, t_stop=t_stop, h_abs=self.h_abs, h_max=self.h_max,
             h_min=self.h_min, h_fixed=self.h_fixed or 0.0, err_old=self._err_old,
             exponent=self.error_exponent, beta=self.pi_beta, safety=base.SAFETY,
             min_factor=base.MIN_FACTOR, max_factor=base.MAX_FACTOR,
-            near=approach.near(self.h_abs) if approach is not None else 0.0,
             stall_floor=base.STALL_FLOOR, max_steps=max_steps, max_rejects=base.MAX_REJECTS)
+        if approach is not None:  # followed step by step in C (step.c: mb_loop.approach)
+            last = approach.last or (np.nan, np.nan)
+            L.approach, L.ap_tangent, L.ap_rate = 1, approach.tangent, approach.rate
+            L.ap_last_t, L.ap_last_s = last
+            L.ap_entry = np.nan if approach.entry is None else approach.entry
+            L.ap_h_far = np.nan
         ends = None
         if self.step_ends is not None:
             if self._ends_buffer.size < max_steps:
@@ -330,7 +375,24 @@ class Index1(RungeKuttaIntegrator):
                     ctypes.POINTER(ctypes.c_double))
             ends = self._ends_buffer
             L.ends = self._ends_pointer
-        why = c.steps(self.y, self.f, L)
+        if outputs is not None:
+            outputs.attach(L)
+        if mesh is not None:
+            mesh = np.ascontiguousarray(mesh, dtype=np.float64)
+            L.mesh, L.n_mesh, L.k_mesh = mesh.ctypes.data, mesh.size, 0  # (C finds the next)
+        try:
+            c.steps(self.y, self.f, L)
+        finally:  # (also when a Ctrl-C met in the loads is raised after the call: the steps
+            # taken and their outputs are kept, the state the last accepted one)
+            self._after_loop(L, outputs, ends, mesh is not None)
+        return L.why, L.steps
+
+    def _after_loop(self, L, outputs, ends, mesh):
+        """The integrator's state after the C loop ``L`` (:meth:`_loop`)."""
+        c, approach = self._compiled, self._approach if self.policy.tangent > 0.0 else None
+        why = L.why
+        if outputs is not None:
+            outputs.k = L.k_out
         if L.steps:
             if ends is not None:
                 self.step_ends.extend(ends[:L.steps].tolist())
@@ -338,6 +400,8 @@ class Index1(RungeKuttaIntegrator):
             self.counters["rejected_steps"] += L.rejected
             self.t, self.t_old, self.h_last = L.t, L.t_old, L.h_last
             self.h_abs, self._err_old = L.h_abs, L.err_old
+            if mesh:
+                self.h_fixed = L.h_fixed
             n = self.n
             if why == stepper.LOOP_PYTHON:  # (t, y, f): the last accepted state
                 self.y, self.f = c.y.copy(), c.f.copy()
@@ -350,15 +414,17 @@ class Index1(RungeKuttaIntegrator):
                 self._step_start = (L.t_old, self._dense_args[2][:n])
             self._s, self._C, self._step_tangent = L.s, None, False
             self.q, self.qd, self.w = self._state_from_y(self.t, self.y)
-            if approach is not None:  # (the steps before the last: s above ``near``)
-                approach.accepted(self.t, self.h_last, self._s)
+            if approach is not None:
+                if not np.isnan(L.ap_h_far):  # C's accepted() of its steps: each a reset
+                    approach.h_far, approach.points, approach.d_tried = L.ap_h_far, (), np.inf
+                    approach.entry, approach.tried = None, None
+                    approach.rate, approach.last = L.ap_rate, (L.ap_last_t, L.ap_last_s)
+                if why == stepper.LOOP_NEAR:  # the last step's, where C stopped
+                    approach.accepted(self.t, self.h_last, self._s)
             tiny = why == stepper.LOOP_TINY
             self._tiny_steps = (self._tiny_steps + 1 if L.steps == 1 else 1) if tiny else 0
             if self.t >= self.t_bound:
                 self.status = "finished"
-        if why == stepper.LOOP_PYTHON or not L.steps:
-            return self.step()
-        return True, ""
 
     def dense_output_many(self, times):
         """All outputs of the last step at once, in C when the step was taken there (module

@@ -123,6 +123,7 @@ def test_ctrl_c_keeps_the_finished_outputs(crank, monkeypatch):
         return advance(self, *args)
 
     monkeypatch.setattr(cls, "advance", interrupted_advance)
+    monkeypatch.setattr(dyn, "OUTPUT_LOOP", False)  # (the loop's Ctrl-C: test_output_loop.py)
     res = dynamic(model, {"t_end": 1.0, "step": 0.005, "q0": q, "qd0": qd,
                           "integrator": "projection-dop853", "rtol": 1e-8})
     assert res.status == "incomplete" and "interrupted (Ctrl-C)" in res.message

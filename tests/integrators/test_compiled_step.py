@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mbsim.analyses import trajectory
 from mbsim.analyses.dynamic import dynamic
 from mbsim.analyses.trajectory import Stepper
 from mbsim.analyses.trajectory import initial_conditions as _initial
@@ -289,6 +290,7 @@ def test_an_output_the_c_path_cannot_give_ends_the_run_as_incomplete(monkeypatch
         return status, Q, QD, W, flags
 
     monkeypatch.setattr(stepper.CompiledStep, "dense", dense)
+    monkeypatch.setattr(trajectory, "OUTPUT_LOOP", False)  # (the outputs by dense, per step)
     pb = M.reference_problem("free_body")
     res = dynamic(pb.model, {"t_end": 1.0, "step": 0.1, "q0": pb.q0, "qd0": pb.qd0,
                              "error_estimate": False})
