@@ -492,7 +492,11 @@ class Approach:
 
     def near(self, h):
         """s below which a state after a step of size h belongs to the approach (class
-        doc): the s where it began, or the switch plus two steps' fall."""
+        doc): the s where it began, or the switch plus two steps' fall.  (mbsim/fast/step.c's
+        loop of many steps replays this and the reset of :meth:`accepted` after each of its
+        steps, the ``ap_*`` fields of ``mb_loop``, and hands the step that would begin an
+        approach back to Python; a change here is a change there:
+        tests/analyses/test_output_loop.py compares the loop with one step per call.)"""
         if self.entry is not None:
             return self.entry
         return self.tangent + 2.0 * h * max(self.rate, 0.0)
