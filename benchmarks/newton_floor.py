@@ -4,6 +4,7 @@ next to the flat position taken apart.
 
     python benchmarks/newton_floor.py --rules const:1e-12,const:2.22e-12,ball,stagnation
     python benchmarks/newton_floor.py --stage 0.463195 --floor 2.220446049250313e-12
+    python benchmarks/newton_floor.py --ball
 
 --rules: the four cranks' position error (tests/integrators/test_singular_loops.run against
 the exact reduction) with the completion's Newton stop replaced by each rule: ``const:F``
@@ -18,7 +19,12 @@ apart: the completion's q, qd and v'' = C qdd against the exact reduction at the
 the stage's own prediction at several Newton tolerances, from the exact q, from the
 completed q moved by 4 ulps (what a round-off probe re-completes from) and from the
 prediction moved by 1e-10 m (its own distance from the solution); then the run again with
-only that stage completed from the exact q.  Set OPENBLAS_CORETYPE to compare BLAS kernels.
+only that stage completed from the exact q.
+--ball: at crank angles theta from the flat position (C taken 0.06 rad from it, theta' = 10
+rad/s), the completion from 16 starts 1e-10 m around the exact q (a prediction's distance) at
+Newton tolerances 1e-12, 2.2e-12, 1e-14: the largest |q - q*| in units of the round-off ball
+eps max|q| / s, and the largest v'' = C qdd error relative to |v''| in units of eps s^-2.
+Set OPENBLAS_CORETYPE to compare BLAS kernels.
 """
 
 from __future__ import annotations
@@ -208,6 +214,42 @@ def stage(t_stage, floor, rtol):
     cp.NEWTON_FLOOR = ORIGINAL_FLOOR
 
 
+def ball():
+    from mbsim.analyses.common import rank_and_redundant
+    from mbsim.analyses.diagnosis import jacobian
+    from mbsim.analyses.trajectory import make_system
+
+    exact = Exact()
+    model = exact.model
+    _, red = rank_and_redundant(model, jacobian(model, model.q0, 0.0))
+    system = make_system(model, np.setdiff1d(np.arange(model.m), red))
+    qr = M.parallel_fourbar_motion(model, 0.06, 10.0, 0.0)[0]
+    C = cp.tangent_map(system, qr, system.terms(qr, 0.0, phi=False).jac)
+    tols = (1e-12, 2.220446049250313e-12, 1e-14)
+    rng = np.random.default_rng(1)
+    print(
+        f"{'theta rad':>9} {'s':>8} " + " ".join(f"{'tol ' + format(t, '.2g'):>19}" for t in tols)
+    )
+    print(f"{'':>18} " + " ".join(f"{'|dq|/ball':>9} {'dv/eps s-2':>9}" for _ in tols))
+    for theta in (3e-2, 1e-2, 3e-3, 1e-3, 3e-4, 1e-4):
+        q, qd, qdd = M.parallel_fourbar_motion(
+            model, theta, 10.0, -exact.grav * np.cos(theta) / exact.i_eff
+        )
+        s = cp.measure_from_lu(cp.factor(system, system.terms(q, 0.0, phi=False).jac, C), False)
+        width, vdd = cp.EPS * np.abs(q).max() / s, np.abs(C @ qdd).max()
+        row = []
+        for tol in tols:
+            dq = dv = 0.0
+            for _ in range(16):
+                q0 = q + 1e-10 * rng.standard_normal(q.size)
+                x, xd, fac, _ = cp.complete(system, 0.0, q0, C @ q, C @ qd, C, tol, 8)
+                a = cp.accelerations(system, 0.0, x, xd, fac, C.shape[0])[0]
+                dq = max(dq, np.abs(x - q).max() / width)
+                dv = max(dv, np.abs(C @ (a - qdd)).max() / vdd / (cp.EPS / s**2))
+            row.append(f"{dq:9.2g} {dv:9.2g}")
+        print(f"{theta:9.0e} {s:8.2g} " + " ".join(row))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rules", help="comma-separated stopping rules (module doc)")
@@ -217,13 +259,16 @@ def main(argv=None):
         "--floor", type=float, default=ORIGINAL_FLOOR, help="newton_tol's floor for --stage (m)"
     )
     ap.add_argument("--rtol", type=float, default=1e-11, help="the run's rtol for --stage")
+    ap.add_argument("--ball", action="store_true", help="the completion's round-off ball")
     args = ap.parse_args(argv)
     if args.rules:
         rules(args.rules.split(","), [float(r) for r in args.rtols.split(",")])
     if args.stage is not None:
         stage(args.stage, args.floor, args.rtol)
-    if not (args.rules or args.stage is not None):
-        ap.error("give --rules or --stage")
+    if args.ball:
+        ball()
+    if not (args.rules or args.stage is not None or args.ball):
+        ap.error("give --rules, --stage or --ball")
 
 
 if __name__ == "__main__":
