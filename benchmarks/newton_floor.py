@@ -5,6 +5,7 @@ next to the flat position taken apart.
     python benchmarks/newton_floor.py --rules const:1e-12,const:2.22e-12,ball,stagnation
     python benchmarks/newton_floor.py --stage 0.463195 --floor 2.220446049250313e-12
     python benchmarks/newton_floor.py --ball
+    python benchmarks/newton_floor.py --probe --floor 2.220446049250313e-12
 
 --rules: the four cranks' position error (tests/integrators/test_singular_loops.run against
 the exact reduction) with the completion's Newton stop replaced by each rule: ``const:F``
@@ -24,6 +25,12 @@ only that stage completed from the exact q.
 rad/s), the completion from 16 starts 1e-10 m around the exact q (a prediction's distance) at
 Newton tolerances 1e-12, 2.2e-12, 1e-14: the largest |q - q*| in units of the round-off ball
 eps max|q| / s, and the largest v'' = C qdd error relative to |v''| in units of eps s^-2.
+--probe: the run with newton_tol's floor --floor; after each accepted tangent step, its stage
+with the smallest s completed twice again from its prediction moved by the prediction's own
+distance max |prediction - q| (random directions), and twice from the completed q moved by 4
+ulps; each pair's v'' difference carried to the step's end (Policy.stage_reach) in
+tolerances.  Printed: the steps with a stage below s = 1e-3 or a probe above one tolerance.
+(DOP853's stages 2-5 have b = 0: their row of stage_reach is 0, their probe too.)
 Set OPENBLAS_CORETYPE to compare BLAS kernels.
 """
 
@@ -250,16 +257,88 @@ def ball():
         print(f"{theta:9.0e} {s:8.2g} " + " ".join(row))
 
 
+def probe(floor, rtol):
+    cp.NEWTON_FLOOR = floor
+    rng = np.random.default_rng(7)
+    stages, log = [], []
+    complete0 = G.GeneralizedCoordinatePartitioning._complete
+    attempt0 = G.GeneralizedCoordinatePartitioning._attempt
+
+    def complete(self, t, v, vd, part):
+        pred = None if self._pred is None else self._pred.copy()
+        q, qd, fac = complete0(self, t, v, vd, part)
+        if part.C is not None and pred is not None:
+            s = cp.measure_from_lu(fac, self.system.sparse)
+            stages.append((t, v.copy(), vd.copy(), pred, q.copy(), s))
+        return q, qd, fac
+
+    def attempt(self, h):
+        stages.clear()
+        t0, y0, part, tab = self.t, self.y.copy(), self.part, self.tableau
+        out = attempt0(self, h)
+        if part.C is None or out[0] > 1 or len(stages) < tab.n_stages:
+            return out
+        done = stages[: tab.n_stages]  # stages 1 ... n_stages - 1, then the end
+        i = int(np.argmin([x[5] for x in done]))
+        t, v, vd, pred, q, s = done[i]
+        C, k = part.C, part.k
+
+        def vdd(q0):
+            x, xd, fac, _ = cp.complete(
+                self.system, t, q0, v, vd, C, self.newton_tol, self.policy.newton_iter
+            )
+            if xd is None:
+                return np.nan
+            return (C @ cp.accelerations(self.system, t, x, xd, fac, k)[0])[0]
+
+        reach = cp.Policy.stage_reach(tab, h)[i + 1]
+        scale = self._scale(y0, out[1])
+        d = np.abs(pred - q).max()
+        near = [vdd(pred + d * rng.standard_normal(q.size)) for _ in range(2)]
+        ulps = [vdd(q + 4 * np.spacing(q) * rng.choice([-1.0, 1.0], q.size)) for _ in range(2)]
+        tols = [
+            max(reach[0] * abs(a - b) / scale[k], reach[1] * abs(a - b) / scale[0])
+            for a, b in (near, ulps)
+        ]
+        log.append((t0, h, out[0], s, t, *tols))
+        return out
+
+    G.GeneralizedCoordinatePartitioning._complete = complete
+    G.GeneralizedCoordinatePartitioning._attempt = attempt
+    try:
+        err = TS.run("gcp-dop853", rtol)[1]
+    finally:
+        G.GeneralizedCoordinatePartitioning._complete = complete0
+        G.GeneralizedCoordinatePartitioning._attempt = attempt0
+        cp.NEWTON_FLOOR = ORIGINAL_FLOOR
+    print(f"run: floor {floor:g}, rtol {rtol:g}: position error {err:.3g} m")
+    for t0, h, e, s, t, p_near, p_ulps in log:
+        if s < 1e-3 or p_near > 1:
+            print(
+                f"step {t0:.6f} + {h:.4g} s, error norm {e:.3g}: smallest s {s:.3g} at "
+                f"{t:.6f} s; probe from the prediction {p_near:.3g}, from 4 ulps "
+                f"{p_ulps:.3g} tolerances"
+            )
+    print(
+        f"accepted tangent steps {len(log)}, probe from the prediction > 1: "
+        f"{sum(x[5] > 1 for x in log)}, from 4 ulps > 1: {sum(x[6] > 1 for x in log)}"
+    )
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rules", help="comma-separated stopping rules (module doc)")
     ap.add_argument("--rtols", default="1e-10,1e-11,1e-12")
     ap.add_argument("--stage", type=float, help="take the tangent stage nearest this time apart")
     ap.add_argument(
-        "--floor", type=float, default=ORIGINAL_FLOOR, help="newton_tol's floor for --stage (m)"
+        "--floor",
+        type=float,
+        default=ORIGINAL_FLOOR,
+        help="newton_tol's floor for --stage, --probe (m)",
     )
-    ap.add_argument("--rtol", type=float, default=1e-11, help="the run's rtol for --stage")
+    ap.add_argument("--rtol", type=float, default=1e-11, help="the run's rtol for --stage, --probe")
     ap.add_argument("--ball", action="store_true", help="the completion's round-off ball")
+    ap.add_argument("--probe", action="store_true", help="probe every accepted tangent step")
     args = ap.parse_args(argv)
     if args.rules:
         rules(args.rules.split(","), [float(r) for r in args.rtols.split(",")])
@@ -267,8 +346,10 @@ def main(argv=None):
         stage(args.stage, args.floor, args.rtol)
     if args.ball:
         ball()
-    if not (args.rules or args.stage is not None or args.ball):
-        ap.error("give --rules, --stage or --ball")
+    if args.probe:
+        probe(args.floor, args.rtol)
+    if not (args.rules or args.stage is not None or args.ball or args.probe):
+        ap.error("give --rules, --stage, --ball or --probe")
 
 
 if __name__ == "__main__":
