@@ -27,9 +27,10 @@ Newton tolerances 1e-12, 2.2e-12, 1e-14: the largest |q - q*| in units of the ro
 eps max|q| / s, and the largest v'' = C qdd error relative to |v''| in units of eps s^-2.
 --probe: the run with newton_tol's floor --floor; after each accepted tangent step, its stage
 with the smallest s completed twice again from its prediction moved by the prediction's own
-distance max |prediction - q| (random directions), and twice from the completed q moved by 4
-ulps; each pair's v'' difference carried to the step's end (Policy.stage_reach) in
-tolerances.  Printed: the steps with a stage below s = 1e-3 or a probe above one tolerance.
+distance max |prediction - q| (random directions), twice from the prediction moved by 4 ulps
+(random signs) and twice from the completed q moved by 4 ulps; each pair's v'' difference
+carried to the step's end (Policy.stage_reach) in tolerances.  Printed: the steps with a
+stage below s = 1e-3 or a probe above one tolerance.
 (DOP853's stages 2-5 have b = 0: their row of stage_reach is 0, their probe too.)
 Set OPENBLAS_CORETYPE to compare BLAS kernels.
 """
@@ -295,10 +296,13 @@ def probe(floor, rtol):
         scale = self._scale(y0, out[1])
         d = np.abs(pred - q).max()
         near = [vdd(pred + d * rng.standard_normal(q.size)) for _ in range(2)]
+        pred_ulps = [
+            vdd(pred + 4 * np.spacing(pred) * rng.choice([-1.0, 1.0], q.size)) for _ in range(2)
+        ]
         ulps = [vdd(q + 4 * np.spacing(q) * rng.choice([-1.0, 1.0], q.size)) for _ in range(2)]
         tols = [
             max(reach[0] * abs(a - b) / scale[k], reach[1] * abs(a - b) / scale[0])
-            for a, b in (near, ulps)
+            for a, b in (near, pred_ulps, ulps)
         ]
         log.append((t0, h, out[0], s, t, *tols))
         return out
@@ -312,16 +316,19 @@ def probe(floor, rtol):
         G.GeneralizedCoordinatePartitioning._attempt = attempt0
         cp.NEWTON_FLOOR = ORIGINAL_FLOOR
     print(f"run: floor {floor:g}, rtol {rtol:g}: position error {err:.3g} m")
-    for t0, h, e, s, t, p_near, p_ulps in log:
-        if s < 1e-3 or p_near > 1:
+    for t0, h, e, s, t, p_near, p_pred, p_ulps in log:
+        if s < 1e-3 or max(p_near, p_pred, p_ulps) > 1:
             print(
                 f"step {t0:.6f} + {h:.4g} s, error norm {e:.3g}: smallest s {s:.3g} at "
-                f"{t:.6f} s; probe from the prediction {p_near:.3g}, from 4 ulps "
-                f"{p_ulps:.3g} tolerances"
+                f"{t:.6f} s; probes (tolerances) from the prediction moved by its distance "
+                f"{p_near:.3g}, by 4 ulps {p_pred:.3g}; from the completed q moved by 4 ulps "
+                f"{p_ulps:.3g}"
             )
+    over = [sum(x[i] > 1 for x in log) for i in (5, 6, 7)]
+    big = [max(x[i] for x in log) for i in (5, 6, 7)]
     print(
-        f"accepted tangent steps {len(log)}, probe from the prediction > 1: "
-        f"{sum(x[5] > 1 for x in log)}, from 4 ulps > 1: {sum(x[6] > 1 for x in log)}"
+        f"accepted tangent steps {len(log)}; probes over 1 tolerance: {over[0]}, {over[1]}, "
+        f"{over[2]}; largest {big[0]:.3g}, {big[1]:.3g}, {big[2]:.3g}"
     )
 
 

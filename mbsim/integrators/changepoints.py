@@ -204,11 +204,11 @@ class Policy:
         3e-11 m: 1e-12 (1.2e-10 m, Haswell), 2.2e-12 (6.57e-9 m, Prescott), the floor eps
         max |x| / s with s of the factor just solved with (3.0e-9 m, Haswell), a stop once
         |dx| stops halving (1.3e-9 ... 4.7e-9 m, default, Haswell, SkylakeX): the draw, not
-        the rule.  A round-off probe does not see this error by completing again from the
-        result moved by 4 ulps (the result is a fixed point of the computed iteration: the
-        same v'' eight times in eight); completed again from the prediction moved by its
-        own distance, v'' spreads over +-3e-6, ~900 tolerances of vd at the step's end.  A
-        fixed-step run has no atol: the floor alone.
+        the rule.  A round-off probe that completes again from the result moved by 4 ulps
+        does not see this error (the result is a fixed point of the computed iteration: the
+        same v'' eight times in eight); completed again from the prediction, Newton's start,
+        moved by 4 ulps or by its own distance, v'' spreads over +-3e-6, ~900 tolerances of
+        vd at the step's end.  A fixed-step run has no atol: the floor alone.
     kept_residual: a Newton that stops moving above its tolerance (gcp's projected
         Hermite fallback) is kept where its residual max |Phi| is within 1e2 newton_tol,
         i.e. one atol (m) above 1e-10 m: one absolute tolerance, what the error test
