@@ -18,9 +18,10 @@ stopped: the corrections are round-off).
 apart: the completion's q, qd and v'' = C qdd against the exact reduction at the same
 (v, vd) (tests/integrators/models.py: parallel_fourbar_motion, theta'' in closed form), from
 the stage's own prediction at several Newton tolerances, from the exact q, from the
-completed q moved by 4 ulps (what a round-off probe re-completes from) and from the
-prediction moved by 1e-10 m (its own distance from the solution); then the run again with
-only that stage completed from the exact q.
+completed q moved by 4 ulps, from the prediction moved by 1e-10 m (its own distance from
+the solution) and by 4 ulps; then the run again with only that stage completed from the
+exact q.  (The trial steps over T are printed with their error norms, those of the run's
+error-estimate companion included.)
 --ball: at crank angles theta from the flat position (C taken 0.06 rad from it, theta' = 10
 rad/s), the completion from 16 starts 1e-10 m around the exact q (a prediction's distance) at
 Newton tolerances 1e-12, 2.2e-12, 1e-14: the largest |q - q*| in units of the round-off ball
@@ -200,6 +201,10 @@ def stage(t_stage, floor, rtol):
         (
             "the prediction moved by 1e-10 m",
             [pred + 1e-10 * rng.standard_normal(pred.size) for _ in range(8)],
+        ),
+        (
+            "the prediction moved by 4 ulps",
+            [pred + 4 * np.spacing(pred) * rng.choice([-1.0, 1.0], pred.size) for _ in range(8)],
         ),
     ):
         dv = [complete(q0, floor)[1][2] for q0 in starts]
