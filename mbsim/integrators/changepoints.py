@@ -53,8 +53,9 @@ NEWTON_MARGIN = 1e-2  # the completion's Newton stop as a fraction of atol: Hair
 # Solving ODEs II, Sec. IV.8 (the simplified Newton iteration of implicit RK methods), stop
 # at kappa x Tol with kappa in [1e-2, 1e-1], so that the iteration error is a fraction of
 # what the error test accepts; the low end, as the completion's error enters every stage
-NEWTON_FLOOR = 1e-12  # m: the completion's Newton stop at least this: measured, not derived
-# (Policy doc, ``newton_tol``)
+NEWTON_FLOOR = 1e-12  # m: the completion's Newton stop at least this: measured, not derived;
+# next to a change point no stopping rule decides the completion's error (Policy doc,
+# ``newton_tol``)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,13 +181,34 @@ class Policy:
         kappa Tol, kappa in [1e-2, 1e-1], so that its error is a fraction of what the error
         test accepts); its low end, since the completion's error enters every stage.  No
         ceiling: a loose atol stops Newton loosely, as the error test allows.  The floor
-        1e-12 m is measured, not derived: Newton's corrections cannot fall below the
-        round-off of the residual (eps x the coordinates' size, m) carried through A =
-        [Phi_q; C] or Phi_u (x 1 / s), which at the kernels' pivot floor s_f is eps / s_f =
-        2.2e-12 m on coordinates of 1 m; as the floor that value moves gcp-dop853's
-        stages next to the point (gcp has no :meth:`Index1._clear_crossing`) and took the
-        four cranks at rtol 1e-11 under OpenBLAS Prescott from 2.75e-11 to 6.57e-9 m
-        (docs/benchmarks.md).  A fixed-step run has no atol: the floor alone.
+        1e-12 m is measured, not derived, and no stop derived from eps, the coordinates'
+        size and s does better, because next to a change point the stop does not decide
+        the completion's error.  The computed residual cannot tell apart the points of a
+        ball of width ~ eps |q| / s along A's soft direction (the residual's round-off, eps
+        |q|, carried through A or Phi_u: 2.4e-12 m at s = 9e-5 on the four cranks), and
+        Newton ends anywhere in it whatever its tolerance: where depends on where it
+        started; the velocities and accelerations there differ (v'' by ~ eps s^-2
+        relative).  Measured (benchmarks/newton_floor.py; docs/benchmarks.md, "The Newton
+        floor"): gcp-dop853 on the four cranks at rtol 1e-11 under OpenBLAS Prescott with
+        the floor eps / sqrt(SCHUR_PIVOT_FLOOR) = 2.2e-12 m, a stage at s = 9.15e-5
+        completed from its prediction (1.5e-10 m off) ends 6.5e-13 m from the exact q with
+        v'' off by 1.2e-6 of 116 (-1.2e-6, 1.5e-6, 3.9e-7, 5.8e-8 with the tolerances
+        2.2e-12, 1e-12, 3e-13, 1e-13; -3.2e-6 ... 3.0e-6 from the prediction moved by 1e-10
+        m; 7.7e-13 from the exact q).  Its step's error norm does not see it (DOP853's norm
+        divides the fifth-order estimate, 135 tolerances in vd, by a tenth of the
+        third-order one's truncation error, 7e4 tolerances: 0.38; the full q 0.71), which
+        leaves vd 350 tolerances off at the step's end, and the run ends 6.57e-9 m off:
+        3.8e-11 m with that one stage completed from the exact q, 2.75e-11 m with the floor
+        1e-12, where the same step's full-q norm came to 4.86.  Every rule tried leaves
+        1e-10 m or more at rtol 1e-11 under some kernel where the others leave 7e-12 ...
+        3e-11 m: 1e-12 (1.2e-10 m, Haswell), 2.2e-12 (6.57e-9 m, Prescott), the floor eps
+        max |x| / s with s of the factor just solved with (3.0e-9 m, Haswell), a stop once
+        |dx| stops halving (1.3e-9 ... 4.7e-9 m, default, Haswell, SkylakeX): the draw, not
+        the rule.  A round-off probe that completes again from the result moved by 4 ulps
+        does not see this error (the result is a fixed point of the computed iteration: the
+        same v'' eight times in eight); completed again from the prediction, Newton's start,
+        moved by 4 ulps or by its own distance, v'' spreads over +-3e-6, ~900 tolerances of
+        vd at the step's end.  A fixed-step run has no atol: the floor alone.
     kept_residual: a Newton that stops moving above its tolerance (gcp's projected
         Hermite fallback) is kept where its residual max |Phi| is within 1e2 newton_tol,
         i.e. one atol (m) above 1e-10 m: one absolute tolerance, what the error test

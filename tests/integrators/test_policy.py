@@ -309,3 +309,43 @@ def test_below_the_pivot_floor_only_the_tangent_coordinates_solve_the_equations(
     assert s < np.sqrt(cp.SCHUR_PIVOT_FLOOR)
     assert e_schur > 0.1
     assert e_tangent <= 10 * EPS * s ** -3 < 0.1
+
+
+@pytest.mark.parametrize("theta", [1e-2, 1e-3, 1e-4])
+def test_completion_ends_within_its_round_off_ball_whatever_the_newton_tolerance(theta):
+    """Next to the point the completion's q is decided only to the round-off of a correction
+    through A, eps max|q| / s (the computed residual cannot tell those points apart), and
+    v'' = C qdd there is off by up to ~eps s^-2 relative, whatever the Newton tolerance:
+    from 16 starts 1e-10 m around the exact q (a prediction's distance) at newton_tol 1e-12,
+    2.2e-12 and 1e-14, measured |q - q*| <= 0.4 ball widths and v'' within 0.004-0.16 eps
+    s^-2 at theta = 3e-2 ... 1e-4 rad under the default and Prescott kernels (Policy doc,
+    ``newton_tol``; benchmarks/newton_floor.py --ball).  Bounds: one ball width, and
+    eps s^-2."""
+    from mbsim.analyses.common import rank_and_redundant
+    from mbsim.analyses.diagnosis import jacobian
+    from mbsim.analyses.trajectory import make_system
+    from tests.integrators import models as M
+
+    pb = M.reference_problem("parallel_fourbar")
+    model = pb.model
+    _, red = rank_and_redundant(model, jacobian(model, pb.q0, 0.0))
+    system = make_system(model, np.setdiff1d(np.arange(model.m), red))
+    P = M.FOURBAR
+    L, mc, Mc, g = P["L"], P["m_crank"], P["M"], P["g"]
+    i_eff = 4 * (M.fourbar_crank_inertia(L, mc)[2] + mc * L * L / 4) + Mc * L * L
+    thetadd = -g * np.cos(theta) * (4 * mc * L / 2 + Mc * L) / i_eff
+    q, qd, qdd = M.parallel_fourbar_motion(model, theta, 10.0, thetadd)
+    qr = M.parallel_fourbar_motion(model, 0.06, 10.0, 0.0)[0]
+    C = cp.tangent_map(system, qr, system.terms(qr, 0.0, phi=False).jac)
+    s = cp.measure_from_lu(cp.factor(system, system.terms(q, 0.0, phi=False).jac, C), False)
+    ball = EPS * np.abs(q).max() / s
+    vdd = np.abs(C @ qdd).max()
+    rng = np.random.default_rng(1)
+    for tol in (1e-12, EPS / np.sqrt(cp.SCHUR_PIVOT_FLOOR), 1e-14):
+        for _ in range(16):
+            q0 = q + 1e-10 * rng.standard_normal(q.size)
+            x, xd, fac, _ = cp.complete(system, 0.0, q0, C @ q, C @ qd, C, tol, 8)
+            assert xd is not None
+            a = cp.accelerations(system, 0.0, x, xd, fac, C.shape[0])[0]
+            assert np.abs(x - q).max() <= ball
+            assert np.abs(C @ (a - qdd)).max() <= EPS * s**-2 * vdd
