@@ -256,14 +256,13 @@ def test_fixed_step_moves_only_where_the_motion_dwells_next_to_the_point():
 
 
 # -- the index-1 switch against the two paths' accelerations on the four cranks ---------------
-def four_cranks_accelerations(theta, thetad=10.0, ulps=4, seed=1, theta_ref=0.06):
-    """(s, Schur error, tangent error) at crank angle theta (rad) from the flat position: the
-    errors of qdd from the state q perturbed by ``ulps`` ulps (random signs) against the exact
-    accelerations, relative to max |qdd|.  Exact: the four cranks' effective inertia is
-    constant (the cranks turn about fixed pivots, the coupler translates on a circle of
-    radius L), so theta'' = -g cos(theta) (4 m_c L / 2 + M L) / I_eff, I_eff = 4 (J_c +
-    m_c L^2 / 4) + M L^2.  The tangent coordinates' C is taken theta_ref rad from the point
-    (benchmarks/index1_switch.py prints these for a range of theta)."""
+def four_cranks_state(theta, thetad=10.0, theta_ref=0.06):
+    """(system, q, qd, qdd, C): the four cranks' equations of motion on their independent
+    rows and the exact state at crank angle theta (rad) from the flat position, turning at
+    thetad (rad/s); C the tangent map taken theta_ref rad from the point.  Exact: the four
+    cranks' effective inertia is constant (the cranks turn about fixed pivots, the coupler
+    translates on a circle of radius L), so theta'' = -g cos(theta) (4 m_c L / 2 + M L) /
+    I_eff, I_eff = 4 (J_c + m_c L^2 / 4) + M L^2."""
     from mbsim.analyses.common import rank_and_redundant
     from mbsim.analyses.diagnosis import jacobian
     from mbsim.analyses.trajectory import make_system
@@ -280,6 +279,16 @@ def four_cranks_accelerations(theta, thetad=10.0, ulps=4, seed=1, theta_ref=0.06
     q, qd, qdd = M.parallel_fourbar_motion(model, theta, thetad, thetadd)
     qr = M.parallel_fourbar_motion(model, theta_ref, thetad, 0.0)[0]
     C = cp.tangent_map(system, qr, system.terms(qr, 0.0, phi=False).jac)
+    return system, q, qd, qdd, C
+
+
+def four_cranks_accelerations(theta, thetad=10.0, ulps=4, seed=1, theta_ref=0.06):
+    """(s, Schur error, tangent error) at crank angle theta (rad) from the flat position: the
+    errors of qdd from the state q perturbed by ``ulps`` ulps (random signs) against the exact
+    accelerations (:func:`four_cranks_state`), relative to max |qdd|; the tangent
+    coordinates' C taken theta_ref rad from the point (benchmarks/index1_switch.py prints
+    these for a range of theta)."""
+    system, q, qd, qdd, C = four_cranks_state(theta, thetad, theta_ref)
     rng = np.random.default_rng(seed)
     qp = q + ulps * EPS * np.maximum(1.0, np.abs(q)) * rng.choice([-1.0, 1.0], q.size)
     a_schur = system.accelerations(qp, qd, 0.0)[0]
@@ -321,22 +330,7 @@ def test_completion_ends_within_its_round_off_ball_whatever_the_newton_tolerance
     s^-2 at theta = 3e-2 ... 1e-4 rad under the default and Prescott kernels (Policy doc,
     ``newton_tol``; benchmarks/newton_floor.py --ball).  Bounds: one ball width, and
     eps s^-2."""
-    from mbsim.analyses.common import rank_and_redundant
-    from mbsim.analyses.diagnosis import jacobian
-    from mbsim.analyses.trajectory import make_system
-    from tests.integrators import models as M
-
-    pb = M.reference_problem("parallel_fourbar")
-    model = pb.model
-    _, red = rank_and_redundant(model, jacobian(model, pb.q0, 0.0))
-    system = make_system(model, np.setdiff1d(np.arange(model.m), red))
-    P = M.FOURBAR
-    L, mc, Mc, g = P["L"], P["m_crank"], P["M"], P["g"]
-    i_eff = 4 * (M.fourbar_crank_inertia(L, mc)[2] + mc * L * L / 4) + Mc * L * L
-    thetadd = -g * np.cos(theta) * (4 * mc * L / 2 + Mc * L) / i_eff
-    q, qd, qdd = M.parallel_fourbar_motion(model, theta, 10.0, thetadd)
-    qr = M.parallel_fourbar_motion(model, 0.06, 10.0, 0.0)[0]
-    C = cp.tangent_map(system, qr, system.terms(qr, 0.0, phi=False).jac)
+    system, q, qd, qdd, C = four_cranks_state(theta)
     s = cp.measure_from_lu(cp.factor(system, system.terms(q, 0.0, phi=False).jac, C), False)
     ball = EPS * np.abs(q).max() / s
     vdd = np.abs(C @ qdd).max()
