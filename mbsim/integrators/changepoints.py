@@ -53,9 +53,9 @@ NEWTON_MARGIN = 1e-2  # the completion's Newton stop as a fraction of atol: Hair
 # Solving ODEs II, Sec. IV.8 (the simplified Newton iteration of implicit RK methods), stop
 # at kappa x Tol with kappa in [1e-2, 1e-1], so that the iteration error is a fraction of
 # what the error test accepts; the low end, as the completion's error enters every stage
-NEWTON_FLOOR = EPS  # m: the round-off of the constraints' residual on coordinates of 1 m,
-# below which no Newton tolerance means anything; next to a change point the stop is the
-# round-off of the correction itself, eps |q| / s (:func:`newton`; Policy doc, ``newton_tol``)
+NEWTON_FLOOR = 1e-12  # m: the completion's Newton stop at least this: measured, not derived;
+# next to a change point no stopping rule decides the completion's error (Policy doc,
+# ``newton_tol``)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,25 +181,34 @@ class Policy:
         kappa Tol, kappa in [1e-2, 1e-1], so that its error is a fraction of what the error
         test accepts); its low end, since the completion's error enters every stage.  No
         ceiling: a loose atol stops Newton loosely, as the error test allows.  The floor
-        eps x 1 m is the round-off of the residual itself.  :func:`newton` stops as well
-        once its correction is within the round-off of a correction, eps |q| / s with s the
-        measure of the factor just solved with: the computed residual cannot tell apart the
-        points of a ball of that width along A's soft direction, and Newton ends anywhere
-        in it whatever its tolerance, where depends on where it started; v'' differs there
-        by up to ~eps s^-2 relative (tests/integrators/test_policy.py; benchmarks/
-        newton_floor.py --ball: <= 0.4 ball widths, <= 0.16 eps s^-2 at 1e-2 ... 1e-4 rad).
-        A stop below that width only iterates on round-off.  The error test does not see
-        such a stage's error (the embedded pair's solutions share it), so a step that
-        crosses the point with one is taken again clear of it (``_clear_crossing`` of gcp
-        and index-1, whose probes complete the stage again from its Newton start).
-        Measured (docs/benchmarks.md, "The Newton floor"): with a fixed floor of 2.2e-12 m
-        (eps at the kernels' pivot floor) and no gcp clearing, gcp-dop853 on the four cranks
-        at rtol 1e-11 under OpenBLAS Prescott ended 6.57e-9 m off (a stage at s = 9.15e-5
-        with v'' off by 1.2e-6 of 116); the measured floor 1e-12 m left 2.75e-11 there but
-        1.2e-10 under Haswell, and made gcp-rk45 at rtol 1e-12 crawl under Prescott (25.7 s
-        CPU); this rule with the clearing: gcp-dop853 7.4e-12 ... 9.7e-11 m at rtol 1e-10 ...
-        1e-12 under the default, Prescott, Haswell and SkylakeX kernels, gcp-rk45 at 1e-12
-        3.5e-12 ... 5.7e-12 m in 2.8-7.3 s.  A fixed-step run has no atol: the floor alone.
+        1e-12 m is measured, not derived, and no stop derived from eps, the coordinates'
+        size and s does better, because next to a change point the stop does not decide
+        the completion's error.  The computed residual cannot tell apart the points of a
+        ball of width ~ eps |q| / s along A's soft direction (the residual's round-off, eps
+        |q|, carried through A or Phi_u: 2.4e-12 m at s = 9e-5 on the four cranks), and
+        Newton ends anywhere in it whatever its tolerance: where depends on where it
+        started; the velocities and accelerations there differ (v'' by ~ eps s^-2
+        relative).  Measured (benchmarks/newton_floor.py; docs/benchmarks.md, "The Newton
+        floor"): gcp-dop853 on the four cranks at rtol 1e-11 under OpenBLAS Prescott with
+        the floor eps / sqrt(SCHUR_PIVOT_FLOOR) = 2.2e-12 m, a stage at s = 9.15e-5
+        completed from its prediction (1.5e-10 m off) ends 6.5e-13 m from the exact q with
+        v'' off by 1.2e-6 of 116 (-1.2e-6, 1.5e-6, 3.9e-7, 5.8e-8 with the tolerances
+        2.2e-12, 1e-12, 3e-13, 1e-13; -3.2e-6 ... 3.0e-6 from the prediction moved by 1e-10
+        m; 7.7e-13 from the exact q).  Its step's error norm does not see it (DOP853's norm
+        divides the fifth-order estimate, 135 tolerances in vd, by a tenth of the
+        third-order one's truncation error, 7e4 tolerances: 0.38; the full q 0.71), which
+        leaves vd 350 tolerances off at the step's end, and the run ends 6.57e-9 m off:
+        3.8e-11 m with that one stage completed from the exact q, 2.75e-11 m with the floor
+        1e-12, where the same step's full-q norm came to 4.86.  Every rule tried leaves
+        1e-10 m or more at rtol 1e-11 under some kernel where the others leave 7e-12 ...
+        3e-11 m: 1e-12 (1.2e-10 m, Haswell), 2.2e-12 (6.57e-9 m, Prescott), the floor eps
+        max |x| / s with s of the factor just solved with (3.0e-9 m, Haswell), a stop once
+        |dx| stops halving (1.3e-9 ... 4.7e-9 m, default, Haswell, SkylakeX): the draw, not
+        the rule.  A round-off probe that completes again from the result moved by 4 ulps
+        does not see this error (the result is a fixed point of the computed iteration: the
+        same v'' eight times in eight); completed again from the prediction, Newton's start,
+        moved by 4 ulps or by its own distance, v'' spreads over +-3e-6, ~900 tolerances of
+        vd at the step's end.  A fixed-step run has no atol: the floor alone.
     kept_residual: a Newton that stops moving above its tolerance (gcp's projected
         Hermite fallback) is kept where its residual max |Phi| is within 1e2 newton_tol,
         i.e. one atol (m) above 1e-10 m: one absolute tolerance, what the error test
@@ -395,10 +404,9 @@ def newton(system, t, q, correction, tol, max_iter):
     equations for its independent coordinates.  correction(T, q) -> (dq (nq,), fac) gives
     the Newton step from the terms T at q (gcp coordinates: dq on u from Phi_u; tangent
     coordinates: dq from A = [Phi_q; C] on [Phi; C q - v]).  Returns (q, T, fac, ok): T, fac
-    of the last iterate; ok unless Newton neither stopped moving (max |dq| <= tol, or within
-    the round-off of a correction through the factor, eps max|q| / s, s its measure: Policy
-    doc, ``newton_tol``) nor left max |Phi| within that within max_iter iterations
-    (corrections may stagnate at round-off while the constraints hold: that is kept)."""
+    of the last iterate; ok unless Newton neither stopped moving (max |dq| <= tol) nor left
+    max |Phi| <= tol within max_iter iterations (corrections may stagnate at round-off
+    while the constraints hold: that is kept)."""
     s = system
     x = np.array(q, dtype=float)
     for _ in range(max_iter):
@@ -406,10 +414,9 @@ def newton(system, t, q, correction, tol, max_iter):
         dx, fac = correction(T, x)
         x -= dx
         s.counters["newton_iterations"] += 1
-        ball = EPS * np.abs(x).max(initial=0.0) / measure_from_lu(fac, s.sparse)
-        if np.abs(dx).max(initial=0.0) <= max(tol, ball):
+        if np.abs(dx).max(initial=0.0) <= tol:
             return x, T, fac, True  # Phi_q of this iterate is within tol of Phi_q(x)
-    return x, T, fac, bool(np.abs(T.phi).max(initial=0.0) <= max(tol, ball))
+    return x, T, fac, bool(np.abs(T.phi).max(initial=0.0) <= tol)
 
 
 def complete(system, t, q, v, vd, C, tol, max_iter):
@@ -593,44 +600,6 @@ def crossing_in_step(c, s, s0, s1, h, agree=0.25):
             return None
         checked += 1
     return (d, r) if checked else None
-
-
-def crossing_two_sided(c, s, s0, s1, h, agree=0.25):
-    """(d, r) of a change point crossed inside a step, as :func:`crossing_in_step`, where the
-    measure falls and rises at different rates (gcp's measure of A = [Phi_q; C], C taken
-    on one side of the point: its fall was about 4x its rise on the four cranks).  The least
-    stage measure, below both ends', marks the side of each stage; the falling slope r1 comes
-    from the stage nearest the start (d = s0 / r1, the rising slope r2 = s1 / (h - d) from
-    the end), or, without a stage on that side, the rising one from the stage nearest the
-    end (d = h - s1 / r2, r1 = s0 / d); a stage on the other side must agree with its slope
-    within ``agree``.  r = min(r1, r2): the slower side, by which every stage is the nearer
-    to the point, so that the clearance :func:`clear_of_crossing` gives holds on both
-    sides.  None where the stages show no such V (a turn short of the point)."""
-    if not (s0 > 0.0 and s1 > 0.0 and h > 0.0):
-        return None
-    t, s = np.asarray(c) * h, np.asarray(s)
-    j = int(np.argmin(s))
-    if not (s[j] < min(s0, s1) and 0.0 < t[j] < h):
-        return None
-    fall = np.flatnonzero((t > 0.0) & (t < t[j]))
-    rise = np.flatnonzero((t < h) & (t > t[j]))
-    if fall.size:
-        i = fall[np.argmin(t[fall])]
-        r1 = (s0 - s[i]) / t[i]
-        d = s0 / r1 if r1 > 0.0 else np.inf
-        r2 = s1 / (h - d) if d < h else -1.0
-        check = rise[np.argmax(t[rise])] if rise.size else None
-        ok = check is None or abs((s1 - s[check]) / (h - t[check]) - r2) <= agree * r2
-    elif rise.size:
-        i = rise[np.argmax(t[rise])]
-        r2 = (s1 - s[i]) / (h - t[i])
-        d = h - s1 / r2 if r2 > 0.0 else -np.inf
-        r1, ok = (s0 / d if d > 0.0 else -1.0), True
-    else:
-        return None
-    if not (ok and r1 > 0.0 and r2 > 0.0 and 0.0 < d < h):
-        return None
-    return d, min(r1, r2)
 
 
 def clear_of_crossing(c, weights, d, r, h):

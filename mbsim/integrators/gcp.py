@@ -56,7 +56,7 @@ import scipy.linalg as la
 import scipy.sparse.linalg as spla
 
 from mbsim.integrators import changepoints as cp
-from mbsim.integrators.base import NUMERICAL_ERRORS, ROUNDOFF_ULPS, quintic_hermite, rms_norm
+from mbsim.integrators.base import quintic_hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
 log = logging.getLogger(__name__)
@@ -118,10 +118,6 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._approach = cp.Approach(cp.stage_times(self.tableau), self.h_fixed, self.policy)
         self._pivot = None  # (_accept)
         self._pivot_iu = None  # u of the last accepted step
-        # a tangent trial's stages 1 .. n_stages - 1 and its end: their measure s and what
-        # completed them (t, Newton's start, y) (_clear_crossing); the probe's signs
-        self._stage_s, self._stage_start = [], []
-        self._clear_rng = np.random.default_rng(1)
         self._start()
 
     # -- partitioning ----------------------------------------------------------------------
@@ -269,92 +265,22 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         QD = np.empty((tab.n_stages, self.n))
         QD[0] = self._ref[2]
         K[0] = self.f
-        self._stage_s, self._stage_start = [], []
         for s in range(1, tab.n_stages):
             a = tab.A[s, :s]
             pred = q0 + h * (QD[:s].T @ a)
             self._pred = pred.copy()
             K[s] = self._rhs(t + tab.C[s] * h, y + h * (K[:s].T @ a))
             self._check_singular(t + tab.C[s] * h)
-            self._note_stage(pred)
             QD[s] = self._last[3]
         y_new = y + h * (K[:-1].T @ tab.B)
         pred = q0 + h * (QD.T @ tab.B)
         self._pred = pred.copy()
         f_new = self._rhs(t + h, y_new)
         self._check_singular(t + h)
-        self._note_stage(pred)
         K[-1] = f_new
         self._QD = (np.vstack([QD, self._last[3]]), q0, pred)  # for _extra_error, dense
         self._check_branch(t + h, self._last[2], pred)
         return y_new, f_new
-
-    def _note_stage(self, pred):
-        """In a tangent trial: the latest stage's measure and what completed it (t, Newton's
-        start ``pred``, y) (:meth:`_clear_crossing`)."""
-        if self.part.C is not None:
-            self._stage_s.append(self._pivot_ratio(self._last[5]))
-            self._stage_start.append((self._last[0], pred, self._last[1]))
-
-    def _clear_crossing(self, h, y_new):
-        """The step to try instead of a tangent trial of size h that passed its error test
-        but crosses the change point with a stage too close to it, or None: the index-1
-        family's rule (:meth:`mbsim.integrators.index1.Index1._clear_crossing`) in (v, vd).
-        Next to the point Newton ends anywhere within the round-off of a correction through
-        A, eps |q| / s, depending on where it started, and the stage's v'' with it (by up to
-        ~eps s^-2 relative); the error test does not see it (the embedded pair's solutions
-        share the stage).  So where the stages show a crossing
-        (:func:`changepoints.crossing_two_sided`), the stage nearest the point is completed
-        again from its Newton start moved by ROUNDOFF_ULPS ulps (:meth:`_stage_noise`), its
-        spread carried to the step's end (changepoints.Policy.stage_reach); where that
-        exceeds the tolerance the trial is taken again at the longest step no longer than h
-        whose stages all clear the point (changepoints.clear_of_crossing).  A dwell and a
-        stage below the policy's ``noise_s`` keep the step."""
-        part, tab = self.part, self.tableau
-        if part.C is None or self.h_fixed is not None or len(self._stage_s) != tab.n_stages:
-            return None
-        s_stages = np.asarray(self._stage_s)  # stages 1 .. n_stages - 1, then the end
-        t0, q0 = self._ref[0], self._ref[1]  # the step's start
-        J0 = self.system.terms(q0, t0, phi=False).jac
-        s0 = self._pivot_ratio(self._factor_tangent(J0, part.C))
-        crossing = cp.crossing_two_sided(tab.C[1:], s_stages[:-1], s0, s_stages[-1], h)
-        if crossing is None:
-            return None
-        reach = cp.Policy.stage_reach(tab, h)
-        live = np.flatnonzero(reach[1:].max(axis=1) > 0.0) + 1
-        i = int(live[np.argmin(s_stages[live - 1])])  # the live stage nearest the point
-        s_i = float(s_stages[i - 1])
-        if s_i < self.policy.noise_s:
-            return None
-        noise = self._stage_noise(*self._stage_start[i - 1], part)
-        if noise is None:
-            return None
-        k = part.k
-        scale = self._scale(self.y, y_new)  # the error test's, of (v, vd)
-        unit = s_i ** 3 * np.array([rms_norm(noise, scale[k:2 * k]), rms_norm(noise, scale[:k])])
-        if float((reach[i] * unit).max()) <= s_i ** 3:
-            return None  # within the tolerance
-        return cp.clear_of_crossing(np.append(tab.C, 1.0), reach * unit, *crossing, h)
-
-    def _stage_noise(self, t, start, y, part):
-        """(k,) the round-off of a tangent stage's v'' = C qdd: the spread of v'' between two
-        completions of the stage's (v, vd) = y from its Newton start moved by ROUNDOFF_ULPS
-        ulps (random signs), over sqrt 2; None where a completion fails.  (From the completed
-        q itself the computed Newton iteration returns the same point: a fixed point.)"""
-        s, C, k = self.system, part.C, part.k
-        ulp = ROUNDOFF_ULPS * np.finfo(float).eps * max(1.0, np.abs(start).max(initial=0.0))
-        a = []
-        try:
-            for _ in range(2):
-                q0 = start + ulp * self._clear_rng.choice([-1.0, 1.0], start.size)
-                x, qd, fac, _ = cp.complete(s, t, q0, y[:k], y[k:2 * k], C, self.newton_tol,
-                                            self.policy.newton_iter)
-                if qd is None:
-                    return None
-                a.append(C @ cp.accelerations(s, t, x, qd, fac, k)[0])
-        except NUMERICAL_ERRORS:
-            return None
-        return np.abs(a[0] - a[1]) / np.sqrt(2.0)
 
     def _check_singular(self, t):
         """A stage in coordinates with Phi_u near singular fails the trial, so that the step is

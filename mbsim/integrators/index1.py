@@ -106,6 +106,8 @@ class Index1(RungeKuttaIntegrator):
         self._trial_s = np.inf
         self._stage_s = []  # the measure at the trial's stages 1.. and its end, in order
         self._v_scale = None  # the error test's scale of (v, vd) in the last tangent trial
+        self._h_clear = None  # the step to try next, clear of a crossing (_clear_crossing)
+        self._cleared = False  # the current step was moved clear of a crossing
         # the approach to a change point and the step across it (changepoints.Approach)
         self.counters["straddle_steps"] = 0
         self._approach = None
@@ -266,7 +268,14 @@ class Index1(RungeKuttaIntegrator):
         self._c_last = False
         c = self._compiled
         if c is None or self._tangent:
-            return super()._attempt(h)
+            out = super()._attempt(h)
+            if self._tangent and out[2] is not None:
+                h_clear = self._clear_crossing(h, out[1])
+                if h_clear is not None:  # the step again, its stages clear of the point
+                    self._h_clear, self._cleared = h_clear, True
+                    self.counters["straddle_steps"] += 1
+                    return np.nextafter(1.0, 2.0), out[1], None, None, None, None
+            return out
         t = self.t
         status = c.trial(t, h, self.y, self.f, self.policy.tangent)
         if status in (stepper.ST_ALARM, stepper.ST_CALLBACK):
@@ -462,7 +471,7 @@ class Index1(RungeKuttaIntegrator):
         motion that dwells next to the point (no crossing, or no step clears it) and a stage
         below the policy's ``noise_s`` (where a probe measures nothing) keep the step."""
         tab = self.tableau
-        if (not self._tangent or self.h_fixed is not None or self._v_scale is None
+        if (self._cleared or self.h_fixed is not None or self._v_scale is None
                 or len(self._stage_s) != tab.n_stages):
             return None
         n = self.n
@@ -491,6 +500,11 @@ class Index1(RungeKuttaIntegrator):
         if float((reach[i] * unit).max()) <= s_i ** 3:
             return None  # within the tolerance
         return cp.clear_of_crossing(np.append(tab.C, 1.0), reach * unit, *crossing, h)
+
+    def _clip(self, h):
+        if self._h_clear is not None:  # (one trial: the step of _clear_crossing)
+            h, self._h_clear = self._h_clear, None
+        return super()._clip(h)
 
     def _tangent_map(self, t, q):
         s = self.system
@@ -532,6 +546,7 @@ class Index1(RungeKuttaIntegrator):
             self._C = None
         self._step_start = (self.t, self.q)
         self._step_tangent = False  # (the last step's dense output has been taken)
+        self._cleared, self._h_clear = False, None
         approach = self._approach if self.policy.tangent > 0.0 else None
         h = approach.step(self.h_abs) if approach else None
         if h is not None:

@@ -187,8 +187,6 @@ class RungeKuttaIntegrator(Integrator):
         self.K = np.empty((tab.n_stages + 1, 0))
         self._last_failure = ""
         self.error_exponent = -1.0 / (tab.error_order + 1) if tab.error_order else 0.0
-        self._h_clear = None  # the step to try next, clear of a crossing (_clear_crossing)
-        self._cleared = False  # the current step was moved clear of a crossing
 
     def _start(self):
         """Call at the end of a subclass __init__, once the state is ready."""
@@ -252,7 +250,6 @@ class RungeKuttaIntegrator(Integrator):
 
     def _step_impl(self):
         t = self.t
-        self._cleared, self._h_clear = False, None
         rejected = False
         recovered = False
         rejects = 0
@@ -311,28 +308,9 @@ class RungeKuttaIntegrator(Integrator):
                 raise StageFailure(f"error norm {err} at step {h:.3g} s")
         if err > 1:
             return err, y_new, None, None, None, None
-        h_clear = None if self._cleared else self._clear_crossing(h, y_new)
-        if h_clear is not None:  # the step again, its stages clear of the point
-            self._h_clear, self._cleared = h_clear, True
-            self.counters["straddle_steps"] += 1
-            # an error norm just over 1: the controller rejects the trial, and the next
-            # trial's size is h_clear (:meth:`_clip`); nothing of this trial is accepted
-            return np.nextafter(1.0, 2.0), y_new, None, None, None, None
         K, ctx = self.K.copy(), self._context()
         y_acc, f_acc = self._accept(self.t + h, y_new, f_new)
         return err, y_new, y_acc, f_acc, K, ctx
-
-    def _clear_crossing(self, h, y_new):
-        """The step to try instead of a trial of size h (end y_new) that passed its error
-        test, or None to accept it: the families with tangent coordinates retry, once per
-        step, a trial that crosses a change point with a stage too close to it
-        (:func:`mbsim.integrators.changepoints.clear_of_crossing`)."""
-        return None
-
-    def _clip(self, h):
-        if self._h_clear is not None:  # (one trial: the step of _clear_crossing)
-            h, self._h_clear = self._h_clear, None
-        return super()._clip(h)
 
     def _accept(self, t, y, f):
         return y, f

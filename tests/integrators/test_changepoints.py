@@ -151,26 +151,6 @@ def test_crossing_in_step_reads_the_point_off_a_v(tableau, d):
 
 
 @pytest.mark.parametrize("tableau", [rk.Dop853, rk.DormandPrince54])
-@pytest.mark.parametrize("d", [0.2, 0.5, 0.857])
-def test_crossing_two_sided_reads_a_v_of_two_slopes(tableau, d):
-    """s falling at r1 = 28 /s and rising at r2 = 7 /s (gcp's measure of A, its C taken on
-    one side: the fall about 4x the rise on the four cranks): d exactly, r the slower slope;
-    a symmetric V as crossing_in_step reads it; a turn short of the point is no crossing."""
-    h, r1, r2 = 1e-2, 28.0, 7.0
-    c = tableau.C[1:]
-    t = c * h
-    s_st = np.where(t < d * h, r1 * (d * h - t), r2 * (t - d * h))
-    s0, s1 = r1 * d * h, r2 * (1 - d) * h
-    found = cp.crossing_two_sided(c, s_st, s0, s1, h)
-    assert found == pytest.approx((d * h, r2), rel=1e-12)
-    sym = cp.crossing_two_sided(c, r2 * np.abs(t - d * h), r2 * d * h, s1, h)
-    assert sym == pytest.approx((d * h, r2), rel=1e-12)
-    s_turn = 1.2 * min(s0, s1)  # the least measure above both ends': no point inside
-    turn = s_turn + 0.1 * (t - d * h) ** 2
-    assert cp.crossing_two_sided(c, turn, s0, s1, h) is None
-
-
-@pytest.mark.parametrize("tableau", [rk.Dop853, rk.DormandPrince54])
 def test_clear_of_crossing_clears_every_stage_or_keeps_the_step(tableau):
     """The step returned is no longer than the proposed one, crosses the point and keeps
     every stage that reaches the step's end at least its clearance (w(h')^(1/3) / r in time)

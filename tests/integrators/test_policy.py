@@ -97,17 +97,15 @@ def test_newton_and_rank_thresholds_follow_eps():
 @pytest.mark.parametrize("family", ["gcp", "index-1"])
 @pytest.mark.parametrize("rtol", RTOLS)
 def test_newton_tolerances_follow_atol(family, rtol):
-    """newton_tol: a hundredth of atol (Hairer & Wanner IV.8's kappa), at least the round-off
-    of the residual on coordinates of 1 m, eps m (fixed steps: the floor alone);
-    kept_residual: 1e2 newton_tol, one atol;
+    """newton_tol: a hundredth of atol (Hairer & Wanner IV.8's kappa), at least the measured
+    floor 1e-12 m (fixed steps: the floor alone); kept_residual: 1e2 newton_tol, one atol;
     the index-1 projection keeps a stalled projection within one atol in [1e-11, 1e-7] for
     its default tolerance 1e-3 atol in [1e-14, 1e-10]."""
     fixed = cp.Policy.for_run(family, rtol, 1.0, True, exponent=EXPONENTS[0], n=28)
-    floor = EPS
-    assert fixed.newton_tol == pytest.approx(floor, rel=REL)
+    assert fixed.newton_tol == cp.NEWTON_FLOOR == 1e-12
     for atol in (1e-2 * rtol, rtol):
         p = cp.Policy.for_run(family, rtol, atol, False, exponent=EXPONENTS[0], n=28)
-        assert p.newton_tol == pytest.approx(max(1e-2 * atol, floor), rel=REL)
+        assert p.newton_tol == pytest.approx(max(1e-2 * atol, 1e-12), rel=REL)
         assert p.kept_residual == pytest.approx(1e2 * p.newton_tol, rel=REL)
         proj_tol = min(1e-10, max(1e-14, 1e-3 * atol))
         assert cp.Policy.projection_kept(proj_tol) == pytest.approx(
