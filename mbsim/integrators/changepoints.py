@@ -208,7 +208,12 @@ class Policy:
         does not see this error (the result is a fixed point of the computed iteration: the
         same v'' eight times in eight); completed again from the prediction, Newton's start,
         moved by 4 ulps or by its own distance, v'' spreads over +-3e-6, ~900 tolerances of
-        vd at the step's end.  A fixed-step run has no atol: the floor alone.
+        vd at the step's end.  The stop at the ball with a gcp clearing probed that way held
+        every gcp case within its bound on four kernels, but the index-1 tangent
+        completions share the stop, and it broke their slow crossing of the dead centre
+        at rtol 1e-11 (a run turned back, 1.07e-2 m off; docs/benchmarks.md, "The Newton
+        floor"; tests/integrators/test_index1_tangent.py's slow perturbed-start check).  A
+        fixed-step run has no atol: the floor alone.
     kept_residual: a Newton that stops moving above its tolerance (gcp's projected
         Hermite fallback) is kept where its residual max |Phi| is within 1e2 newton_tol,
         i.e. one atol (m) above 1e-10 m: one absolute tolerance, what the error test
