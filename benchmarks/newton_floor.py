@@ -39,6 +39,7 @@ Set OPENBLAS_CORETYPE to compare BLAS kernels.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 
@@ -49,6 +50,7 @@ import numpy as np  # noqa: E402
 from mbsim.integrators import changepoints as cp  # noqa: E402
 from mbsim.integrators import gcp as G  # noqa: E402
 from tests.integrators import models as M  # noqa: E402
+from tests.integrators import test_policy as TP  # noqa: E402
 from tests.integrators import test_singular_loops as TS  # noqa: E402
 
 ORIGINAL_NEWTON = cp.newton
@@ -123,8 +125,24 @@ class Exact:
         return motion(self.model, th, thd, -self.grav * np.cos(th) / self.i_eff)
 
 
-def stage(t_stage, floor, rtol):
+@contextlib.contextmanager
+def gcp_patched(floor, **methods):
+    """NEWTON_FLOOR = floor and gcp's methods replaced (name=function) for the block, both
+    restored after it."""
+    cls = G.GeneralizedCoordinatePartitioning
+    saved = {name: getattr(cls, name) for name in methods}
     cp.NEWTON_FLOOR = floor
+    for name, f in methods.items():
+        setattr(cls, name, f)
+    try:
+        yield
+    finally:
+        for name, f in saved.items():
+            setattr(cls, name, f)
+        cp.NEWTON_FLOOR = ORIGINAL_FLOOR
+
+
+def stage(t_stage, floor, rtol):
     exact = Exact()
     captured = []
     original = G.GeneralizedCoordinatePartitioning._complete
@@ -146,13 +164,8 @@ def stage(t_stage, floor, rtol):
             steps.append((t0, h, tab.error_norm(self.K, h, scale), self._extra_error(h), e5, e3))
         return out
 
-    G.GeneralizedCoordinatePartitioning._complete = capture
-    G.GeneralizedCoordinatePartitioning._attempt = record
-    try:
+    with gcp_patched(floor, _complete=capture, _attempt=record):
         err = TS.run("gcp-dop853", rtol)[1]
-    finally:
-        G.GeneralizedCoordinatePartitioning._complete = original
-        G.GeneralizedCoordinatePartitioning._attempt = attempt
     if not captured:
         raise SystemExit(f"error: --stage: no tangent stage within 2e-6 s of {t_stage}")
     integ, t, v, vd, part, pred = captured[0]
@@ -218,26 +231,12 @@ def stage(t_stage, floor, rtol):
             self._pred = exact(part_.C, v_, vd_, self._pred)[0]
         return original(self, t_, v_, vd_, part_)
 
-    G.GeneralizedCoordinatePartitioning._complete = from_exact
-    try:
+    with gcp_patched(floor, _complete=from_exact):
         err = TS.run("gcp-dop853", rtol)[1]
-    finally:
-        G.GeneralizedCoordinatePartitioning._complete = original
     print(f"run with this stage completed from the exact q: position error {err:.3g} m")
-    cp.NEWTON_FLOOR = ORIGINAL_FLOOR
 
 
 def ball():
-    from mbsim.analyses.common import rank_and_redundant
-    from mbsim.analyses.diagnosis import jacobian
-    from mbsim.analyses.trajectory import make_system
-
-    exact = Exact()
-    model = exact.model
-    _, red = rank_and_redundant(model, jacobian(model, model.q0, 0.0))
-    system = make_system(model, np.setdiff1d(np.arange(model.m), red))
-    qr = M.parallel_fourbar_motion(model, 0.06, 10.0, 0.0)[0]
-    C = cp.tangent_map(system, qr, system.terms(qr, 0.0, phi=False).jac)
     tols = (1e-12, 2.220446049250313e-12, 1e-14)
     rng = np.random.default_rng(1)
     print(
@@ -245,9 +244,7 @@ def ball():
     )
     print(f"{'':>18} " + " ".join(f"{'|dq|/ball':>9} {'dv/eps s-2':>9}" for _ in tols))
     for theta in (3e-2, 1e-2, 3e-3, 1e-3, 3e-4, 1e-4):
-        q, qd, qdd = M.parallel_fourbar_motion(
-            model, theta, 10.0, -exact.grav * np.cos(theta) / exact.i_eff
-        )
+        system, q, qd, qdd, C = TP.four_cranks_state(theta)  # (C taken 0.06 rad out)
         s = cp.measure_from_lu(cp.factor(system, system.terms(q, 0.0, phi=False).jac, C), False)
         width, vdd = cp.EPS * np.abs(q).max() / s, np.abs(C @ qdd).max()
         row = []
@@ -264,7 +261,6 @@ def ball():
 
 
 def probe(floor, rtol):
-    cp.NEWTON_FLOOR = floor
     rng = np.random.default_rng(7)
     stages, log = [], []
     complete0 = G.GeneralizedCoordinatePartitioning._complete
@@ -312,14 +308,8 @@ def probe(floor, rtol):
         log.append((t0, h, out[0], s, t, *tols))
         return out
 
-    G.GeneralizedCoordinatePartitioning._complete = complete
-    G.GeneralizedCoordinatePartitioning._attempt = attempt
-    try:
+    with gcp_patched(floor, _complete=complete, _attempt=attempt):
         err = TS.run("gcp-dop853", rtol)[1]
-    finally:
-        G.GeneralizedCoordinatePartitioning._complete = complete0
-        G.GeneralizedCoordinatePartitioning._attempt = attempt0
-        cp.NEWTON_FLOOR = ORIGINAL_FLOOR
     print(f"run: floor {floor:g}, rtol {rtol:g}: position error {err:.3g} m")
     for t0, h, e, s, t, p_near, p_pred, p_ulps in log:
         if s < 1e-3 or max(p_near, p_pred, p_ulps) > 1:
