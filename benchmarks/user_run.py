@@ -37,12 +37,27 @@ the process CPU inside the kernels (``C``) and outside them (``Python``, the wra
 a call included), ms per run, medians; and the share of the C kernels in the process CPU of
 the whole (figure ``phases: compiled share (process CPU)``), the arithmetic of issue 24's
 60 %.
-"""
+
+``--floors`` (default on; ``--no-floors``): what the ratio user run / bare could be with no
+Python around the work a user run must add, per deck (the model loaded once, as ``measure``):
+the C kernels' process CPU in the user run (without its file) and in the bare run, each
+kernel wrapped as in ``--split``; the HDF5 floor, the process CPU of writing the run's own
+file objects (the same datasets, types, groups and attributes, read back from its file) with
+one low-level h5py call each into HDF5's in-memory driver, then the image to disk with
+fsync, as ``write_result`` does; and from them ``floor = (bare + C added + HDF5 floor) /
+bare`` (figure ``floors: user run / bare with no Python around, <deck>``) and the Python
+budget of a user run at the ratio 2, ``bare - C added - HDF5 floor`` (figure ``floors: Python
+budget at user / bare = 2``), against the Python it spends today, ``user run - bare - C added
+- HDF5 floor`` (figure ``floors: Python above the floors``).  Also the YAML floor, libyaml's
+compose of the deck's text (``load_model``'s parser), and the compiled share of load + run +
+write with no Python around, ``C of the user run / (that + HDF5 floor + YAML floor)``
+(figure ``floors: compiled share ...``): issue 24's 60 % leaves Python the rest of C / 0.6."""
 
 from __future__ import annotations
 
 import argparse
 import inspect
+import os
 import sys
 import tempfile
 import time
@@ -50,6 +65,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+import yaml
 
 # common.ROOT: the checkout measured ($MBSIM_ROOT, set by before_after.py for each side,
 # else this tree), put first on sys.path by common
@@ -127,6 +143,132 @@ def measure(deck, scene, repeats, tmp):
     return got, t_span, len(res.t), len(objects)
 
 
+def wrap_kernels(lib, in_c):
+    """Wrap every C kernel of ``lib`` (common.kernel_functions) so that its process CPU adds
+    to ``in_c["t"]``; returns the originals [(lib, name, function)] to put back."""
+    def kernel(f):
+        def c_kernel(*args):
+            c0 = time.process_time()
+            try:
+                return f(*args)
+            finally:
+                in_c["t"] += time.process_time() - c0
+        return c_kernel
+
+    originals = [(lib, n, getattr(lib, n)) for n in kernel_functions(lib)]
+    for _, n, f in originals:
+        setattr(lib, n, kernel(f))
+    return originals
+
+
+def file_objects(path):
+    """The objects of the HDF5 file ``path`` in the file's order: (parent, name, None, attrs)
+    for a group, (parent, name, (data, file type, memory type, space, creation properties),
+    attrs) for a dataset."""
+    items = []
+    with h5py.File(path, "r") as f:
+        items.append(("", "", None, dict(f.attrs)))
+
+        def visit(name, obj):
+            parent, _, leaf = name.rpartition("/")
+            if isinstance(obj, h5py.Group):
+                items.append((parent, leaf, None, dict(obj.attrs)))
+                return
+            data = np.asarray(obj[()], dtype=obj.dtype)
+            items.append((parent, leaf, (data, obj.id.get_type(),
+                                         h5py.h5t.py_create(obj.dtype, logical=True),
+                                         obj.id.get_space(), obj.id.get_create_plist()),
+                          dict(obj.attrs)))
+        f.visititems(visit)
+    return items
+
+
+def _attr(oid, key, value):
+    data = np.asarray(value.encode() if isinstance(value, str) else value)
+    if isinstance(value, str):
+        data = np.asarray(value, dtype=h5py.string_dtype())
+    mtype = h5py.h5t.py_create(data.dtype, logical=True)
+    space = (h5py.h5s.create(h5py.h5s.SCALAR) if data.ndim == 0
+             else h5py.h5s.create_simple(data.shape))
+    h5py.h5a.create(oid, key.encode(), mtype, space).write(data, mtype=mtype)
+
+
+FLOOR_FILES = iter(range(1 << 62))
+
+
+def write_floor(items, dest):
+    """``items`` (file_objects) written with one low-level h5py call per object and
+    attribute into HDF5's in-memory driver, then the image to ``dest`` with fsync."""
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_fapl_core(1 << 16, False)
+    fid = h5py.h5f.create(f"floor-{next(FLOOR_FILES)}".encode(), h5py.h5f.ACC_TRUNC,
+                          fapl=fapl)
+    ids = {"": h5py.h5g.open(fid, b"/")}
+    for parent, name, ds, attrs in items:
+        if ds is None and name:
+            ids[f"{parent}/{name}".strip("/")] = oid = h5py.h5g.create(ids[parent],
+                                                                        name.encode())
+        elif ds is None:
+            oid = ids[""]
+        else:
+            data, ftype, mtype, space, dcpl = ds
+            oid = h5py.h5d.create(ids[parent], name.encode(), ftype, space, dcpl=dcpl)
+            if data.size:
+                oid.write(h5py.h5s.ALL, h5py.h5s.ALL, data, mtype=mtype)
+        for key, value in attrs.items():
+            _attr(oid, key, value)
+    h5py.h5f.flush(fid)
+    image = fid.get_file_image()
+    del ids, oid
+    fid.close()
+    with open(dest, "wb") as out:
+        out.write(image)
+        out.flush()
+        os.fsync(out.fileno())
+
+
+def floors(deck, scene, repeats, tmp):
+    """{name: [ms per run]}: the user run (its file included) and the bare run, the C
+    kernels' CPU in each, and the HDF5 floor of the user run's file (module doc)."""
+    from mbsim.api import load_model
+    from mbsim.fast import _lib
+    from mbsim.output import hdf5
+
+    path = ROOT / "models" / f"{deck}.yaml"
+    for_run = {"studies": False} if "studies" in inspect.signature(load_model).parameters else {}
+    spec, model = load_model(path, scene=scene, **for_run)
+    opts = dict(spec.analysis.get("dynamic", {}))
+    bare = dict(opts, error_estimate=False,
+                step=float(opts.get("t_end", 1.0)) - float(opts.get("t_start", 0.0)))
+    out, copy = Path(tmp) / f"{deck}-floor.h5", Path(tmp) / f"{deck}-floor-copy.h5"
+    hdf5.write_result(run_with_deck(model, "dynamic", dict(opts), spec), out)  # warm-up
+    items = file_objects(out)
+    write_floor(items, copy)
+    in_c = {"t": 0.0}
+    originals = wrap_kernels(_lib.library(), in_c)
+    text = path.read_text()
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    got = {k: [] for k in ("user run", "user run C", "bare", "bare C", "HDF5 floor",
+                           "YAML floor")}
+    try:
+        for _ in range(repeats):
+            in_c["t"], c0 = 0.0, time.process_time()
+            hdf5.write_result(run_with_deck(model, "dynamic", dict(opts), spec), out)
+            c1, k1 = time.process_time(), in_c["t"]
+            run_with_deck(model, "dynamic", dict(bare), spec)
+            c2, k2 = time.process_time(), in_c["t"]
+            write_floor(items, copy)
+            c3 = time.process_time()
+            yaml.compose(text, Loader=loader)
+            c4 = time.process_time()
+            for key, v in zip(got, (c1 - c0, k1, c2 - c1, k2 - k1, c3 - c2, c4 - c3)):
+                got[key].append(1e3 * v)
+    finally:
+        for m, n, f in originals:
+            setattr(m, n, f)
+    return got
+
+
 def split(deck, scene, repeats, tmp):
     """{phase: (total ms, C ms) per run, medians} of load + run + write with a fresh model
     each time, and the C share of the whole (list over the repeats)."""
@@ -142,16 +284,6 @@ def split(deck, scene, repeats, tmp):
     out = Path(tmp) / f"{deck}-split.h5"
     lib = _lib.library()
     in_c = {"t": 0.0}
-
-    def kernel(f):
-        def c_kernel(*args):
-            c0 = time.process_time()
-            try:
-                return f(*args)
-            finally:
-                in_c["t"] += time.process_time() - c0
-        return c_kernel
-
     spent: dict[str, list[float]] = {}
 
     def phase(module, name, key):
@@ -174,10 +306,7 @@ def split(deck, scene, repeats, tmp):
         hdf5.write_result(res, out)
 
     user_run()  # warm-up
-    names = kernel_functions(lib)
-    originals = [(lib, n, getattr(lib, n)) for n in names]
-    for n in names:
-        setattr(lib, n, kernel(getattr(lib, n)))
+    originals = wrap_kernels(lib, in_c)
     wrapped = [(api, "load_model", "load"), (dyn, "Prepared", "set-up"),
                (dyn, "main_trajectory", "trajectory"), (dyn, "estimate", "estimate"),
                (dyn, "build_result", "outputs"), (geometry, "scene_arrays", "shapes"),
@@ -207,12 +336,38 @@ def split(deck, scene, repeats, tmp):
     return med, shares
 
 
+def print_floors(label, got):
+    """The floors' lines and figures of one deck (module doc, ``--floors``)."""
+    b, bc = got["bare"], got["bare C"]
+    added = [u - b0 for u, b0 in zip(got["user run C"], bc)]
+    floor = [(b0 + a + h) / b0 for b0, a, h in zip(b, added, got["HDF5 floor"])]
+    budget = [b0 - a - h for b0, a, h in zip(b, added, got["HDF5 floor"])]
+    above = [u - b0 - a - h for u, b0, a, h in zip(got["user run"], b, added, got["HDF5 floor"])]
+    share = [c / (c + h + y) for c, h, y in
+             zip(got["user run C"], got["HDF5 floor"], got["YAML floor"])]
+    print("    floors: process CPU ms per run, medians [min-max]")
+    for key, v in (*got.items(), ("C added by the user run", added),
+                   ("Python budget at user / bare = 2", budget),
+                   ("Python above the floors", above),
+                   ("user / bare with no Python around", floor),
+                   ("C share with no Python around, %", [100 * x for x in share])):
+        print(f"    {key:<34} {np.median(v):8.3f} [{min(v):.3f}-{max(v):.3f}]", flush=True)
+    figure(f"floors: user run / bare with no Python around, {label}", floor, "x")
+    figure(f"floors: Python budget at user / bare = 2, {label}", budget, "ms")
+    figure(f"floors: Python above the floors, {label}", above, "ms")
+    figure(f"floors: HDF5 floor of the run's file, {label}", got["HDF5 floor"], "ms")
+    figure(f"floors: compiled share of load + run + write with no Python around, {label}",
+           [100 * x for x in share], "%")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--decks", default=DECKS, help=f"name[:scene],... (default {DECKS})")
     ap.add_argument("--split", action=argparse.BooleanOptionalAction, default=True,
                     help="also C / Python per phase of a fresh load + run + write")
+    ap.add_argument("--floors", action=argparse.BooleanOptionalAction, default=True,
+                    help="also the ratio with no Python around the kernels and HDF5")
     a = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         for item in a.decks.split(","):
@@ -235,6 +390,8 @@ def main(argv=None):
             figure(f"phases: load_model, {label}", got["load"], "ms")
             figure(f"phases: write, {label}", got["write"], "ms")
             figure(f"phases: HDF5 objects in the file, {label}", [objects], "objects")
+            if a.floors:
+                print_floors(label, floors(deck, scene or None, max(1, a.repeats), tmp))
             if not a.split:
                 continue
             med, shares = split(deck, scene or None, max(1, a.repeats), tmp)
