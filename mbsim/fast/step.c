@@ -507,6 +507,46 @@ int mb_rk_dense(const mb_model *M, mb_rk *R, double t0, double h, idx k, const d
     return ST_ACCEPTED;
 }
 
+/* -- the approach to a change point ------------------------------------------------------ */
+
+/* changepoints.Approach's measure: what its near() and accepted() read and write, written
+ * once here; the Python class calls these two functions after each of its steps, and the
+ * loop of many steps (mb_rk_steps) after each of its own. */
+typedef struct {
+    double tangent;        /* the policy's switch (Policy.tangent) */
+    double rate;           /* -ds/dt between the last two accepted states (> 0: approaching) */
+    double last_t, last_s; /* the last accepted state (NaN: none) */
+    double entry;          /* s where the approach began (NaN: no approach) */
+} mb_approach;
+
+/* Approach.near(h): s below which a state after a step of size h belongs to the approach:
+ * where it began, or the switch plus two steps' fall at the last rate. */
+double mb_approach_near(const mb_approach *A, double h)
+{
+    return isnan(A->entry) ? A->tangent + 2.0 * h * fmax(A->rate, 0.0) : A->entry;
+}
+
+/* Approach.accepted's measure after an accepted step of size h to t with s there: the rate
+ * from the last state (when t is later), (t, s) the last; then 1 where s >= near(h) (clear of
+ * any approach: entry reset), 0 where the state belongs to the approach (entry: the first
+ * such s). */
+int mb_approach_accepted(mb_approach *A, double t, double h, double s)
+{
+    if (!isnan(A->last_t) && t > A->last_t)
+        A->rate = (A->last_s - s) / (t - A->last_t);
+    A->last_t = t;
+    A->last_s = s;
+    if (s >= mb_approach_near(A, h)) {
+        A->entry = NAN;
+        return 1;
+    }
+    if (isnan(A->entry))
+        A->entry = s;
+    return 0;
+}
+
+int64_t mb_approach_size(void) { return (int64_t)sizeof(mb_approach); }
+
 /* -- a loop of accepted steps ------------------------------------------------------------ */
 
 /* The step-size controller's settings and state (mbsim/integrators/base.py: the constants,
@@ -545,12 +585,12 @@ typedef struct {
     const double *mesh; /* (n_mesh,) ascending */
     idx n_mesh;
     idx k_mesh;      /* in/out: where the search for the next mesh point starts */
-    /* approach: 1 to follow changepoints.Approach's near() and accepted() after every step
-     * (in place of the fixed `near`): in/out its rate, last (t, s) and entry (NaN: None);
-     * out ap_h_far, the last step whose accepted() C took (NaN: none), which reset the
-     * approach (a step that would not is left to Python: LOOP_NEAR before it) */
-    idx approach;
-    double ap_tangent, ap_rate, ap_last_t, ap_last_s, ap_entry, ap_h_far;
+    /* ap: the integrator's changepoints.Approach (NULL: none), in place of the fixed
+     * `near`: after every accepted step mb_approach_accepted, which updates it; a step
+     * whose state belongs to the approach ends the loop (LOOP_NEAR, its measure taken).
+     * out ap_h_far: the last step whose state was clear of it (NaN: none) */
+    mb_approach *ap;
+    double ap_h_far;
 } mb_loop;
 
 /* LOOP_OUTPUT: the last accepted step's outputs need Python (an output flagged by
@@ -584,7 +624,8 @@ static double step_factor(mb_loop *L, double err, int rejected)
  * step that needs Python is not taken: the loop returns LOOP_PYTHON before it, with every
  * earlier step accepted (a trial's status other than accepted or rejected, a step below the
  * smallest step, max_rejects rejections, a non-finite step or state).  It also returns after
- * a step whose change-point measure is below `near` (LOOP_NEAR) and after a step below the
+ * a step whose change-point measure is below `near`, or whose state belongs to the approach
+ * `ap` (LOOP_NEAR), and after a step below the
  * stall floor (LOOP_TINY), where the integrator's bookkeeping decides (their outputs left
  * to the driver), and after a step whose outputs need Python (LOOP_OUTPUT).  On return y is the
  * last step's start, y_new, y_acc, f_acc and K its trial (the dense output's data), and
@@ -648,10 +689,6 @@ int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
             L->h_fixed = L->h_abs =
                 (L->k_mesh < L->n_mesh ? L->mesh[L->k_mesh] : L->t_bound) - L->t;
         }
-        /* changepoints.Approach.near(h_abs) of the state before the step */
-        double near = !L->approach ? L->near
-                      : isnan(L->ap_entry) ? L->ap_tangent + 2.0 * L->h_abs * fmax(L->ap_rate, 0.0)
-                                           : L->ap_entry;
         double t = L->t, h_abs = L->h_abs < L->h_max ? L->h_abs : L->h_max, h;
         double err_old = L->err_old;
         int rejected = 0;
@@ -700,26 +737,12 @@ int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
             L->ends[L->steps - 1] = L->t;
         L->h_abs = L->h_fixed > 0.0 ? L->h_fixed : h_abs;
         L->s = R->out[O_SLAST];
-        if (L->s < near) {
+        if (L->ap ? !mb_approach_accepted(L->ap, L->t, h, L->s) : L->s < L->near) {
             L->why = LOOP_NEAR;
             return L->why;
         }
-        if (L->approach) { /* Approach.accepted(t, h, s) where it resets the approach */
-            double rate = L->ap_rate;
-            if (!isnan(L->ap_last_t) && L->t > L->ap_last_t)
-                rate = (L->ap_last_s - L->s) / (L->t - L->ap_last_t);
-            double near_h = isnan(L->ap_entry) ? L->ap_tangent + 2.0 * h * fmax(rate, 0.0)
-                                               : L->ap_entry;
-            if (!(L->s >= near_h)) {
-                L->why = LOOP_NEAR;
-                return L->why;
-            }
-            L->ap_rate = rate;
-            L->ap_last_t = L->t;
-            L->ap_last_s = L->s;
-            L->ap_entry = NAN;
+        if (L->ap)
             L->ap_h_far = h;
-        }
         if (h < L->stall_floor * fmax(1.0, fabs(L->t)) && L->t < L->t_bound) {
             L->why = LOOP_TINY;
             return L->why;

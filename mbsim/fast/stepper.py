@@ -83,10 +83,17 @@ class Loop(ctypes.Structure):
         + [("times", ctypes.c_void_p)]
         + [(n, ctypes.c_int64) for n in ("n_out", "k_out", "project_out")]
         + [(n, ctypes.c_void_p) for n in ("Q", "QD", "W", "H", "flags", "mesh")]
-        + [(n, ctypes.c_int64) for n in ("n_mesh", "k_mesh", "approach")]
-        + [(n, ctypes.c_double) for n in ("ap_tangent", "ap_rate", "ap_last_t", "ap_last_s",
-                                          "ap_entry", "ap_h_far")]
+        + [(n, ctypes.c_int64) for n in ("n_mesh", "k_mesh")]
+        + [("ap", ctypes.c_void_p), ("ap_h_far", ctypes.c_double)]
     )
+
+
+class ApproachState(ctypes.Structure):
+    """mb_approach of step.c: changepoints.Approach's measure (its near() and accepted() in
+    C, shared with the loop of many steps): the policy's switch, the rate -ds/dt, the last
+    accepted state (t, s) and the entry s (NaN: none)."""
+
+    _fields_ = [(n, ctypes.c_double) for n in ("tangent", "rate", "last_t", "last_s", "entry")]
 
 
 class Outputs:

@@ -31,6 +31,7 @@ with the same four pieces, all of them here:
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 
 import numpy as np
@@ -481,7 +482,9 @@ class Approach:
     point.
 
     So after each accepted step the integrator reports s (the measure, linear in the
-    distance to the point).  The approach is followed from the first state whose s lies
+    distance to the point; :meth:`accepted`, whose measure part, with :meth:`near`, is C's
+    mb_approach_accepted and mb_approach_near in mbsim/fast/step.c, called here and by the
+    loop of many steps there).  The approach is followed from the first state whose s lies
     within two steps of the policy's switch at the speed s fell over the last step,
     s < tangent + 2 h (-ds/dt) (:meth:`near`): the steps that reach the switch are then two
     accepted states of the approach, enough to extrapolate; it ends where s rises above the
@@ -507,26 +510,42 @@ class Approach:
     """
 
     def __init__(self, stages, h_fixed, policy):
+        from mbsim.fast import _lib, stepper
+
+        lib = _lib.library()
+        if lib.mb_approach_size() != ctypes.sizeof(stepper.ApproachState):
+            raise _lib.KernelBuildError("mb_approach in step.c and mbsim.fast.stepper's "
+                                        "ApproachState differ (an edit on one side only)")
+        self._near, self._accepted = lib.mb_approach_near, lib.mb_approach_accepted
+        # the measure: tangent, rate -ds/dt (> 0: approaching), the last accepted state
+        # (t, s) and the s where the approach began (NaN: none); C reads and writes it
+        self.c = stepper.ApproachState(policy.tangent, 0.0, np.nan, np.nan, np.nan)
         self.stages, self.h_fixed = stages, h_fixed  # stages: stage_times
         self.tangent, self.cut = policy.tangent, policy.cut
         self.h_far = None  # the last accepted step before the approach
-        self.last = None  # (t, s) of the last accepted state
-        self.rate = 0.0  # -ds/dt between the last two accepted states (> 0: approaching)
-        self.entry = None  # s where the approach began (None: no approach)
         self.points = ()  # (t, s) of the last two accepted states of the approach
         self.d_tried = np.inf  # the predicted distance at the last step tried across
         self.tried = None  # the step size tried by the current step, if any
 
+    @property
+    def rate(self):
+        """-ds/dt between the last two accepted states (> 0: approaching)."""
+        return self.c.rate
+
+    @property
+    def last(self):
+        """(t, s) of the last accepted state, or None."""
+        return None if np.isnan(self.c.last_t) else (self.c.last_t, self.c.last_s)
+
+    @property
+    def entry(self):
+        """s where the approach began, or None (no approach)."""
+        return None if np.isnan(self.c.entry) else self.c.entry
+
     def near(self, h):
         """s below which a state after a step of size h belongs to the approach (class
-        doc): the s where it began, or the switch plus two steps' fall.  (mbsim/fast/step.c's
-        loop of many steps replays this and the reset of :meth:`accepted` after each of its
-        steps, the ``ap_*`` fields of ``mb_loop``, and hands the step that would begin an
-        approach back to Python; a change here is a change there:
-        tests/analyses/test_output_loop.py compares the loop with one step per call.)"""
-        if self.entry is not None:
-            return self.entry
-        return self.tangent + 2.0 * h * max(self.rate, 0.0)
+        doc): the s where it began, or the switch plus two steps' fall (mb_approach_near)."""
+        return self._near(ctypes.addressof(self.c), h)
 
     def accepted(self, t, h, s):
         """After an accepted step of size h to t, s there (None: not comparable with the
@@ -534,17 +553,21 @@ class Approach:
         across = self.tried is not None and h >= SAFETY * self.tried
         self.tried = None
         if s is None:
-            self.points, self.last, self.rate = (), None, 0.0
+            self.points = ()
+            self.c.rate, self.c.last_t, self.c.last_s = 0.0, np.nan, np.nan
             return across
-        if self.last is not None and t > self.last[0]:
-            self.rate = (self.last[1] - s) / (t - self.last[0])
-        self.last = (t, s)
-        if s >= self.near(h):
-            self.h_far, self.points, self.d_tried, self.entry = h, (), np.inf, None
-        else:
-            self.entry = s if self.entry is None else self.entry
-            self.points = (self.points + ((t, s),))[-2:]
+        self.measured(t, h, s, self._accepted(ctypes.addressof(self.c), t, h, s))
         return across
+
+    def measured(self, t, h, s, clear):
+        """The rest of :meth:`accepted` once its measure is taken (mb_approach_accepted,
+        here or in the loop of many steps): ``clear``, the state after the step of size h to
+        t is clear of the approach (h the last step before it), else one of its states."""
+        self.tried = None
+        if clear:
+            self.h_far, self.points, self.d_tried = h, (), np.inf
+        else:
+            self.points = (self.points + ((t, s),))[-2:]
 
     def step(self, h_abs):
         """The step to try instead of h_abs, or None (class doc)."""

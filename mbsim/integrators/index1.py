@@ -361,12 +361,8 @@ class Index1(RungeKuttaIntegrator):
             exponent=self.error_exponent, beta=self.pi_beta, safety=base.SAFETY,
             min_factor=base.MIN_FACTOR, max_factor=base.MAX_FACTOR,
             stall_floor=base.STALL_FLOOR, max_steps=max_steps, max_rejects=base.MAX_REJECTS)
-        if approach is not None:  # followed step by step in C (step.c: mb_loop.approach)
-            last = approach.last or (np.nan, np.nan)
-            L.approach, L.ap_tangent, L.ap_rate = 1, approach.tangent, approach.rate
-            L.ap_last_t, L.ap_last_s = last
-            L.ap_entry = np.nan if approach.entry is None else approach.entry
-            L.ap_h_far = np.nan
+        if approach is not None:  # its measure taken after each step in C (mb_loop.ap)
+            L.ap, L.ap_h_far = ctypes.addressof(approach.c), np.nan
         ends = None
         if self.step_ends is not None:
             if self._ends_buffer.size < max_steps:
@@ -414,13 +410,11 @@ class Index1(RungeKuttaIntegrator):
                 self._step_start = (L.t_old, self._dense_args[2][:n])
             self._s, self._C, self._step_tangent = L.s, None, False
             self.q, self.qd, self.w = self._state_from_y(self.t, self.y)
-            if approach is not None:
-                if not np.isnan(L.ap_h_far):  # C's accepted() of its steps: each a reset
-                    approach.h_far, approach.points, approach.d_tried = L.ap_h_far, (), np.inf
-                    approach.entry, approach.tried = None, None
-                    approach.rate, approach.last = L.ap_rate, (L.ap_last_t, L.ap_last_s)
-                if why == stepper.LOOP_NEAR:  # the last step's, where C stopped
-                    approach.accepted(self.t, self.h_last, self._s)
+            if approach is not None:  # the rest of accepted() for the loop's steps
+                if not np.isnan(L.ap_h_far):  # the last of those clear of the approach
+                    approach.measured(None, L.ap_h_far, None, True)
+                if why == stepper.LOOP_NEAR:  # the last step's state belongs to it
+                    approach.measured(self.t, self.h_last, self._s, False)
             tiny = why == stepper.LOOP_TINY
             self._tiny_steps = (self._tiny_steps + 1 if L.steps == 1 else 1) if tiny else 0
             if self.t >= self.t_bound:
