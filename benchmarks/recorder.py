@@ -76,7 +76,7 @@ def main() -> None:
         dt, _ = best(lambda: orec.result("dynamic"))
         print(f"  {'old recorder (' + args.old + ')':45s} {dt:8.3f} s")
     for label, only in rows:
-        dt, out = best(lambda: rec.result("dynamic", only=only))
+        dt, out = best(lambda only=only: rec.result("dynamic", only=only))
         for k in ("monitors", "constraints"):  # as run_model would keep them
             if only is None:
                 out.channels.update({n: c for n, c in res.channels.items() if n.startswith(k)})

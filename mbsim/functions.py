@@ -11,7 +11,8 @@ from mbsim.deck.spec import FunctionSpec
 
 
 class TimeFunction:
-    """f(t) with derivatives: ``f(t)``, ``f.d1(t)``, ``f.d2(t)``. Subclasses set the three callables."""
+    """f(t) with derivatives: ``f(t)``, ``f.d1(t)``, ``f.d2(t)``. Subclasses set the three
+    callables."""
 
     kind = "base"
 

@@ -82,7 +82,8 @@ class Model:
         return self.body_names.index(name)
 
     def rows_of(self, kind: str) -> np.ndarray:
-        return np.concatenate([it.rows for it in self.items if it.kind == kind] or [np.zeros(0, int)])
+        rows = [it.rows for it in self.items if it.kind == kind]
+        return np.concatenate(rows or [np.zeros(0, int)])
 
     def items_of_rows(self, rows) -> list[str]:
         """Names of the items that own the given rows, in order of first appearance."""

@@ -48,7 +48,8 @@ class Result:
         return self.status == STATUS_COMPLETE
 
     def add(self, name: str, data, unit: str = "", description: str = "", components=()):
-        self.channels[name] = Channel(np.asarray(data, dtype=float), unit, description, tuple(components))
+        self.channels[name] = Channel(np.asarray(data, dtype=float), unit, description,
+                                      tuple(components))
 
     def channel(self, name: str) -> Channel:
         key = name.replace(".", "/")

@@ -126,7 +126,8 @@ def from_matrix(R: np.ndarray) -> np.ndarray:
 
 
 def from_axis_angle(axis, angle: float) -> np.ndarray:
-    """p = (cos(angle/2), sin(angle/2) u) for a rotation by `angle` about unit axis u (Haug eq. 6.3.5)."""
+    """p = (cos(angle/2), sin(angle/2) u) for a rotation by `angle` about unit axis u (Haug
+    eq. 6.3.5)."""
     u = np.asarray(axis, dtype=float)
     u = u / np.linalg.norm(u)
     return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * u])

@@ -17,7 +17,9 @@ def body(name, mass=1.0, inertia=(1.0, 1.0, 1.0), r=(0, 0, 0), p=(1, 0, 0, 0), g
 
 
 def pts(P, Q=None, R=None):
-    a = lambda v: None if v is None else np.asarray(v, float)
+    def a(v):
+        return None if v is None else np.asarray(v, float)
+
     return PointSet(a(P), a(Q), a(R))
 
 

@@ -68,8 +68,8 @@ def _driver_specs(type_):
         return [], [driver("D", "distance", f, bodies=("a", "b"),
                            points={"a": pts(rng.normal(size=3)), "b": pts(rng.normal(size=3))})]
     if type_ == "absolute":
-        return [], [driver("D", "absolute", f, bodies=("a", None), points={"a": pts(rng.normal(size=3))},
-                           axis="z")]
+        return [], [driver("D", "absolute", f, bodies=("a", None),
+                           points={"a": pts(rng.normal(size=3))}, axis="z")]
     raise KeyError(type_)
 
 
@@ -131,7 +131,8 @@ def test_driver_derivatives_match_finite_differences(type_, impl):
 @pytest.mark.parametrize("impl", IMPLS)
 def test_ground_and_normalization_rows(impl):
     model = compile_model(spec([body("g", ground=True), body("a", r=(1, 2, 3))],
-                               [joint("S", "spherical", "g", "a", {"g": pts([1, 0, 0]), "a": pts([0, 1, 0])})]))
+                               [joint("S", "spherical", "g", "a",
+                                      {"g": pts([1, 0, 0]), "a": pts([0, 1, 0])})]))
     # book counting: 2 bodies x 7 = 14 coordinates; 3 (sph) + 6 (ground) + 2 (norm) = 11
     assert model.nq == 14 and model.m == 11
     _check(model, impl)

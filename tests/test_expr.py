@@ -34,7 +34,8 @@ FORMULAS = [
     ("sinh(x) - cosh(y) + tanh(t)", lambda x, y, t: np.sinh(x) - np.cosh(y) + np.tanh(t)),
     ("abs(x) + sign(y) + floor(3*x) + ceil(3*y)",
      lambda x, y, t: np.abs(x) + np.sign(y) + np.floor(3 * x) + np.ceil(3 * y)),
-    ("min(x, y, t) + max(x, y)", lambda x, y, t: np.minimum(np.minimum(x, y), t) + np.maximum(x, y)),
+    ("min(x, y, t) + max(x, y)",
+     lambda x, y, t: np.minimum(np.minimum(x, y), t) + np.maximum(x, y)),
     ("clip(x, -0.5, 0.5)", lambda x, y, t: np.clip(x, -0.5, 0.5)),
     ("where(y < 0, 10*x, -x)", lambda x, y, t: np.where(y < 0, 10 * x, -x)),
     ("3*x if y >= 0 else t", lambda x, y, t: np.where(y >= 0, 3 * x, t)),
@@ -169,7 +170,7 @@ def test_function_derivative_matches_finite_difference(name, i):
 OPERATOR_CASES = ["x + y", "x - y", "x*y", "x/y", "-x", "x**3", "x**y", "y**x", "2**x",
                   "e**(x*y)", "x**-2", "(x < y)*x", "x*y/(1 + x**2)**0.5", "sin(x*y)**2",
                   "step(x, y - 3, y, y + 3, x*y)", "clip(x, y - 3, y*x)", "min(x**2, y, 5)",
-                  "atan2(x*y, y**2 + 1)", "hypot(x, x*y)", "where(x > 0, exp(x*y), y - x)"]  # fmt: skip
+                  "atan2(x*y, y**2 + 1)", "hypot(x, x*y)", "where(x > 0, exp(x*y), y - x)"]
 
 
 @pytest.mark.parametrize("text", OPERATOR_CASES)
@@ -239,7 +240,7 @@ def test_str_round_trips_through_the_parser(text):
         assert str(again) == str(x)
 
 
-# ---- the whitelist --------------------------------------------------------------------------------
+# ---- the whitelist -------------------------------------------------------------------------
 
 FORBIDDEN = [
     ("__import__('os')", "unknown function '__import__'"),

@@ -72,10 +72,10 @@ def closed_loop(model, names) -> tuple[list[str], list[str]] | None:
         adj.setdefault(a, []).append((b, k))
         adj.setdefault(b, []).append((a, k))
     for name in dict.fromkeys(names):
-        for k0, (a, b, n) in enumerate(edges):
+        for a, b, n in edges:
             if n != name:
                 continue
-            prev = {a: (None, None)}  # breadth-first from a to b without edge k0
+            prev = {a: (None, None)}  # breadth-first from a to b without this joint
             queue = [a]
             while queue and b not in prev:
                 node = queue.pop(0)

@@ -77,7 +77,8 @@ class RevoluteSpherical(Joint):
 class RevoluteCylindrical(Joint):
     type, n_eq, needs = "revolute-cylindrical", 3, ("PQ", "PQR")
     rows = (D1("f_i", "f_j"), D2("g_j"), D2("h_j"))
-    description = "massless link, revolute axis f_i perpendicular to cylinder axis f_j through P_i (Haug eq. 9.4.32)"
+    description = ("massless link, revolute axis f_i perpendicular to cylinder axis f_j "
+                   "through P_i (Haug eq. 9.4.32)")
 
 
 class SphericalSpherical(Joint):

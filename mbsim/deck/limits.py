@@ -60,7 +60,8 @@ PARAMETERS = Limit("PARAMETERS", 10_000, "number of parameters")
 OUTPUTS = Limit("OUTPUTS", 1_000_000, "number of output times (t_end - t_start)/step")
 FORMULA_CHARS = 10_000  # mbsim.expr.MAX_LENGTH: fixed, a formula is one line
 
-ALL = (DECK_BYTES, DEPTH, ITEMS, NODES, NAME_CHARS, TABLE_POINTS, POLYNOMIAL_TERMS, PARAMETERS, OUTPUTS)
+ALL = (DECK_BYTES, DEPTH, ITEMS, NODES, NAME_CHARS, TABLE_POINTS, POLYNOMIAL_TERMS,
+       PARAMETERS, OUTPUTS)
 
 
 # -- analysis settings ---------------------------------------------------------------------------

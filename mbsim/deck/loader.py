@@ -453,7 +453,7 @@ def _driver(rd: Reader, name: str, node: Node, where: Where, bodies: dict,
         out.bodies = joint.bodies
         if dtype == "rotation" and joint.points[joint.bodies[1]].R is None:
             rd.warn(got["joint"][1], f"joint {out.joint} gives no R on body {joint.bodies[1]}; "
-                    "the angle is measured from an arbitrary direction across the axis")  # fmt: skip
+                    "the angle is measured from an arbitrary direction across the axis")
     elif dtype == "distance":
         out.bodies = rd.body_names(*got["bodies"], bodies, 2)
         out.points = rd.points(*got["points"], dict.fromkeys(out.bodies, "P"))
@@ -753,7 +753,8 @@ def _curve_count(selector: str) -> int | None:
     if re.search(r"\[-?\d+\]$", key):
         return 1
     parts = key.split("/")
-    depth = 2 if parts[0] in ("monitors", "constraints", "error") else 3  # monitors/energy, bodies/b/r
+    # monitors/energy, bodies/b/r
+    depth = 2 if parts[0] in ("monitors", "constraints", "error") else 3
     if len(parts) == depth and parts[-1] in schema.STUDY_FIGURE_WIDTHS.get(parts[0], {}):
         return schema.STUDY_FIGURE_WIDTHS[parts[0]][parts[-1]]
     if len(parts) == depth + 1 and parts[0] in ("bodies", "points", "joints", "forces"):

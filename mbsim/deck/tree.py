@@ -111,7 +111,8 @@ def compose(text: str, file: str, origin: str | None = None) -> Node | None:
         reason = getattr(exc, "reason", None) or str(exc)
         char = getattr(exc, "character", None)
         bad = f" (character {char!r})" if char is not None else ""
-        raise DeckError(_one_line(f"not a YAML text file: {reason}{bad}"), Where(file, "", line))
+        raise DeckError(_one_line(f"not a YAML text file: {reason}{bad}"),
+                        Where(file, "", line)) from None
     if root is None:
         return None
     return _Converter(file, origin).convert(root, "")

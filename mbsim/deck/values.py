@@ -30,7 +30,8 @@ NAME_RE = re.compile(r"[A-Za-z_][A-Za-z_0-9]*")
 ZERO_LENGTH = 1e-9  # m: |Q - P| or |R - P| below this is an error
 PARALLEL = 1e-6  # rad: P->R this close to parallel with P->Q is an error ...
 NEARLY_PARALLEL = 1e-2  # rad: ... and so is this close ("nearly parallel")
-SKEW_WARNING = math.radians(1.0)  # rad off perpendicular: warn (issue #2: orthogonalise silently below 1 deg)
+# rad off perpendicular: warn (below 1 deg the axes are orthogonalised silently)
+SKEW_WARNING = math.radians(1.0)
 
 
 def describe(node: Node | None, limit: int = 80) -> str:

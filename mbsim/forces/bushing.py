@@ -52,7 +52,6 @@ from mbsim.forces.elements import _body_indices
 from mbsim.model import joint_frame
 from mbsim.rotations import cross, from_matrix, skew
 
-
 SMALL_ANGLE = 1e-4  # rad: below it J_r^{-1}'s theta~^2 coefficient uses its series (1/12)
 
 

@@ -29,8 +29,8 @@ F = max(F, 0): no adhesion.  STEP is ADAMS' cubic step: 0 at g = 0, c_max from g
 In a dynamic run the first touch of each impact is an event (:class:`Impacts`) and alpha is
 computed from that impact's own approach speed, so the coefficient of restitution is e (to the
 law's accuracy) at every impact; the deck's v_impact serves where there is no event (the
-other analyses, a contact already closed at t_start).  Hunt-Crossley and Lankarani-Nikravesh are derived for e near 1; Flores' law holds
-over the whole range.
+other analyses, a contact already closed at t_start).  Hunt-Crossley and Lankarani-Nikravesh
+are derived for e near 1; Flores' law holds over the whole range.
 
 Stiffness: ``k`` (N/m^e), or Hertz from ``E`` and ``nu`` (both bodies of one material):
 k = 4/3 E* sqrt(R*), 1/E* = 2 (1 - nu^2)/E, R* = R (sphere-plane) or R_i R_j / (R_i + R_j),

@@ -107,8 +107,8 @@ def test_companion_failing_at_t0_is_replaced(governor, governor_deck, governor_r
 
     def stopping(self):  # companions run below the run's rtol; the first at exactly rtol/5
         name, rtol = self.cls.name, float(self.opt["rtol"])
-        if isinstance(self, est_mod.CoarseStepper) or (name in failing and rtol < RTOL) or (f"{name}@5" in failing
-                                                  and rtol == pytest.approx(RTOL / 5)):
+        companion = isinstance(self, est_mod.CoarseStepper) or (name in failing and rtol < RTOL)
+        if companion or (f"{name}@5" in failing and rtol == pytest.approx(RTOL / 5)):
             return False, f"t = {self.solver.t:.6g} s: step size fell below h_min (test)"
         return step(self)
 

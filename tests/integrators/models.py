@@ -256,9 +256,10 @@ def top_spinning_state(model, theta, omega3, l=0.1):
 
 
 PENDULUM = {"L": 0.5, "m": 1.0, "Ic": 0.01, "g": 9.81}
+PENDULUM_THETA0 = np.radians(150.0)
 
 
-def pendulum(L=0.5, m=1.0, Ic=0.01, g=9.81, theta0=np.radians(150.0)):
+def pendulum(L=0.5, m=1.0, Ic=0.01, g=9.81, theta0=PENDULUM_THETA0):
     """Planar compound pendulum "bob": revolute about global z at the origin (body point
     (0, L, 0) above its centroid), centroidal moment Ic about z, gravity -y; started at rest
     at theta0 from the downward vertical."""
