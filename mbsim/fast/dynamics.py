@@ -25,7 +25,7 @@ metric (min-norm corrections).
 
 Per call of :meth:`System.accelerations`: the Python time targets and Python force elements
 (if any), then one C call (mbsim/fast/kernels.c, ``mb_accelerations``) that evaluates the
-constraints, the applied forces (gravity, TSDA, constant forces/torques, the gyroscopic
+constraints, the applied forces (gravity, TSDA, constant forces/torques, tires, the gyroscopic
 term), assembles S, factors and solves.
 
 Tables (besides the constraint tables of :mod:`mbsim.fast.constraints`), built once:

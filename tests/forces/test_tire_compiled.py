@@ -192,6 +192,11 @@ def test_system_applies_the_tires_in_c_as_the_reference_adds_them(monkeypatch):
     system = dynamics.System(model)
     assert not system.py_forces and list(system.ei[:, 0]) == [dynamics.EL_TIRE] * 4
     q, qd = random_states(model, np.random.default_rng(7), 60)
+    group = tires_of(model)[0].group
+    for qk, vk in zip(q, qd):  # the equations' F is the group's to the bit (one C function)
+        F_group = np.zeros((model.nb, 3))
+        group.apply(core.State(model, qk, vk), 0.0, F_group, np.zeros((model.nb, 3)))
+        assert np.array_equal(system.loads(qk, vk, 0.0)[1], F_group)
     monkeypatch.setattr(Tire, "apply", reference_apply)
     for qk, vk in zip(q, qd):
         Q, F, n = system.loads(qk, vk, 0.0)
