@@ -202,6 +202,8 @@ def _declare(lib):
         "mb_gather_dense": ([P, P, P], None),
         "mb_jac_times": ([P, P, P], None),
         "mb_applied_forces": ([P], None),
+        "mb_tire_states": ([ctypes.c_int64, ctypes.c_int64, ctypes.c_int64, P, P, P, P, P],
+                           None),
         "mb_mass_blocks": ([P], None),
         "mb_accelerations": ([P, I, I], I),
         "mb_project": ([P, I], I),

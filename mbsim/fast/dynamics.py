@@ -25,17 +25,18 @@ metric (min-norm corrections).
 
 Per call of :meth:`System.accelerations`: the Python time targets and Python force elements
 (if any), then one C call (mbsim/fast/kernels.c, ``mb_accelerations``) that evaluates the
-constraints, the applied forces (gravity, TSDA, constant forces/torques, the gyroscopic
+constraints, the applied forces (gravity, TSDA, constant forces/torques, tires, the gyroscopic
 term), assembles S, factors and solves.
 
 Tables (besides the constraint tables of :mod:`mbsim.fast.constraints`), built once:
 
 - ``bt`` (nb, NB) float64 per body: mass (col 0), J' (1-9, row-major), J'^-1 (10-18,
   zero when J' is singular), c = 4 tr(J') / 3 (19), weight m g (20-22), 1 / m (23);
-- ``ei`` (ne, 3) int64 / ``ef`` (ne, 9) float64 per compiled force element: kind
+- ``ei`` (ne, 3) int64 / ``ef`` (ne, NEF) float64 per compiled force element: kind
   (``EL_*``), bodies b1, b2 and data (TSDA: s_i', s_j', k, c, L0; force: vector, s'; torque:
-  vector); other elements are applied in Python and arrive as ``loads`` (2, nb, 3):
-  their forces F and body-frame torques n';
+  vector; tire: :meth:`mbsim.forces.tire.Tire.table_row`, 13 numbers, the widest, zeros
+  after the others' data); other elements are applied in Python and arrive as ``loads``
+  (2, nb, 3): their forces F and body-frame torques n';
 - ``sidx`` (4, m_a) int64: active rows (in the caller's order), the fill-reducing order of
   the Schur matrix (``order[k]``: the active row at position k, reverse Cuthill-McKee),
   the envelope's first column ``fc`` and offset ``off`` per position;
@@ -59,7 +60,11 @@ from mbsim.fast.constraints import KERNEL_CODE, KERNELS, FastConstraints, model_
 from mbsim.fast.ordering import reverse_cuthill_mckee, row_graph
 
 NB = 24
-EL_TSDA, EL_FORCE, EL_FORCE_LOCAL, EL_TORQUE, EL_TORQUE_LOCAL = range(5)
+EL_TSDA, EL_FORCE, EL_FORCE_LOCAL, EL_TORQUE, EL_TORQUE_LOCAL, EL_TIRE = range(6)
+NEF = 13
+"""Columns of ``ef`` (kernels.c's NEF): the tire's data, the widest.  One table for every
+kind (rather than a table of tires beside it): one loop over the elements in the model's
+order in ``mb_applied_forces`` and one pointer in mb_model; the others' rows end in zeros."""
 STATUS_OK, STATUS_NOT_PD, STATUS_SINGULAR = range(3)
 
 
@@ -116,12 +121,7 @@ class System:
         self.hybrid = tuple(el for el in self.py_forces if getattr(el, "hybrid", False))
         self.modes = dict(modes or {})
         self.reaction_loop = any(getattr(el, "reactions", False) for el in self.hybrid)
-        # elements evaluated together at a state (``group`` with apply(st, t, F, n_local):
-        # the tires of mbsim.forces.tire): one call per group, then the elements alone
-        plain = [el for el in self.py_forces if el not in self.hybrid]
-        self._py_groups = tuple({id(el.group): el.group for el in plain
-                                 if getattr(el, "group", None) is not None}.values())
-        self._py_alone = tuple(el for el in plain if getattr(el, "group", None) is None)
+        self._py_plain = tuple(el for el in self.py_forces if el not in self.hybrid)
         self._lam_known = None  # (m,) multipliers on all rows, the loop's last iterate
         self.family = None  # the run (Stepper) that builds systems for other modes
         # the symbolic analysis of S (order, envelope, products): once per row set; on the
@@ -191,9 +191,7 @@ class System:
         loads[:] = 0.0
         for el in self.hybrid:
             el.apply_in(self.modes.get(el.name), st, t, self._lam_known, loads[0], loads[1])
-        for group in self._py_groups:
-            group.apply(st, t, loads[0], loads[1])
-        for el in self._py_alone:
+        for el in self._py_plain:
             el.apply(st, t, loads[0], loads[1])
 
     def applied_forces(self, st, t) -> np.ndarray:
@@ -473,10 +471,11 @@ def body_table(model):
 
 
 def element_tables(forces):
-    """(ei (ne, 3), ef (ne, 9), python elements): TSDA with k, c, L0 (no law, no actuator)
-    and constant point forces and torques are compiled; every other element keeps its
-    Python ``apply``."""
+    """(ei (ne, 3), ef (ne, NEF), python elements): TSDA with k, c, L0 (no law, no
+    actuator), constant point forces and torques, and tires are compiled; every other
+    element keeps its Python ``apply``."""
     from mbsim.forces.elements import TSDA, PointForce, Torque
+    from mbsim.forces.tire import Tire
 
     ei, ef, py = [], [], []
     for el in forces:
@@ -486,15 +485,55 @@ def element_tables(forces):
             ef.append(np.concatenate([el.si, el.sj, [el.k, el.c, el.L0]]))
         elif cls is PointForce and el.vec is not None:
             ei.append((EL_FORCE_LOCAL if el.local else EL_FORCE, el.b, -1))
-            ef.append(np.concatenate([el.vec, el.s, np.zeros(3)]))
+            ef.append(np.concatenate([el.vec, el.s]))
         elif cls is Torque and el.vec is not None:
             ei.append((EL_TORQUE_LOCAL if el.local else EL_TORQUE, el.bj, el.bi))
-            ef.append(np.concatenate([el.vec, np.zeros(6)]))
+            ef.append(el.vec)
+        elif cls is Tire:
+            ei.append((EL_TIRE, el.b, -1))
+            ef.append(el.table_row())
         else:
             py.append(el)
-    ei = np.array(ei, dtype=np.int64).reshape(-1, 3)
-    ef = np.array(ef, dtype=np.float64).reshape(-1, 9)
-    return ei, ef, tuple(py)
+    rows = np.zeros((len(ef), NEF))
+    for k, row in enumerate(ef):
+        rows[k, : len(row)] = row
+    return np.array(ei, dtype=np.int64).reshape(-1, 3), rows, tuple(py)
+
+
+TIRE_OUTPUTS = (("F", 3), ("n_local", 3), ("sc", 3), ("v", 3), ("u", 3), ("F_ver", 1),
+                ("F_lat", 1), ("F_roll", 1), ("alpha", 1), ("saturated", 1),
+                ("deflection", 1), ("speed", 1))
+"""What kernels.c's tire_law writes per tire and state, in its order (TIRE_OUT = 22)."""
+TIRE_OUT = sum(n for _, n in TIRE_OUTPUTS)
+
+
+def tire_states(b, table, q, qd) -> dict:
+    """The tire law (kernels.c ``tire_law``; mbsim/forces/tire.py's module doc) of the
+    tires on bodies ``b`` (ne,) with data ``table`` (ne, NEF) (their ef rows) at the states
+    q, qd (..., nb, 7): {quantity: (..., ne, 3) for F, n_local, sc, v, u; (..., ne) for
+    F_ver, F_lat, F_roll, alpha, saturated (1.0 or 0.0), deflection, speed}, views of one
+    fresh array.  One C call (``mb_tire_states``) for every state and tire."""
+    from mbsim.fast import _lib
+
+    b = np.ascontiguousarray(b, dtype=np.int64)
+    table = np.ascontiguousarray(table, dtype=np.float64)
+    q = np.ascontiguousarray(q, dtype=np.float64)
+    qd = np.ascontiguousarray(qd, dtype=np.float64)
+    lead, nb = q.shape[:-2], q.shape[-2]
+    nt, ne = int(np.prod(lead, dtype=np.int64)), b.size
+    if q.ndim < 2 or q.shape[-1] != 7 or qd.shape != q.shape:
+        raise ValueError(f"q, qd: expected (..., nb, 7) each, got {q.shape}, {qd.shape}")
+    if table.shape != (ne, NEF) or (ne and not 0 <= b.min() <= b.max() < nb):
+        raise ValueError(f"tires on bodies {b.tolist()} of {nb} with data {table.shape}: "
+                         f"expected bodies in [0, {nb}) and data ({ne}, {NEF})")
+    out = np.empty((*lead, ne, TIRE_OUT))
+    _lib.library().mb_tire_states(nt, nb, ne, b.ctypes.data, table.ctypes.data,
+                                  q.ctypes.data, qd.ctypes.data, out.ctypes.data)
+    result, k = {}, 0
+    for name, n in TIRE_OUTPUTS:
+        result[name] = out[..., k : k + n] if n > 1 else out[..., k]
+        k += n
+    return result
 
 
 # Columns of one body's 7 (r: bits 0-2, p: bits 3-6) where a kernel's row of Phi_q can be

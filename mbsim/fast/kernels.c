@@ -16,7 +16,8 @@
  *   tv (nf, 3): time targets c(t) (squared where the driver says so), c'(t), c''(t).
  *   bt (nb, NB) per body: mass (0), J' (1-9), J'^-1 (10-18, zero when J' is singular),
  *                      c = 4 tr(J') / 3 (19), weight m g (20-22), 1 / m (23);
- *   ei (ne, 3) / ef (ne, 9): compiled force elements (EL_*), bodies b1, b2 and data;
+ *   ei (ne, 3) / ef (ne, NEF): compiled force elements (EL_*), bodies b1, b2 and data
+ *                      (layout by kind above el_tsda, el_tire and in mb_applied_forces);
  *   sidx (4, ma): active rows, Schur order (RCM), envelope first column fc, offset off;
  *   inc (ninc, 3): incidences (active row u, column offset 0/7, body), grouped by body
  *                  (offset + CROSS: left out of S, a body held by its own rows);
@@ -40,7 +41,16 @@
 enum { DOT1, DOT2, SPHERICAL, DISTANCE, ANGLE, ABSOLUTE, GROUND, NORMALIZATION };
 enum { I_KERNEL, I_BI, I_BJ, I_ROW, I_FLAG, I_FUNC, I_SLOT, NI = 9 };
 enum { F_CONST = 9, NF = 15, NB = 24 };
-enum { EL_TSDA, EL_FORCE, EL_FORCE_LOCAL, EL_TORQUE, EL_TORQUE_LOCAL };
+enum { EL_TSDA, EL_FORCE, EL_FORCE_LOCAL, EL_TORQUE, EL_TORQUE_LOCAL, EL_TIRE };
+/* Columns of ef (mbsim/fast/dynamics.py: NEF): the widest element's data, the tire's 13
+ * (tire_law).  One table for every kind keeps one loop over the elements in the model's
+ * order (the loads add up in that order) and one pointer in mb_model; the narrower kinds
+ * leave their last columns zero. */
+enum { NEF = 13 };
+/* The tire law's outputs per tire and state (tire_law, mb_tire_states): F (0-2), n_local
+ * (3-5), sc (6-8), v (9-11), u (12-14), F_ver, F_lat, F_roll, alpha, saturated,
+ * deflection, speed (15-21) (mbsim/forces/tire.py: TIRE_OUTPUTS). */
+enum { TIRE_OUT = 22 };
 enum { STATUS_OK = 0, STATUS_NOT_PD = 1, STATUS_SINGULAR = 2 };
 enum { JAC_HERE = 0, JAC_CALLER = 1, JAC_FACTORED = 2 }; /* mb_accelerations' have_jac */
 
@@ -522,6 +532,111 @@ static void el_tsda(const double *q, const double *qd, const double *A, const do
     cross_add(e + 3, x, n + 3 * b2, -1.0);
 }
 
+/* w' = 2 G(p) pd (Haug eq. 6.3.18): the body-frame angular velocity. */
+static void omega_local(const double *p, const double *pd, double *w)
+{
+    double G[3][4];
+    gmat(p, G);
+    for (int i = 0; i < 3; i++)
+        w[i] = 2.0 * (G[i][0] * pd[0] + G[i][1] * pd[1] + G[i][2] * pd[2] + G[i][3] * pd[3]);
+}
+
+/* clip(x, lo, hi) that keeps a NaN x (as numpy's minimum(maximum(x, lo), hi)). */
+static double clip(double x, double lo, double hi)
+{
+    x = x < lo ? lo : x;
+    return x > hi ? hi : x;
+}
+
+/* The tire on the road z = 0 (mbsim/forces/tire.py's module doc: Haug Sec. 12.5.1, Eqs.
+ * 12.5.1-12.5.3 written for any heading), one tire at one state: the only implementation of
+ * the law, for the equations of motion (mb_applied_forces) and for its quantities at the
+ * outputs (mb_tire_states).
+ * r, rd: origin of the tire's body and its velocity (global); A: its rotation matrix; w: its
+ * angular velocity (body frame); e: the tire's ef row, s' (0-2, spindle, body frame), forward
+ * axis (3-5, unit, body frame), kt, radius, c, c_alpha, mu, rolling, v_min (6-12).
+ * o (TIRE_OUT,): see TIRE_OUT.
+ * Spindle P = r + A s', height h = P_z; contact point C = P - h z, sc = A^T (C - r); v the
+ * velocity of the body point at C, rd + A (w' x sc); heading u = the forward axis on the road,
+ * normalised (y when it stands vertical, |u_h| <= 1e-12); l = u x z; v_fwd = u . v, v_lat =
+ * l . v; alpha = atan2(v_lat, |v_fwd|) (12.5.1 in the heading frame); deflection d = radius -
+ * h; F_ver = max(0, kt d - c v_z) on the ground (d > 0), else 0; F_lat = w(|v_h|) clip(C_alpha
+ * alpha, +-mu F_ver), w the smoothstep 3 x^2 - 2 x^3 of x = min(|v_h| / v_min, 1); saturated:
+ * on the ground, C_alpha alpha != 0 and |C_alpha alpha| >= mu F_ver; F_roll = rolling F_ver
+ * clip(v_fwd / v_min, +-1); F = F_ver z - F_lat l - F_roll u at C, n' = sc x A^T F. */
+static void tire_law(const double *r, const double *rd, const double *A, const double *w,
+                     const double *e, double *o)
+{
+    double *F = o, *nl = o + 3, *sc = o + 6, *v = o + 9, *u = o + 12, x[3] = {0, 0, 0}, y[3];
+    double kt = e[6], radius = e[7], c = e[8], c_alpha = e[9], mu = e[10], rolling = e[11],
+           v_min = e[12];
+    rot(A, e, y, 0); /* P - r = A s' */
+    double P0 = r[0] + y[0], P1 = r[1] + y[1], h = r[2] + y[2];
+    double d[3] = {P0 - r[0], P1 - r[1], -r[2]}; /* C - r */
+    rot(A, d, sc, 1);
+    cross_add(sc, w, x, -1.0); /* w' x sc */
+    rot(A, x, y, 0);
+    for (int i = 0; i < 3; i++)
+        v[i] = rd[i] + y[i];
+    double uh0 = A[0] * e[3] + A[1] * e[4] + A[2] * e[5];
+    double uh1 = A[3] * e[3] + A[4] * e[4] + A[5] * e[5];
+    double un = hypot(uh0, uh1);
+    if (un > 1e-12) {
+        u[0] = uh0 / un;
+        u[1] = uh1 / un;
+    } else { /* the forward axis stands vertical: the heading of y */
+        u[0] = 0.0;
+        u[1] = 1.0;
+    }
+    u[2] = 0.0;
+    double l0 = u[1], l1 = -u[0]; /* l = u x z */
+    double v_fwd = u[0] * v[0] + u[1] * v[1], v_lat = l0 * v[0] + l1 * v[1];
+    double alpha = atan2(v_lat, fabs(v_fwd));
+    double defl = radius - h;
+    int ground = defl > 0;
+    double f_ver = 0.0;
+    if (ground) {
+        f_ver = kt * defl - c * v[2];
+        f_ver = f_ver < 0.0 ? 0.0 : f_ver; /* no tension (a NaN stays) */
+    }
+    double limit = mu * f_ver, f_lin = c_alpha * alpha;
+    double speed = hypot(v_fwd, v_lat);
+    double xs = speed / v_min;
+    xs = xs > 1.0 ? 1.0 : xs;
+    double f_lat = xs * xs * (3.0 - 2.0 * xs) * clip(f_lin, -limit, limit);
+    double f_roll = rolling * f_ver * clip(v_fwd / v_min, -1.0, 1.0);
+    F[0] = -f_lat * l0 - f_roll * u[0];
+    F[1] = -f_lat * l1 - f_roll * u[1];
+    F[2] = -f_lat * 0.0 - f_roll * 0.0 + f_ver; /* the zeros keep a non-finite F_lat's NaN */
+    rot(A, F, y, 1);
+    nl[0] = nl[1] = nl[2] = 0.0;
+    cross_add(sc, y, nl, 1.0);
+    o[15] = f_ver;
+    o[16] = f_lat;
+    o[17] = f_roll;
+    o[18] = alpha;
+    o[19] = (ground && f_lin != 0.0 && fabs(f_lin) >= limit) ? 1.0 : 0.0;
+    o[20] = defl;
+    o[21] = speed;
+}
+
+/* The tire law (tire_law) of ntire tires at nt states: q, qd (nt, nb, 7) the states; tb
+ * (ntire,) each tire's body, te (ntire, NEF) its ef row; out (nt, ntire, TIRE_OUT).  A and w'
+ * as mb_applied_forces computes them, so a tire's loads here equal its loads in the equations
+ * of motion to the bit. */
+void mb_tire_states(int64_t nt, int64_t nb, int64_t ntire, const idx *tb, const double *te,
+                    const double *q, const double *qd, double *out)
+{
+    double A[9], w[3];
+    for (idx k = 0; k < nt; k++)
+        for (idx j = 0; j < ntire; j++) {
+            const double *qb = q + 7 * (nb * k + tb[j]), *qdb = qd + 7 * (nb * k + tb[j]);
+            rotation(qb + 3, A);
+            omega_local(qb + 3, qdb + 3, w);
+            tire_law(qb, qdb, A, w, te + NEF * j, out + TIRE_OUT * (ntire * k + j));
+        }
+}
+
 /* Q (nq,) = [F, 2 G^T (n' - w' x J' w')] per body (Haug Ch. 11, Euler-parameter form):
  * gravity, the compiled elements (EL_*), the Python elements' loads (2, nb, 3: F and n') and
  * the gyroscopic term. */
@@ -535,19 +650,24 @@ void mb_applied_forces(const mb_model *M)
         const double *p = q + 7 * b + 3, *pd = qd + 7 * b + 3;
         if (M->ne > 0) /* A: the compiled elements' alone */
             rotation(p, A + 9 * b);
-        gmat(p, G);
+        omega_local(p, pd, w + 3 * b);
         for (int i = 0; i < 3; i++) {
             F[3 * b + i] = bt[NB * b + 20 + i] + M->loads[3 * b + i];
             n[3 * b + i] = M->loads[3 * nb + 3 * b + i];
-            w[3 * b + i] = 2.0 * (G[i][0] * pd[0] + G[i][1] * pd[1] + G[i][2] * pd[2] +
-                                  G[i][3] * pd[3]);
         }
     }
     for (idx k = 0; k < M->ne; k++) {
         idx kind = M->ei[3 * k], b1 = M->ei[3 * k + 1], b2 = M->ei[3 * k + 2];
-        const double *e = M->ef + 9 * k;
+        const double *e = M->ef + NEF * k;
         if (kind == EL_TSDA) {
             el_tsda(q, qd, A, w, b1, b2, e, F, n);
+        } else if (kind == EL_TIRE) { /* on b1 (tire_law) */
+            double o[TIRE_OUT];
+            tire_law(q + 7 * b1, qd + 7 * b1, A + 9 * b1, w + 3 * b1, e, o);
+            for (int i = 0; i < 3; i++) {
+                F[3 * b1 + i] += o[i];
+                n[3 * b1 + i] += o[3 + i];
+            }
         } else if (kind == EL_FORCE_LOCAL) { /* follower force: body-fixed direction, at s' */
             rot(A + 9 * b1, e, x, 0);
             for (int i = 0; i < 3; i++)

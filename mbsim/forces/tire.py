@@ -33,6 +33,12 @@ Channels: ``F_ver`` (N), ``F_lat`` (N, along -l), ``alpha`` (rad), ``saturated``
 |C_alpha alpha| >= mu F_ver on the ground, else 0), ``deflection`` (m), ``heading`` (psi of
 eq. 12.5.2 in (-pi, pi], from global y about z, rad), ``speed`` (|v_h|, the road speed of the
 contact point, m/s), ``force`` (global).
+
+The law is written once, in C (mbsim/fast/kernels.c ``tire_law``): the equations of motion
+evaluate the tires as compiled elements (``EL_TIRE``, the data of :meth:`Tire.table_row`),
+and everything here (a tire's state, channels and loads at one state or at every output)
+reads the same function through :func:`mbsim.fast.dynamics.tire_states`.  The tests check it
+against the scalar law of tests/forces/tire_reference.py.
 """
 
 from __future__ import annotations
@@ -81,11 +87,18 @@ class Tire(_Element):
         el.fwd = fwd / np.linalg.norm(fwd)
         el.fwd.setflags(write=False)
         # own: this tire alone (its state at one state); group: every tire of the model,
-        # which System.apply_python calls once per state and the outputs once for all
-        # (Tire.bind); slot: this tire's index in its group
+        # which the outputs evaluate once for all (Tire.bind); slot: this tire's index in
+        # its group
         el.own = el.group = TireGroup((el,))
         el.slot = 0
         return el
+
+    def table_row(self) -> np.ndarray:
+        """(13,) this tire's line of the compiled elements' data (mbsim/fast/dynamics.py
+        ``ef``, kernels.c ``tire_law``): s' (3), forward (3), kt, radius, c, c_alpha, mu,
+        rolling, v_min."""
+        return np.concatenate([self.s, self.fwd, [self.kt, self.radius, self.c, self.c_alpha,
+                                                  self.mu, self.rolling, self.v_min]])
 
     def bind(self, model):
         """Share one :class:`TireGroup` among all tires of ``model`` (compile_model's call)."""
@@ -105,8 +118,8 @@ class Tire(_Element):
         return out
 
     def apply(self, st, t, F, n_local):
-        """This tire's load alone (a System applies the model's tires together:
-        :meth:`TireGroup.apply`)."""
+        """This tire's load alone (a System evaluates the tires in its C force evaluation,
+        ``EL_TIRE``; this is the same law, for callers that ask one element)."""
         self.own.apply(st, t, F, n_local)
 
     def potential(self, st):
@@ -163,29 +176,24 @@ _SCALARS = ("F_ver", "F_lat", "F_roll", "alpha", "saturated", "deflection", "spe
 
 
 class TireGroup:
-    """All tires of a model, evaluated together: the tire law (module doc) once per state
-    on arrays over the tires, instead of once per tire on 3-vectors (the per-call cost of
-    small numpy operations is most of a tire's cost; the vehicle's four tires per state cost
-    about a quarter of them together).
+    """All tires of a model, evaluated together: the tire law (module doc; kernels.c
+    ``tire_law``) of every tire at one state or at every output of a run in one C call
+    (:func:`mbsim.fast.dynamics.tire_states`).
 
     Constant arrays, built once per model (:meth:`Tire.bind`): ``b`` (ne,) body of each tire,
-    ``s`` (ne, 3) spindle point and ``fwd`` (ne, 3) unit forward axis in body frames, ``kt``,
-    ``radius``, ``c``, ``c_alpha``, ``mu``, ``rolling``, ``v_min`` (ne,).
+    ``table`` (ne, 13) its data (:meth:`Tire.table_row`, the tire's row of the compiled
+    elements' table).
 
-    :meth:`apply` adds the loads of every tire of the group at one state: the System calls
-    it once per state for all the tires of a model (mbsim/fast/dynamics.py apply_python);
-    :meth:`at_many` evaluates them at every output of a run once, and each tire's loads and
+    :meth:`at_many` evaluates the tires at every output of a run once, and each tire's
     channels there read its column (``Tire.slot``).  A tire's state at one state comes from
     its own group of one (``Tire.own``)."""
 
-    PARAMS = ("kt", "radius", "c", "c_alpha", "mu", "rolling", "v_min")
-
     def __init__(self, tires):
-        self.b = np.array([el.b for el in tires], dtype=np.intp)
-        self.s = np.array([el.s for el in tires], dtype=float).reshape(-1, 3)
-        self.fwd = np.array([el.fwd for el in tires], dtype=float).reshape(-1, 3)
-        for name in self.PARAMS:
-            setattr(self, name, np.array([getattr(el, name) for el in tires], dtype=float))
+        self.b = np.array([el.b for el in tires], dtype=np.int64)
+        self.table = np.array([el.table_row() for el in tires], dtype=float).reshape(
+            len(self.b), -1)
+        for a in (self.b, self.table):
+            a.setflags(write=False)
         # at_many's results, one per States object while it lives: the outputs' loads and
         # each tire's channels read one evaluation of the group (States are not changed
         # after they are built: mbsim.core.States)
@@ -199,10 +207,13 @@ class TireGroup:
         self._many = weakref.WeakKeyDictionary()
 
     def at(self, st) -> dict:
-        """The law at one state: every quantity of :meth:`Tire.state` with a leading tire
-        axis (F, sc, v, u, n_local (ne, 3); the rest (ne,))."""
-        b = self.b
-        return tire_law(self, st.A[b], st.r[b], st.rd[b], st.omega_local[b])
+        """The law at one state (:class:`mbsim.core.State`): every quantity of
+        :meth:`Tire.state` with a leading tire axis (F, sc, v, u, n_local (ne, 3); the rest
+        (ne,))."""
+        from mbsim.fast.dynamics import tire_states
+
+        return tire_states(self.b, self.table, np.concatenate([st.r, st.p], axis=-1),
+                           np.concatenate([st.rd, st.pd], axis=-1))
 
     def at_many(self, states) -> dict:
         """:meth:`at` at every output of ``states`` (:class:`mbsim.core.States`): time first,
@@ -210,9 +221,9 @@ class TireGroup:
         (kept while it lives): the arrays returned are shared, not to be written."""
         out = self._many.get(states)
         if out is None:
-            b = self.b
-            out = tire_law(self, states.A[:, b], states.r[:, b], states.rd[:, b],
-                           states.omega_local[:, b])
+            out = self.at(states)  # r, p, rd, pd (nt, nb, ...): the same concatenation
+            for a in out.values():
+                a.setflags(write=False)
             self._many[states] = out
         return out
 
@@ -222,80 +233,3 @@ class TireGroup:
         s = self.at(st)
         np.add.at(F, self.b, s["F"])
         np.add.at(n_local, self.b, s["n_local"])
-
-
-_Y = np.array([0.0, 1.0])  # the heading of a tire whose forward axis stands vertical
-# Levi-Civita symbol: (a x b)_i = eps_ijk a_j b_k, one einsum (np.cross costs ~10 numpy calls)
-_EPS = np.zeros((3, 3, 3))
-_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
-_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
-
-
-_CROSS_EINSUM_MAX = 48  # a x b of at most this many numbers: one einsum, else by components
-
-
-def _cross(a, b):
-    """a x b over the last axis (..., 3).  Either way each component is a_j b_k - a_k b_j
-    rounded once (the einsum's other terms are exact zeros), so the two agree to the bit:
-    one einsum for a few vectors (the tires at one state: 2.8 us against 6 us), the
-    components for many (the tires at every output: 2404 vectors in 40 us against 330 us)."""
-    if a.size <= _CROSS_EINSUM_MAX:
-        return np.einsum("ijk,...j,...k->...i", _EPS, a, b)
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    out[..., 0] = a1 * b2 - a2 * b1
-    out[..., 1] = a2 * b0 - a0 * b2
-    out[..., 2] = a0 * b1 - a1 * b0
-    return out
-
-
-def tire_law(g, A, r, rd, omega_local) -> dict:
-    """The tire law (module doc; Haug Eqs. 12.5.1-12.5.3) on arrays of any leading shape
-    (..., ne) ending in the tires of group ``g`` (its parameters (ne,), s and fwd (ne, 3)).
-
-    A (..., ne, 3, 3) rotation matrices, r, rd (..., ne, 3) origin and its velocity (global),
-    omega_local (..., ne, 3) angular velocity (body frame) of each tire's body.  Returns
-    F (..., ne, 3) the global force at the contact point C, n_local (..., ne, 3) its moment
-    about the body origin in the body frame (sc x A^T F), sc (contact point, body frame),
-    v (velocity of the body point at C), u (unit heading on the road), and F_ver, F_lat,
-    F_roll, alpha, saturated (1.0 or 0.0), deflection, speed (..., ne)."""
-    # the tire constants spread over the leading axes once, contiguous: einsum's loop over a
-    # broadcast operand is 5x slower at many outputs (the same products, the same values)
-    s, fwd = g.s, g.fwd
-    if r.shape != s.shape:
-        s = np.ascontiguousarray(np.broadcast_to(s, r.shape))
-        fwd = np.ascontiguousarray(np.broadcast_to(fwd, r.shape))
-    P = r + np.einsum("...ij,...j->...i", A, s)
-    h = P[..., 2]
-    Ph = P.copy()
-    Ph[..., 2] = 0.0  # P - h z
-    sc = np.einsum("...ji,...j->...i", A, Ph - r)  # contact point, body frame
-    v = rd - np.einsum("...ij,...j->...i", A, _cross(sc, omega_local))  # w x s = -s x w
-    uh = np.einsum("...ij,...j->...i", A[..., :2, :], fwd)  # heading before normalising
-    un = np.hypot(uh[..., 0], uh[..., 1])
-    ok = (un > 1e-12)[..., None]
-    u = np.zeros(v.shape)
-    u[..., :2] = np.where(ok, uh / np.where(ok, un[..., None], 1.0), _Y)  # y' when upright
-    lat = np.zeros(v.shape)  # u x z
-    lat[..., 0], lat[..., 1] = u[..., 1], -u[..., 0]
-    v_fwd = u[..., 0] * v[..., 0] + u[..., 1] * v[..., 1]
-    v_lat = lat[..., 0] * v[..., 0] + lat[..., 1] * v[..., 1]
-    alpha = np.arctan2(v_lat, np.abs(v_fwd))  # Eq. 12.5.1 in the heading frame
-    defl = g.radius - h
-    ground = defl > 0
-    f_ver = np.where(ground, np.maximum(0.0, g.kt * defl - g.c * v[..., 2]), 0.0)
-    limit = g.mu * f_ver
-    f_lin = g.c_alpha * alpha
-    saturated = ground & (f_lin != 0.0) & (np.abs(f_lin) >= limit)
-    speed = np.hypot(v_fwd, v_lat)
-    x = np.minimum(speed / g.v_min, 1.0)
-    w = x * x * (3.0 - 2.0 * x)  # smoothstep: C1 fade to 0 at standstill
-    f_lat = w * np.minimum(np.maximum(f_lin, -limit), limit)
-    f_roll = g.rolling * f_ver * np.minimum(np.maximum(v_fwd / g.v_min, -1.0), 1.0)
-    F = -f_lat[..., None] * lat - f_roll[..., None] * u
-    F[..., 2] += f_ver
-    n_local = _cross(sc, np.einsum("...ji,...j->...i", A, F))
-    return dict(F=F, n_local=n_local, sc=sc, v=v, u=u, F_ver=f_ver, F_lat=f_lat,
-                F_roll=f_roll, alpha=alpha, saturated=saturated.astype(float),
-                deflection=defl, speed=speed)  # fmt: skip

@@ -1,13 +1,14 @@
-"""The tires of a model evaluated together (mbsim/forces/tire.py: TireGroup, tire_law)
-against the tire law one tire at a time (tests/forces/tire_reference.py), on the states of a
-vehicle run that slides (the deck's scene ``circle``: 55 mph, every tire at mu F_ver for most
-of the run after the steer) and on states where the law's branches switch.
+"""The tires of a model evaluated together (mbsim/forces/tire.py: TireGroup, one call of the
+C law, mbsim/fast/kernels.c ``mb_tire_states``) against the tire law one tire at a time
+(tests/forces/tire_reference.py), on the states of a vehicle run that slides (the deck's
+scene ``circle``: 55 mph, every tire at mu F_ver for most of the run after the steer) and on
+states where the law's branches switch.
 
-Both compute the same floating-point operations up to their order (einsum sums against
-matmul, a x b with a Levi-Civita einsum against skew(a) b), so they agree to a few ulps of
-the largest term: 1e-12 of the force scale (the largest |F| of the states compared) for the
-forces, 1e-12 of the force scale times the lever (about the wheel radius, < 1 m) for the
-moments, 1e-12 for the angles and dimensionless quantities at O(1)."""
+Both compute the same floating-point operations up to their order (C loops against matmul,
+a x b by components against skew(a) b), so they agree to a few ulps of the largest term:
+1e-12 of the force scale (the largest |F| of the states compared) for the forces, 1e-12 of
+the force scale times the lever (about the wheel radius, < 1 m) for the moments, 1e-12 for
+the angles and dimensionless quantities at O(1)."""
 
 from __future__ import annotations
 
@@ -174,38 +175,40 @@ def test_branches_match_the_one_tire_law(circle_run, seed):
     assert ref["F_ver"].min() == 0.0 and ref["F_ver"].max() > 0.0
 
 
-def test_a_system_applies_the_group_once_with_the_loads_of_each_tire(circle_run):
-    """System.apply_python calls the model's tire group once per state; the loads equal the
-    sum of each tire's own apply (two tires on one body add up)."""
-    from mbsim.fast.dynamics import System
+def test_a_system_evaluates_the_tires_in_c_with_the_loads_of_each_tire(circle_run):
+    """The System compiles the tires (no Python force element is left on the vehicle's step
+    path) and its loads equal the numpy equations' (tests/reference/equations.py), which
+    add each element's own apply."""
+    from mbsim.fast.dynamics import EL_TIRE, System
+    from tests.reference import equations as eq
 
     model, t, q, qd, _ = circle_run
-    tires = tires_of(model)
     system = System(model)
-    assert len(system._py_groups) == 1 and not any(el in system._py_alone for el in tires)
-    st = core.State(model, q[-1], qd[-1])
-    got = np.zeros((2, model.nb, 3))
-    system.apply_python(st, t[-1], got)
-    want = np.zeros((2, model.nb, 3))
-    for el in tires + list(system._py_alone):
-        el.apply(st, t[-1], want[0], want[1])
-    scale = np.abs(want).max()
-    assert np.abs(got - want).max() <= 1e-13 * scale
+    assert not system.py_forces
+    compiled = system.ei[system.ei[:, 0] == EL_TIRE, 1]
+    assert sorted(compiled) == sorted(el.b for el in tires_of(model))
+    for k in (0, len(t) // 2, len(t) - 1):
+        Q, F, n = system.loads(q[k], qd[k], t[k])
+        Q_ref, F_ref, n_ref = eq.applied_forces(model, q[k], qd[k], t[k])
+        scale = np.abs(F_ref).max()
+        assert np.abs(F - F_ref).max() <= REL * scale
+        assert np.abs(n - n_ref).max() <= REL * scale  # levers < 1 m
+        assert np.abs(Q - Q_ref).max() <= REL * max(scale, np.abs(Q_ref).max())
 
 
 def test_outputs_evaluate_the_group_once_per_states(circle_run, monkeypatch):
     """Every tire's loads_many and channels_many at one States read one evaluation of the
-    group (TireGroup.at_many), and each tire's column equals its own group of one to
-    round-off (REL of the force scale: einsum over a tire axis of 4 or of 1)."""
-    from mbsim.forces import tire as tire_module
+    group (TireGroup.at_many), and each tire's column equals its own group of one (the
+    same C function on the same numbers: to the bit, checked to REL of the force scale)."""
+    from mbsim.fast import dynamics
 
     model, t, q, qd, _ = circle_run
     tires = tires_of(model)
     states = core.States(model, q, qd)
     alone = {el.name: el.own.at_many(states) for el in tires}  # before counting
     calls = []
-    law = tire_module.tire_law
-    monkeypatch.setattr(tire_module, "tire_law", lambda *a: calls.append(1) or law(*a))
+    law = dynamics.tire_states
+    monkeypatch.setattr(dynamics, "tire_states", lambda *a: calls.append(1) or law(*a))
     F, n = np.zeros((len(t), model.nb, 3)), np.zeros((len(t), model.nb, 3))
     channels = {}
     for el in tires:

@@ -1,8 +1,8 @@
-"""The tire law one tire at a time on 3-vectors: the reference the batch code of
-mbsim/forces/tire.py (:func:`mbsim.forces.tire.tire_law`) is checked against.
+"""The tire law one tire at a time on 3-vectors: the reference the C law (mbsim/fast/
+kernels.c ``tire_law``, read by mbsim/forces/tire.py) is checked against.
 
-This is the scalar implementation mbsim ran before the tires were evaluated together, kept
-here only for the tests (one implementation of the law in production)."""
+This is the scalar implementation mbsim ran before the tires were evaluated together (then
+compiled), kept here only for the tests (one implementation of the law in production)."""
 
 from __future__ import annotations
 

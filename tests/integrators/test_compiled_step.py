@@ -75,7 +75,7 @@ def problem_state(name):
 CASES = [("problem", n) for n in M.REFERENCE_PROBLEMS] + [
     ("deck", "governor"), ("deck", "four_bar"), ("deck", "vehicle"), ("deck", "compressor"),
     ("chain", "40")]
-"""Reference problems, decks (four_bar: singular J', the KKT path; vehicle: Python tires
+"""Reference problems, decks (four_bar: singular J', the KKT path; vehicle: compiled tires
 and a driver; compressor: Python force elements) and a 40-link chain (nq = 280 >=
 SPARSE_NQ: CSR Jacobians)."""
 
@@ -257,12 +257,13 @@ def test_ctrl_c_in_a_python_force_element_reaches_the_caller(capfd):
     """Ctrl-C during a C step arrives in the per-stage callback (the only Python code
     running then): it is raised where the C call was made, not printed and dropped by
     ctypes; the integrator's state is the one before the call."""
-    model, q, qd = state_of("deck", "vehicle")
+    model, q, qd = state_of("deck", "compressor")
     c = pair(model, q, qd, "projection-dop853", 1.0)[0]
-    # what the System calls per state: the vehicle's tire group (Tire.bind), or an element
-    el = (c.system._py_groups or c.system.py_forces)[0]
+    # what the System calls per state: the compressor's air forces (hybrid: apply_in)
+    el = c.system.py_forces[0]
+    name = "apply_in" if getattr(el, "hybrid", False) else "apply"
     calls = {"n": 0}
-    apply = el.apply
+    apply = getattr(el, name)
 
     def interrupted(*args):
         calls["n"] += 1
@@ -270,7 +271,7 @@ def test_ctrl_c_in_a_python_force_element_reaches_the_caller(capfd):
             raise KeyboardInterrupt
         return apply(*args)
 
-    el.apply = interrupted
+    setattr(el, name, interrupted)
     t, y = c.t, c.y.copy()
     with pytest.raises(KeyboardInterrupt):
         c.step()
