@@ -29,5 +29,5 @@ def compile_forces(spec, body_index) -> tuple:
 from mbsim.forces import elements, tire  # noqa: E402, F401  (register the built-in types, the tire)
 
 # isort: split
-from mbsim.forces import bushing, contact  # noqa: E402, F401  (bushing; contact and stop)
-from mbsim.forces import friction  # noqa: E402, F401  (stick-slip joint friction)
+# bushing; contact and stop; stick-slip joint friction
+from mbsim.forces import bushing, contact, friction  # noqa: E402, F401

@@ -61,7 +61,7 @@ forces:
       x: {type: coordinate, body: piston, axis: x}
       w: {type: angular_velocity, body: spindle, axis: [0, 0, 1], frame: local}
       th: {type: angle, joint: SPIN}
-      d: {type: distance, bodies: [spindle, collar], points: {spindle: [0, 0, 0], collar: [0, 0, 0]}}
+      d: {type: distance, bodies: [spindle, collar], points: {spindle: [0,0,0], collar: [0,0,0]}}
       tt: {type: time}
 """
 
