@@ -98,7 +98,8 @@ def explain(model, system, solver, msg):
         J = J.toarray() if hasattr(J, "toarray") else J
         rows, s = singular_rows(model, J)
         cond = s[0] / s[-1] if s[-1] > 0 else np.inf
-        names = ", ".join(model.items_of_rows(system.rows[rows]))
+        # (the system's own model: in a mode that holds a joint, its rows go past model.m)
+        names = ", ".join(system.model.items_of_rows(system.rows[rows]))
         notes.append(f"Phi_q condition {cond:.3g}; constraints nearest to singular: {names}"
                      if cond >= SINGULAR_CONDITION else
                      f"Phi_q condition {cond:.3g}, not near singular (its weakest rows: "
