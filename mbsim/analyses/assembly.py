@@ -125,11 +125,15 @@ STALL_COND = 1e3
 Phi_q with a condition number above this is reported as a lock-up, not as non-convergence."""
 
 
-def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
+def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None, polish=0):
     """Solve Phi(q, t) = 0 (rows: the subset to solve); returns (q, iterations, max|Phi|).
 
     ``hold``: coordinate indices kept at their starting values (extra rows q_k - q0_k = 0),
     e.g. the independent coordinates of a system with DOF > 0 during assembly.
+    ``polish``: once max |Phi| < tol, up to this many more full Newton steps, each kept only
+    where it at least halves max |Phi|: from a converging iterate one step squares the
+    residual, so the iteration ends at the round-off of Phi (where a step no longer halves
+    it), whatever tol.
     Raises ConvergenceError naming the worst constraints if ||Phi|| stalls or max_iter passes,
     or SingularJacobianError naming the constraints of the singular direction when it stalls
     where Phi_q is singular (no solution exists there: a lock-up).
@@ -158,11 +162,23 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
             J = sp.vstack([J, Ih], format="csr") if sparse else np.vstack([J, Ih])
         return ph, J
 
+    def polished(q, ph, J, res, its):
+        for _ in range(polish):
+            if res == 0.0:
+                break
+            qn = normalize_q(model, q + min_norm_step(J, -ph))
+            phn, Jn = system(qn)
+            rn = np.abs(phn).max(initial=0.0)
+            if not rn <= 0.5 * res:
+                break
+            q, ph, J, res, its = qn, phn, Jn, rn, its + 1
+        return q, its, res
+
     ph, J = system(q)
     res = np.abs(ph).max(initial=0.0)
     for it in range(1, max_iter + 1):
         if res < tol:
-            return q, it - 1, res
+            return polished(q, ph, J, res, it - 1)
         dq = min_norm_step(J, -ph)
         f0 = ph @ ph
         alpha = 1.0
@@ -175,7 +191,7 @@ def newton(model, q, t=0.0, tol=1e-10, max_iter=50, rows=None, hold=None):
         q, ph, J = qn, phn, Jn
         res = np.abs(ph).max(initial=0.0)
     if res < tol:
-        return q, max_iter, res
+        return polished(q, ph, J, res, max_iter)
     full = core.phi(model, None, q, t)
     # A stall with Phi != 0 ends near a least-squares minimum, J^T Phi = 0: when the residual
     # lies mostly (measured: 64-70 % for the slider-crank's rod too short by 1e-6 to 6e-3 m)
@@ -224,7 +240,7 @@ def hold_indices(model, hold) -> list[int]:
 
 
 def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None,
-             lapack=True) -> Assembly:
+             lapack=True, polish=0) -> Assembly:
     """Put q (default: the deck's estimates) on the constraint manifold and check its rank.
 
     ``hold`` (the deck's ``analysis.assembly.hold``: :attr:`mbsim.options.DeckContext.hold`
@@ -232,11 +248,12 @@ def assemble(model, q=None, t=0.0, tol=1e-10, max_iter=50, hold=None,
     'BODY.x|y|z|e0|e1|e2|e3': with DOF > 0 the manifold has many points near the
     estimates, and holding the independent coordinates picks the one the user means.
     ``lapack``: the rank test's QR (:func:`mbsim.analyses.common.rank_and_redundant`).
+    ``polish``: Newton steps past tol towards round-off (:func:`newton`).
     """
     q0 = model.q0 if q is None else q
     hold_idx = hold_indices(model, hold)
     try:
-        q, its, res = newton(model, q0, t, tol, max_iter, hold=hold_idx)
+        q, its, res = newton(model, q0, t, tol, max_iter, hold=hold_idx, polish=polish)
     except (ConvergenceError, SingularJacobianError) as exc:
         # A rank-deficient Phi_q where Newton stalls means constraints that contradict
         # each other: name them (drivers first) rather than only the residuals.

@@ -216,6 +216,9 @@ def _report(labels, C, c, h, qd, free, rtol):
     return info
 
 
+POLISH_STEPS = 3  # from a residual below tol Newton squares it: 1e-10 -> round-off in one
+
+
 def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10, hold=None):
     """Consistent (q, qd, qdd, lam, info) at t0 (module doc).
 
@@ -224,7 +227,8 @@ def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10, hold=None)
     model : compiled Model.
     t0 : initial time (s).
     q : (nq,) initial estimate; default the deck's ``model.q0``.
-    tol : Newton tolerance on max |Phi| for the assembly.
+    tol : Newton tolerance on max |Phi| for the assembly, which then continues to the
+        round-off of Phi (:func:`mbsim.analyses.assembly.newton`'s ``polish``).
     hold : coordinates the assembly keeps at their estimates ('BODY.COORD', the deck's
         ``analysis.assembly.hold``: ``options.context.hold``); None: none.
 
@@ -237,7 +241,12 @@ def initial_state(model, t0: float = 0.0, q=None, tol: float = 1e-10, hold=None)
         'changed' ({body: {'rdot'|'omega'|'omega_local': (3,) change}}), 'given' (number of
         given components), 'free_velocity_dof' (freedom fixed by minimum kinetic energy).
     """
-    asm = assemble(model, q, t0, tol, hold=hold)
+    # Newton past tol to the round-off of Phi (POLISH_STEPS): an index-3 method's first step
+    # solves Phi = 0 to round-off and would take the assembly's residual (up to tol) as a
+    # jump of the first step, which its error estimate sees at every step size
+    # (generalized-alpha at atol 1e-10 on the vehicle's circle scene: a jump of 8.6e-11 m
+    # against the step's tolerance of 1e-11 m, h_min at t = 0)
+    asm = assemble(model, q, t0, tol, hold=hold, polish=POLISH_STEPS)
     q = asm.q
     active = asm.active_rows
     qd, info = initial_velocities(model, q, t0, active)

@@ -250,3 +250,62 @@ def test_smooth_forces_are_not_blamed():
     q[7:10] = (0.3, 0.0, 0.0)
     qd[7:10] = (0.0, 1.0, 0.0)  # moving across the spring: its length rate is 0 here
     assert diagnosis.switching_forces(model, system, q, qd, 0.0) == ["valve"]
+
+
+def test_a_failure_in_a_mode_that_holds_a_joint_names_its_held_rows():
+    """A run in a mode that holds a joint (a friction element stuck: the system's model has
+    the hold rows past the deck's m) that fails: the diagnosis names the weakest rows from
+    the system's own model, the hold rows included, and does not raise (it did: IndexError
+    in items_of_rows, a traceback from `mbsim run models/compressor.yaml --integrator
+    genalpha`)."""
+    from types import SimpleNamespace
+
+    from mbsim import core
+    from mbsim.events import extend_model
+    from tests.forces.test_friction import _friction_model
+
+    model = _friction_model("revolute", np.random.default_rng(7), pin_radius=0.01)
+    q = model.q0.copy()
+    holds = model.forces[0].holds("stick", SimpleNamespace(state=core.State(model, q)))
+    ext = extend_model(model, holds)
+    assert ext.m > model.m
+    solver = SimpleNamespace(q=q, qd=np.zeros(model.nq), t=0.25)
+    # every row, and the hold rows alone (then the weakest rows are surely hold rows)
+    for rows, named in ((np.arange(ext.m), None), (np.arange(model.m, ext.m), "hold:")):
+        system = trajectory.make_system(ext, rows)
+        msg = diagnosis.explain(model, system, solver, "step size fell below h_min")
+        assert msg.startswith("step size fell below h_min (last accepted state t = 0.25 s; "
+                              "Phi_q condition")
+        assert named is None or f"rows: {named}" in msg
+
+
+def test_the_assembly_of_a_run_ends_at_the_round_off_of_phi():
+    """The initial state of a dynamic run satisfies the constraints to round-off whatever
+    the assembly tolerance `tol` (Newton continues while a step halves max |Phi|: from below
+    tol one step squares it).  Bound: 1e3 eps x the largest coordinate (Phi's terms are
+    products of coordinates of that size; the measured values are 0 ... 2e-16)."""
+    from mbsim import core
+    from mbsim.analyses.initial import initial_state
+    from mbsim.api import load_model
+
+    for deck, scene in (("vehicle", "circle"), ("governor", None), ("andrews", None)):
+        _, model = load_model(MODELS / f"{deck}.yaml", scene=scene)
+        for tol in (1e-6, 1e-10):
+            q = initial_state(model, 0.0, tol=tol)[0]
+            phi = core.phi(model, None, q, 0.0)
+            bound = 1e3 * np.finfo(float).eps * max(1.0, np.abs(q).max())
+            assert np.abs(phi).max() <= bound, (deck, tol, np.abs(phi).max(), bound)
+
+
+def test_generalized_alpha_starts_at_a_tolerance_below_the_assembly_tolerance(tmp_path):
+    """The vehicle's circle scene under generalized-alpha at rtol 1e-8, atol 1e-10: the
+    step's tolerance (1e-11 m on the Euler parameters) is below the assembly's default tol
+    (1e-10); with the assembly's residual left in the start, the first step's error
+    estimate carried it as a jump (8.6e-11 m) at every step size and the run ended at
+    h_min at t = 0.  Now it starts and ends complete."""
+    r = cli("run", MODELS / "vehicle.yaml", "--scene", "circle", "--mode", "dynamic",
+            "--rtol", "1e-8", "--atol", "1e-10", "--t-end", "0.05", "--no-error-estimate",
+            "-o", tmp_path / "circle.h5")
+    assert_clean(r, (0,))
+    with h5py.File(tmp_path / "circle.h5") as f:
+        assert f.attrs["status"] == "complete"
