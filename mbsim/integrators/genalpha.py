@@ -359,13 +359,17 @@ class GeneralizedAlpha(Integrator):
         h_abs = self.h_abs
         am, af, gam, beta = self.coef
         rejects = 0
+        why = ""  # what cut the step in this call: said only where it was seen
         while True:
             h = self._clip(h_abs)
             if not np.isfinite(h):
                 return self._fail(f"step size is not finite ({h})")
             if h < self._min_step() and h < self.t_bound - self.t:
-                return self._fail(f"{self.TOO_SMALL_STEP} ({h:.3g} s): Newton iteration of "
-                                  f"the implicit step does not converge")
+                since = (f"after a step of {self.h_last:.3g} s" if self.h_last else
+                         "the first of a start or restart (as after an event)")
+                return self._fail(f"{self.TOO_SMALL_STEP} ({h:.3g} s): " + (
+                    why or f"the step proposed at t = {self.t:.12g} s, {since}, is below it "
+                    f"before any trial"))
             if rejects >= MAX_REJECTS:
                 return self._fail(f"no progress: {rejects} rejected steps in a row "
                                   f"(step {h:.3g} s)")
@@ -374,6 +378,7 @@ class GeneralizedAlpha(Integrator):
                 self.KC = self._tangent(self.q, self.qd, self.qdd, self.lam, self.t)
             res = self._newton(h, shift=not rejected)
             if res is None:
+                why = "Newton iteration of the implicit step does not converge"
                 self.counters["rejected_steps"] += 1
                 if self.use_fd and not refreshed:
                     self.KC = self._tangent(self.q, self.qd, self.qdd, self.lam, self.t)
@@ -418,6 +423,7 @@ class GeneralizedAlpha(Integrator):
                 break
             h_abs = h_next
             rejected = True
+            why = f"the local error estimate stays above the tolerance ({err:.3g} x it)"
             self.counters["rejected_steps"] += 1
         t0 = self.t
         self._prev = (t0, self.q, self.qd)
