@@ -10,7 +10,8 @@ the motion is a sliding mode that no integrator can step across.  Here:
 - **Modes.** Every condition ``m < 0``, ``m <= 0``, ``m > 0``, ``m >= 0`` (or ``0 > m``...)
   on the element's velocity measure m is replaced by its truth value on one *side*
   (:class:`Side`: m < 0 or m > 0), fixed during a step: inside a step the law is smooth,
-  and the side changes at an event (the switch: m crossing 0, located on the dense output).
+  and the side changes at an event (the switch: m crossing 0 by half the surface's band,
+  V_ZERO, located on the dense output).
 - **Filippov at m = 0** (Filippov 1988, Ch. 2, Sec. 4): at a crossing the new side is
   chosen from the accelerations of m with the element on either side (``ctx.trial``):
   a_neg (side m < 0) and a_pos (side m > 0).  a_neg < 0 or a_pos > 0 alone: the motion
@@ -337,8 +338,19 @@ class SwitchingLaw:
             return [Switch("alpha < 0", -1, lambda ctx, m=mode: _alpha(ctx, m), self.name),
                     Switch("alpha > 1", -1, lambda ctx, m=mode: 1.0 - _alpha(ctx, m),
                            self.name)]
-        sign = mode.sign if isinstance(mode, Side) else 0
-        return [Switch(f"{self.mname} = 0", -sign, self._value, self.name)]
+        if isinstance(mode, Side):
+            # the side ends where m is half the surface's band |m| <= V_ZERO x max(1, max
+            # |qd|) (_v_zero) past 0: an element at rest on its surface (m = 0 exactly
+            # under the projection methods) carries the velocity noise of the index-3
+            # methods (+-1e-13 m/s on the compressor's pistons under genalpha), which
+            # crossed m = 0 at every step and ended the run in events piling up at t_end.
+            # Half the band: the event's state is then inside it, where the decision at the
+            # surface (plan) takes it as on the surface.  A real crossing is located
+            # V_ZERO / (2 |dm/dt|) later (5e-13 s at 1e3 m/s^2).
+            return [Switch(f"{self.mname} = 0", -mode.sign,
+                           lambda ctx, s=mode.sign: self._value(ctx) + 0.5 * s * _v_zero(ctx),
+                           self.name)]
+        return [Switch(f"{self.mname} = 0", 0, self._value, self.name)]
 
     def _value(self, ctx):
         return self.measure.value(ctx.state, ctx.t)
