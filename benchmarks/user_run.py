@@ -93,12 +93,10 @@ def timed(module, name, key, spent):
     return f
 
 
-def measure(deck, scene, repeats, tmp):
-    """{phase: [ms per run]} of the user run of one deck, and the bare runs' ms."""
-    import mbsim.analyses.dynamic as dyn
-    import mbsim.view.geometry as geometry
+def deck_run(deck, scene):
+    """(path, load_model's extra arguments as ``mbsim run`` passes them, spec, model, the
+    deck's dynamic options, the bare run's options: one output, no estimate)."""
     from mbsim.api import load_model
-    from mbsim.output import hdf5
 
     path = ROOT / "models" / f"{deck}.yaml"
     for_run = {"studies": False} if "studies" in inspect.signature(load_model).parameters else {}
@@ -106,6 +104,17 @@ def measure(deck, scene, repeats, tmp):
     opts = dict(spec.analysis.get("dynamic", {}))
     bare = dict(opts, error_estimate=False,
                 step=float(opts.get("t_end", 1.0)) - float(opts.get("t_start", 0.0)))
+    return path, for_run, spec, model, opts, bare
+
+
+def measure(deck, scene, repeats, tmp):
+    """{phase: [ms per run]} of the user run of one deck, and the bare runs' ms."""
+    import mbsim.analyses.dynamic as dyn
+    import mbsim.view.geometry as geometry
+    from mbsim.api import load_model
+    from mbsim.output import hdf5
+
+    path, for_run, spec, model, opts, bare = deck_run(deck, scene)
     out = Path(tmp) / f"{deck}.h5"
     hdf5.write_result(run_with_deck(model, "dynamic", dict(opts), spec), out)  # warm-up
     spent = dict.fromkeys(PHASES, 0.0)
@@ -230,16 +239,10 @@ def write_floor(items, dest):
 def floors(deck, scene, repeats, tmp):
     """{name: [ms per run]}: the user run (its file included) and the bare run, the C
     kernels' CPU in each, and the HDF5 floor of the user run's file (module doc)."""
-    from mbsim.api import load_model
     from mbsim.fast import _lib
     from mbsim.output import hdf5
 
-    path = ROOT / "models" / f"{deck}.yaml"
-    for_run = {"studies": False} if "studies" in inspect.signature(load_model).parameters else {}
-    spec, model = load_model(path, scene=scene, **for_run)
-    opts = dict(spec.analysis.get("dynamic", {}))
-    bare = dict(opts, error_estimate=False,
-                step=float(opts.get("t_end", 1.0)) - float(opts.get("t_start", 0.0)))
+    path, _, spec, model, opts, bare = deck_run(deck, scene)
     out, copy = Path(tmp) / f"{deck}-floor.h5", Path(tmp) / f"{deck}-floor-copy.h5"
     hdf5.write_result(run_with_deck(model, "dynamic", dict(opts), spec), out)  # warm-up
     items = file_objects(out)

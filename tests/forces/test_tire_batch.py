@@ -20,12 +20,9 @@ import pytest
 from mbsim import core
 from mbsim.api import load_model, run_model
 from mbsim.rotations import omega_local_to_pd
-from tests.forces.tire_reference import tire_state
+from tests.forces.tire_reference import REL, SCALARS, VECTORS, assert_matches, tire_state
 
 DECK = Path(__file__).resolve().parents[2] / "models" / "vehicle.yaml"
-VECTORS = ("F", "n_local", "sc", "v", "u")
-SCALARS = ("F_ver", "F_lat", "F_roll", "alpha", "saturated", "deflection", "speed")
-REL = 1e-12
 
 
 @pytest.fixture(scope="module")
@@ -61,17 +58,6 @@ def reference(model, q, qd):
         key: np.array([[np.asarray(s[key], float) for s in row] for row in rows])
         for key in VECTORS + SCALARS
     }
-
-
-def assert_matches(batch, ref):
-    scale = np.abs(ref["F"]).max()
-    lever = max(1.0, np.abs(ref["sc"]).max())
-    bounds = {"F": scale, "F_ver": scale, "F_lat": scale, "F_roll": scale,
-              "n_local": scale * lever}  # fmt: skip
-    for key in VECTORS + SCALARS:
-        bound = REL * bounds.get(key, 1.0)
-        err = np.abs(np.asarray(batch[key]) - ref[key]).max()
-        assert err <= bound, f"{key}: batch - reference = {err:.3g} > {bound:.3g}"
 
 
 def test_circle_run_covers_the_linear_and_the_saturated_law(circle_run):

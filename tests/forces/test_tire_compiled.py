@@ -36,14 +36,11 @@ from mbsim.forces.tire import Tire
 from mbsim.model import compile_model
 from mbsim.rotations import G as rot_G
 from tests.forces.builders import force
-from tests.forces.tire_reference import tire_state
+from tests.forces.tire_reference import REL, SCALARS, VECTORS, assert_matches, tire_state
 from tests.helpers import body, spec
 from tests.reference import equations as eq
 
 DECK = Path(__file__).resolve().parents[2] / "models" / "vehicle.yaml"
-VECTORS = ("F", "n_local", "sc", "v", "u")
-SCALARS = ("F_ver", "F_lat", "F_roll", "alpha", "saturated", "deflection", "speed")
-REL = 1e-12
 RUN_FACTOR = 10.0
 R0 = 0.30
 
@@ -78,17 +75,6 @@ def reference(model, q, qd):
         rows.append([tire_state(el, st) for el in tires_of(model)])
     return {key: np.array([[np.asarray(s[key], float) for s in row] for row in rows])
             for key in VECTORS + SCALARS}  # fmt: skip
-
-
-def assert_matches(got, ref):
-    scale = np.abs(ref["F"]).max()
-    lever = max(1.0, np.abs(ref["sc"]).max())
-    bounds = {"F": scale, "F_ver": scale, "F_lat": scale, "F_roll": scale,
-              "n_local": scale * lever}  # fmt: skip
-    for key in VECTORS + SCALARS:
-        bound = REL * bounds.get(key, 1.0)
-        err = np.abs(np.asarray(got[key]) - ref[key]).max()
-        assert err <= bound, f"{key}: C - reference = {err:.3g} > {bound:.3g}"
 
 
 def random_states(model, rng, nt):

@@ -57,3 +57,21 @@ def tire_state(el, st) -> dict:
     return dict(F=F, n_local=n_local, sc=sc, F_ver=f_ver, F_lat=f_lat, F_roll=f_roll,
                 alpha=alpha, saturated=float(saturated), deflection=defl, v=v, u=u,
                 speed=math.hypot(v_fwd, v_lat))  # fmt: skip
+
+
+VECTORS = ("F", "n_local", "sc", "v", "u")
+SCALARS = ("F_ver", "F_lat", "F_roll", "alpha", "saturated", "deflection", "speed")
+REL = 1e-12  # of each quantity's scale: forces |F|, moments |F| x max(1, |sc|), the rest 1
+
+
+def assert_matches(got, ref, label="got"):
+    """Every quantity of :func:`tire_state` in ``got`` against ``ref`` (the same keys, arrays
+    of any equal shapes) within REL of its scale."""
+    scale = np.abs(ref["F"]).max()
+    lever = max(1.0, np.abs(ref["sc"]).max())
+    bounds = {"F": scale, "F_ver": scale, "F_lat": scale, "F_roll": scale,
+              "n_local": scale * lever}  # fmt: skip
+    for key in VECTORS + SCALARS:
+        bound = REL * bounds.get(key, 1.0)
+        err = np.abs(np.asarray(got[key]) - ref[key]).max()
+        assert err <= bound, f"{key}: {label} - reference = {err:.3g} > {bound:.3g}"
