@@ -558,8 +558,6 @@ typedef struct {
     double h_max, h_min, h_fixed; /* h_fixed > 0: fixed steps, no error control */
     double err_old;  /* in/out: the PI controller's memory */
     double exponent, beta, safety, min_factor, max_factor;
-    double near;     /* stop after a step whose measure s is below this (the policy's
-                        Approach takes over; 0: never) */
     double stall_floor; /* stop after a step below stall_floor max(1, |t|) */
     idx max_steps, max_rejects;
     /* out */
@@ -585,8 +583,8 @@ typedef struct {
     const double *mesh; /* (n_mesh,) ascending */
     idx n_mesh;
     idx k_mesh;      /* in/out: where the search for the next mesh point starts */
-    /* ap: the integrator's changepoints.Approach (NULL: none), in place of the fixed
-     * `near`: after every accepted step mb_approach_accepted, which updates it; a step
+    /* ap: the integrator's changepoints.Approach (NULL: none): after every accepted step
+     * mb_approach_accepted, which updates it; a step
      * whose state belongs to the approach ends the loop (LOOP_NEAR, its measure taken).
      * out ap_h_far: the last step whose state was clear of it (NaN: none) */
     mb_approach *ap;
@@ -624,9 +622,8 @@ static double step_factor(mb_loop *L, double err, int rejected)
  * step that needs Python is not taken: the loop returns LOOP_PYTHON before it, with every
  * earlier step accepted (a trial's status other than accepted or rejected, a step below the
  * smallest step, max_rejects rejections, a non-finite step or state).  It also returns after
- * a step whose change-point measure is below `near`, or whose state belongs to the approach
- * `ap` (LOOP_NEAR), and after a step below the
- * stall floor (LOOP_TINY), where the integrator's bookkeeping decides (their outputs left
+ * a step whose state belongs to the change-point approach `ap` (LOOP_NEAR), and after a step
+ * below the stall floor (LOOP_TINY), where the integrator's bookkeeping decides (their outputs left
  * to the driver), and after a step whose outputs need Python (LOOP_OUTPUT).  On return y is the
  * last step's start, y_new, y_acc, f_acc and K its trial (the dense output's data), and
  * t_old, h_last, t, h_abs, err_old, steps, rejected say where the loop is; after
@@ -737,7 +734,7 @@ int mb_rk_steps(const mb_model *M, mb_rk *R, mb_loop *L)
             L->ends[L->steps - 1] = L->t;
         L->h_abs = L->h_fixed > 0.0 ? L->h_fixed : h_abs;
         L->s = R->out[O_SLAST];
-        if (L->ap ? !mb_approach_accepted(L->ap, L->t, h, L->s) : L->s < L->near) {
+        if (L->ap && !mb_approach_accepted(L->ap, L->t, h, L->s)) {
             L->why = LOOP_NEAR;
             return L->why;
         }

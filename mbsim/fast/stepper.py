@@ -75,7 +75,7 @@ class Loop(ctypes.Structure):
     _fields_ = (
         [(n, ctypes.c_double) for n in
          ("t", "t_bound", "t_stop", "h_abs", "h_max", "h_min", "h_fixed", "err_old",
-          "exponent", "beta", "safety", "min_factor", "max_factor", "near", "stall_floor")]
+          "exponent", "beta", "safety", "min_factor", "max_factor", "stall_floor")]
         + [(n, ctypes.c_int64) for n in ("max_steps", "max_rejects", "steps", "rejected",
                                          "why")]
         + [(n, ctypes.c_double) for n in ("t_old", "h_last", "s")]
