@@ -1,5 +1,5 @@
-"""Build step of mbsim: the C kernels (mbsim/fast/kernels.c and step.c) as one plain shared
-library.
+"""Build step of mbsim: the C kernels (mbsim/fast/kernels.c, step.c, outputs.c, implicit.c) as
+one plain shared library.
 
 Everything else is declared in pyproject.toml.  The library is not a Python extension
 module (no Python.h, no PyInit_): mbsim.fast._lib loads it with ctypes.  A failed compile
@@ -16,7 +16,7 @@ from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
 SOURCES = [Path("mbsim") / "fast" / "kernels.c", Path("mbsim") / "fast" / "step.c",
-           Path("mbsim") / "fast" / "outputs.c"]
+           Path("mbsim") / "fast" / "outputs.c", Path("mbsim") / "fast" / "implicit.c"]
 
 
 class BuildKernels(build_ext):

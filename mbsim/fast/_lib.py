@@ -41,10 +41,11 @@ log = logging.getLogger(__name__)
 
 HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "kernels.c"
-SOURCES = (SOURCE, HERE / "step.c", HERE / "outputs.c")
+SOURCES = (SOURCE, HERE / "step.c", HERE / "outputs.c", HERE / "implicit.c")
 """The files of the one library: the physics (kernels.c), the integrators' step
-(step.c, :mod:`mbsim.fast.stepper`) and the equations at a run's outputs (outputs.c,
-:func:`mbsim.analyses.trajectory.output_rows`)."""
+(step.c, :mod:`mbsim.fast.stepper`), the equations at a run's outputs (outputs.c,
+:func:`mbsim.analyses.trajectory.output_rows`) and the implicit integrators' Newton
+iteration (implicit.c, :mod:`mbsim.fast.implicit`)."""
 HEADERS = (HERE / "mb_model.h",)
 """What both sources include (the one definition of mb_model): part of the source hash."""
 CFLAGS = ["-O2", "-std=c99", "-fPIC", "-shared"]  # -O3: no faster (benchmarks/kernels.py)
@@ -220,6 +221,11 @@ def _declare(lib):
         "mb_approach_size": ([], ctypes.c_int64),
         "mb_kinematic": ([P, ctypes.c_double, ctypes.c_int64, I, P, P, P], I),
         "mb_apply_minv": ([P, I, ctypes.c_int64, P, P], None),
+        "mb_ga_size": ([], ctypes.c_int64),
+        "mb_ga_newton": ([P, P, ctypes.c_double, ctypes.c_double, P, P, P, P, P, P, P, P, P],
+                         I),
+        "mb_ga_tangent": ([P, P, ctypes.c_double, P, P, P, P, P, P], I),
+        "mb_ga_solve": ([P, P, ctypes.c_int64], I),
         "mb_outputs": ([P, I, ctypes.c_int64, ctypes.c_int64, P, P, P, P, P, P, P, P, P],
                        ctypes.c_int64),
     }

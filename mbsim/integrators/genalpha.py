@@ -55,10 +55,8 @@ m) at the same 249827 steps (benchmarks/andrews.py --integrators hht --settings
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as la
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
+from mbsim.fast.implicit import CompiledNewton
 from mbsim.integrators.base import (
     MAX_REJECTS,
     ROUNDOFF_ULPS,
@@ -129,12 +127,15 @@ class GeneralizedAlpha(Integrator):
         self.first_tangent = None
         self._offered = None
         self.counters["jacobian_evaluations"] = 0
-        b, i, j = np.meshgrid(np.arange(s.nb), np.arange(7), np.arange(7), indexing="ij")
-        self._bi, self._bj = (7 * b + i).reshape(-1), (7 * b + j).reshape(-1)  # block scatter
         self.newton_tol = float(self.options.get("newton_tol", 1e-3))
         # stop Newton on its remaining error, not on its last correction (the coarse
         # companion of the error estimate: :meth:`_newton`)
         self.newton_contraction = bool(self.options.get("newton_contraction", False))
+        self._core = CompiledNewton(
+            s, self.coef, rtol=self.rtol, atol=self.atol, newton_tol=self.newton_tol,
+            contraction=self.newton_contraction, max_newton=self.max_newton,
+            kkt_reg=KKT_REG, roundoff=ROUNDOFF_ULPS * np.finfo(float).eps,
+            mscale=self._mscale)
         # the tolerances a step is held to: f (atol, rtol) (module doc)
         self.tol_factor = f = self.tolerance_factor(self.rtol)
         # the tightened atol stops at NOISE_MARGIN x the round-off of q (ROUNDOFF_ULPS ulp of
@@ -157,17 +158,7 @@ class GeneralizedAlpha(Integrator):
         self._rng = np.random.default_rng(0)  # signs of the round-off probe (reproducible)
         self._prev = None  # (t, q, qd) of the accepted state before the current one
 
-    # -- model terms --------------------------------------------------------------------------
-    def _residual(self, q, qd, qdd, lam, t):
-        """r = M(q) qdd + Phi_q(q)^T lam - Q(q, qd, t) (nq,), with Phi, Phi_q, Q, M."""
-        s = self.system
-        s.counters["function_evaluations"] += 1
-        T = s.terms(q, t, jac=True, nu=s.rheonomic)
-        Q = s.generalized_forces(q, qd, t)
-        Mb = s.mass_blocks(q)
-        r = np.einsum("bij,bj->bi", Mb, qdd.reshape(-1, 7)).reshape(-1) + T.jac.T @ lam - Q
-        return r, T, Q, Mb
-
+    # -- the Newton iteration (mbsim/fast/implicit.c) ----------------------------------------
     def offer_tangent(self, tangent):
         """Take ``tangent`` (another run's :attr:`first_tangent`, None: nothing) as this
         run's first tangent where it was computed at this run's first state.
@@ -182,8 +173,9 @@ class GeneralizedAlpha(Integrator):
         self._offered = tangent
 
     def _tangent(self, q, qd, qdd, lam, t):
-        """K = dr/dq, C = dr/dqd by forward differences (non-ground coordinates); the
-        first one kept as :attr:`first_tangent`, or taken from :meth:`offer_tangent`."""
+        """K = dr/dq, C = dr/dqd of the residual r = M qdd + Phi_q^T lam - Q by forward
+        differences (non-ground coordinates; implicit.c); the first one kept as
+        :attr:`first_tangent`, or taken from :meth:`offer_tangent`."""
         key = (t, q, qd, qdd, lam)
         if self.first_tangent is None:
             given = self._offered
@@ -198,129 +190,36 @@ class GeneralizedAlpha(Integrator):
         return self._tangent_fd(q, qd, qdd, lam, t)
 
     def _tangent_fd(self, q, qd, qdd, lam, t):
-        """K = dr/dq, C = dr/dqd by forward differences (non-ground coordinates)."""
-        self.counters["jacobian_evaluations"] += 1
-        n = q.size
-        r0 = self._residual(q, qd, qdd, lam, t)[0]
-        K, C = np.zeros((n, n)), np.zeros((n, n))
-        for j in range(n):
-            if self.system.model.is_ground[j // 7]:
-                continue
-            d = 1.5e-8 * max(1.0, abs(q[j]))
-            x = q.copy()
-            x[j] += d
-            K[:, j] = (self._residual(x, qd, qdd, lam, t)[0] - r0) / d
-            d = 1.5e-8 * max(1.0, abs(qd[j]))
-            x = qd.copy()
-            x[j] += d
-            C[:, j] = (self._residual(q, x, qdd, lam, t)[0] - r0) / d
+        K, C = self._core.tangent(t, q, qd, qdd, lam)
+        self.counters["jacobian_evaluations"] += self._core.jacobian_evaluations
         return K, C
 
-    def _iteration_matrix(self, Mb, J, bp, gp):
-        """The Newton matrix [A, Phi_q^T; Phi_q, -eps I] of the scaled step equations.
+    def _set_tangent(self, KC):
+        self.KC = KC
+        self._core.set_tangent(KC)
 
-        eps = KKT_REG |Phi_q|^2 / |A| regularises the zero block: near a change point of
-        the mechanism (kept rows nearly dependent) the plain matrix is numerically singular
-        and the iteration stalled (issue 11).  Only the iteration matrix changes, never the
-        residual, so the converged step is the same; elsewhere the change is 1e-10 relative."""
-        s = self.system
-        n, m = s.nq, s.m
-        self.system.counters["factorizations"] += 1
-        if sp.issparse(J):
-            jn = float(J.multiply(J).sum(axis=1).max()) if m else 0.0
-        else:
-            jn = float((J * J).sum(axis=1).max()) if m else 0.0
-        eps = KKT_REG * jn / max(float(np.abs(Mb).max()), 1e-300)
-        if s.sparse:
-            A = sp.csr_matrix((Mb.reshape(-1), (self._bi, self._bj)), shape=(n, n))
-            if self.KC is not None:
-                A = A + sp.csr_matrix(gp / bp * self.KC[1] + self.KC[0] / bp)
-            S = sp.bmat([[A, J.T], [J, -eps * sp.identity(m)]], format="csc")
-            lu = spla.splu(S)
-            return lu.solve
-        S = np.zeros((n + m, n + m))
-        S[self._bi, self._bj] = Mb.reshape(-1)
-        if self.KC is not None:
-            S[:n, :n] += gp / bp * self.KC[1] + self.KC[0] / bp
-        S[:n, n:] = J.T
-        S[n:, :n] = J
-        S[n:, n:] = -eps * np.eye(m)
-        lu = la.lu_factor(S, check_finite=False)
-        return lambda b: la.lu_solve(lu, b, check_finite=False)
-
-    # -- one step ---------------------------------------------------------------------------
     def _newton(self, h, shift=True):
-        """(q, qd, qdd, lam, a1, power) of the step h, or None where Newton fails.
+        """(q, qd, qdd, lam, a1, power) of the step h, or None where Newton fails
+        (mbsim/fast/implicit.c: mb_ga_newton; tests/reference/genalpha_newton.py is the
+        same iteration in numpy).
 
-        Stopping tests on the scaled correction err_k = |dq_k| (rms over atol + rtol |q|):
-        err_k <= newton_tol, the run's test; with ``newton_contraction`` (the option the
-        coarse companion of the error estimate sets, mbsim.analyses.estimate.CoarseStepper)
-        also the remaining error bound theta/(1 - theta) err_k <= newton_tol, theta =
-        err_k / err_(k-1) the observed contraction (Hairer & Wanner II, Sec. IV.8, eq.
-        (8.10)).  The first bounds the error before the last correction, the second the
-        error after it: the same tolerance on what is left.  Measured on the vehicle's
-        companion (steps of 2 h): err_1 median 2e-3 above newton_tol in 19 of 29 steps,
-        where err_2 was <= 5e-6; the run's own steps meet err_1 <= newton_tol."""
-        s = self.system
-        am, af, gam, beta = self.coef
-        t1 = self.t + h
-        n = s.nq
-        qdd = self.qdd.copy()
-        lam = self.lam.copy()
+        Newton on (q, lam) from the predictor of the step equations (module doc), with the
+        iteration matrix factored at every iterate.  Stopping tests on the scaled correction
+        err_k = |dq_k| (rms over atol + rtol |q|): err_k <= newton_tol, the run's test; with
+        ``newton_contraction`` (the option the coarse companion of the error estimate sets,
+        mbsim.analyses.estimate.CoarseStepper) also the remaining error bound theta/(1 -
+        theta) err_k <= newton_tol, theta = err_k / err_(k-1) the observed contraction
+        (Hairer & Wanner II, Sec. IV.8, eq. (8.10)).  The first bounds the error before the
+        last correction, the second the error after it: the same tolerance on what is left.
+        Measured on the vehicle's companion (steps of 2 h): err_1 median 2e-3 above
+        newton_tol in 19 of 29 steps, where err_2 was <= 5e-6; the run's own steps meet
+        err_1 <= newton_tol.  Two more stops, for round-off: both residuals (|Phi| and the
+        coordinate change r / (beta' M) the dynamic residual implies) at the round-off of q
+        (near a singular position the corrections dq ~ eps / sigma_min(Phi_q) are noise and
+        never meet the test on dq, issue 11); and corrections at 64 ulp of q.  Not
+        contracting by 0.9 from the third iterate on, or no stop in ``max_newton``: None."""
         a = self._shifted_a(h) if shift else self.a
-        a1 = (af * self.qdd - am * a + (1 - af) * qdd) / (1 - am)
-        q = self.q + h * self.qd + h * h * ((0.5 - beta) * a + beta * a1)
-        qd = self.qd + h * ((1 - gam) * a + gam * a1)
-        bp = (1 - am) / (beta * h * h * (1 - af))
-        gp = gam / (beta * h)
-        prev = np.inf
-        # round-off of q (and Phi): |q| changes little within a step
-        qs = ROUNDOFF_ULPS * np.finfo(float).eps * max(1.0, np.abs(q).max(initial=0.0))
-        r_floor = None
-        for it in range(self.max_newton):
-            r, T, Q, Mb = self._residual(q, qd, qdd, lam, t1)
-            if r_floor is None:
-                r_floor = qs * bp * self._mscale
-            elif (np.abs(T.phi).max(initial=0.0) <= qs
-                    and np.all(np.abs(r) <= r_floor)):
-                # both residuals at round-off of q: |Phi| and the coordinate change
-                # r / (bp M) that the dynamic residual implies.  Double precision cannot
-                # tell this iterate from the solution; near a singular position the
-                # corrections dq ~ eps / sigma_min(Phi_q) are noise there and never meet
-                # the test on dq below (issue 11)
-                break
-            try:
-                solve = self._iteration_matrix(Mb, T.jac, bp, gp)
-                self._solve = solve  # the last factorization, for the round-off floor
-                dx = solve(np.concatenate([-r / bp, -T.phi]))
-            except (la.LinAlgError, RuntimeError, ValueError):
-                return None
-            if not np.all(np.isfinite(dx)):
-                return None
-            dq = dx[:n]
-            q += dq
-            qd += gp * dq
-            qdd += bp * dq
-            lam += bp * dx[n:]
-            s.counters["newton_iterations"] += 1
-            err = rms_norm(dq, self.atol + self.rtol * np.abs(q))
-            if err <= self.newton_tol:
-                break
-            if self.newton_contraction and prev < np.inf and err < prev and (
-                    err * err / (prev - err) <= self.newton_tol):
-                break  # the remaining error theta/(1 - theta) err is below newton_tol
-            # corrections at round-off of q (tight tolerances near a singular position):
-            # converged as far as double precision allows
-            if np.abs(dq).max(initial=0.0) <= 64 * np.finfo(float).eps * max(1.0, np.abs(q).max()):
-                break
-            if it >= 2 and err > 0.9 * prev:
-                return None  # not contracting
-            prev = err
-        else:
-            return None
-        power = float(Q @ qd) - (float(lam @ T.nu) if s.rheonomic else 0.0)
-        a1 = (af * self.qdd - am * a + (1 - af) * qdd) / (1 - am)
-        return q, qd, qdd, lam, a1, power
+        return self._core.newton(self.t + h, h, self.q, self.qd, self.qdd, a, self.lam)
 
     def _shifted_a(self, h):
         """(nq,) the acceleration-like variable for a step h after a step h_last.
@@ -375,13 +274,13 @@ class GeneralizedAlpha(Integrator):
                                   f"(step {h:.3g} s)")
             rejects += 1
             if self.use_fd and self.KC is None:
-                self.KC = self._tangent(self.q, self.qd, self.qdd, self.lam, self.t)
+                self._set_tangent(self._tangent(self.q, self.qd, self.qdd, self.lam, self.t))
             res = self._newton(h, shift=not rejected)
             if res is None:
                 why = "Newton iteration of the implicit step does not converge"
                 self.counters["rejected_steps"] += 1
                 if self.use_fd and not refreshed:
-                    self.KC = self._tangent(self.q, self.qd, self.qdd, self.lam, self.t)
+                    self._set_tangent(self._tangent(self.q, self.qd, self.qdd, self.lam, self.t))
                     refreshed = True
                     continue
                 if self.h_fixed is not None:
@@ -441,9 +340,9 @@ class GeneralizedAlpha(Integrator):
         takes it from q1 and from the two previous states (Hermite extrapolation: their q
         and their qd, whose noise is gam/(beta h) dq).  Near a singular position
         (sigma_min(Phi_q) -> 0) it grows as eps / sigma_min; elsewhere it is ~ulp of q."""
-        solve = getattr(self, "_solve", None)
-        if solve is None:
+        if not self._core.factored:
             return None
+        solve = self._core.solve
         s = self.system
         n, m = s.nq, s.m
         if m == 0:
