@@ -166,6 +166,57 @@ def test_every_companion_stopping_at_a_passage_gives_no_estimate_with_the_reason
     assert "no other companion" in est["reason"] and "not given" in est["reason"]
 
 
+def test_a_companion_that_restarts_where_the_run_did_not_is_replaced(monkeypatch):
+    """The run's method's companion fails once where the run did not and goes on after
+    choosing its rows again (Stepper.restart, faked here: it keeps its rows): its estimate
+    would measure its own failure, so another method at the run's tolerance gives it, as
+    for a companion that stops, and the summary says why."""
+    step, restart = trajectory.Stepper.step, trajectory.Stepper.restart
+    failed = []
+
+    def failing_once(self):
+        if (not failed and not isinstance(self, est_mod.CoarseStepper)
+                and self.cls.name == "projection-dop853" and float(self.opt["rtol"]) < 1e-10):
+            failed.append(self)
+            return False, f"t = {self.solver.t:.6g} s: step size fell below h_min (test)"
+        return step(self)
+
+    def restarting(self, message):
+        if self in failed:
+            self.changes.append({"t": float(self.solver.t), "rank": 0, "redundant": [],
+                                 "after": message})
+            return True
+        return restart(self, message)
+
+    monkeypatch.setattr(trajectory.Stepper, "restart", restarting)
+    from tests.integrators.test_changepoints import _run
+
+    monkeypatch.setattr(trajectory.Stepper, "step", failing_once)
+    res, err = _run(integrator="projection-dop853", rtol=1e-10, max_steps=2000)
+    assert res.complete, res.message
+    assert failed, "the companion at rtol/5 was not run"
+    est = res.summary["error_estimate"]
+    assert "with gcp-dop853 at rtol 1e-10" in est["method"], est
+    assert "restarted" in est["method"] and "choosing its rows again" in est["method"]
+    assert err / 10 <= est["position"] <= 10 * max(err, PASSAGE_FLOOR), (est["position"], err)
+
+
+def test_restart_beyond_counts_only_the_companions_extra_restarts():
+    """Restarts the run made too do not disqualify its companion; the first extra one is
+    named with its time and the failure that caused it."""
+    def traj(*times):
+        run = type("Run", (), {})()
+        run.changes = [{"t": t, "after": f"failure at {t}"} for t in times]
+        out = trajectory.Trajectory()
+        out.run = run
+        return out
+
+    assert est_mod.restart_beyond(traj(0.2), traj(0.2)) is None
+    assert est_mod.restart_beyond(traj(), traj()) is None
+    said = est_mod.restart_beyond(traj(0.2, 0.5), traj(0.2))
+    assert "t = 0.5 s" in said and "failure at 0.5" in said
+
+
 @pytest.mark.parametrize("name", ("pendulum", "slider_crank"))
 @pytest.mark.parametrize("rtol", [1e-3, 1e-6], ids=["loose", "tight"])
 def test_coarse_estimate_of_generalized_alpha_within_factor_10(name, rtol):
