@@ -32,6 +32,7 @@ void mb_constraints(const mb_model *M, int jac, int gam);
 int mb_project(const mb_model *M, int unit);
 void mb_project_factored(const mb_model *M);
 void mb_jac_times(const mb_model *M, const double *x, double *out);
+void mb_incidences(const mb_model *M);
 
 /* What a call returns. */
 enum {
@@ -45,7 +46,9 @@ enum {
     ST_CALLBACK = 6   /* the Python loads raised: Python takes the step again */
 };
 enum { O_ERR, O_SMIN, O_SLAST, O_RES, O_CODE, N_OUT };
-enum { C_FE, C_CE, C_FACT, C_NEWTON, N_COUNT };
+/* C_KEPT: output samples' projections (of q, of qd) on a factor already made (project_sample);
+ * C_FRESH: those where that iteration gave up and the projection factored afresh */
+enum { C_FE, C_CE, C_FACT, C_NEWTON, C_KEPT, C_FRESH, N_COUNT };
 enum { ERR_NONE, ERR_EMBEDDED, ERR_DOP853 };
 enum { DENSE_POLY, DENSE_DOP853, DENSE_HERMITE };
 
@@ -63,6 +66,8 @@ typedef struct {
     idx project;  /* 1: project q, qd after an accepted step and at every output */
     idx kkt;      /* the model's KKT path (identity metric in the projections) */
     idx stab;     /* Baumgarte terms in gamma (alpha, beta) */
+    idx reuse;    /* 1: the output samples project on factors already made (project_sample) */
+    idx kept;     /* out: 1 when Se holds the Schur factor of the last accepted end */
     double rtol, atol;
     double tangent;   /* the change-point policy's switch (0: off) */
     double proj_tol;  /* projection tolerance on max |Phi| */
@@ -83,6 +88,7 @@ typedef struct {
     double *vm;       /* (m,) work: Phi_q qd on all rows */
     double *qw;       /* (nq,) work: an output's q after one Newton step */
     double *Fd;       /* (7, ny) work: DOP853's interpolation coefficients */
+    double *Se;       /* (nenv,) the Schur factor of the last accepted end (M->env's copy) */
     double *out;      /* (N_OUT,) O_* */
     int64_t *count;   /* (N_COUNT,) C_*: added to, never reset here */
 } mb_rk;
@@ -336,6 +342,7 @@ int mb_rk_trial(const mb_model *M, mb_rk *R, double t, double h)
     int st;
     R->out[O_ERR] = 0.0;
     R->out[O_SMIN] = INFINITY;
+    R->kept = 0;
     memcpy(K, R->f, (size_t)ny * sizeof(double));
     for (idx s = 1; s < ns; s++) {
         combine(R, R->y, R->A + s * ns, s, h, R->ys);
@@ -362,7 +369,13 @@ int mb_rk_trial(const mb_model *M, mb_rk *R, double t, double h)
      * model: the projection starts from them */
     if ((st = project_state(M, R, t + h, R->y_acc, R->y_acc + n, 1)))
         return st;
-    return rhs_at(M, R, t + h, R->y_acc, R->f_acc, 1); /* S factored by the projection */
+    if ((st = rhs_at(M, R, t + h, R->y_acc, R->f_acc, 1))) /* S factored by the projection */
+        return st;
+    if (!R->kkt) { /* S of the end, kept for the step's output samples (project_sample) */
+        memcpy(R->Se, M->env, (size_t)M->nenv * sizeof(double));
+        R->kept = 1;
+    }
+    return ST_ACCEPTED;
 }
 
 /* -- dense output ------------------------------------------------------------------------ */
@@ -441,6 +454,162 @@ static int dense_blend(const mb_rk *R)
     return 0;
 }
 
+/* The output samples' projections on factors already made.  Each sample lies within one
+ * step of the accepted end, whose Schur factor S_e (of Phi_q Mt^-1 Phi_q^T there) the trial
+ * kept in Se; factoring S afresh at every sample (at the interpolated q for the Newton step,
+ * again at the projected q for the velocities) costs more than the rest of the projection.
+ * A simplified Newton iteration on a factor S~ of a nearby q instead,
+ *     q  <- q  - Mt^-1 Phi_q(q)^T S~^-1 Phi(q),
+ *     qd <- qd - Mt^-1 Phi_q(q)^T S~^-1 (Phi_q(q) qd - nu(q))   (q the projected one),
+ * with Mt and Phi_q of the current q (mb_incidences), contracts by about ||I - S(q) S~^-1||.
+ * Its fixed points are the fresh projection's: Phi = 0 to proj_tol, and for qd the same point
+ * to round-off, since every correction lies in the range of Mt^-1 Phi_q(q)^T, where the
+ * point with Phi_q qd = nu is unique (the Mt-orthogonal projection).  Positions differ from
+ * the fresh Newton's by the tangential part of the first corrections' difference,
+ * O(||I - S S~^-1|| |dq|).  The positions iterate on S_e; the velocities on the factor the
+ * positions left: S_e, or, where the positions fell back, the fresh one of the interpolated
+ * q, within the projection's correction of q (a contraction ~ |dq|: one iteration).  The
+ * contraction on S_e is ~ cond(S) times the relative change of Phi_q over the rest of the
+ * step: measured 0.05-0.5 on the governor's DOP853 steps, but above 1 where a light body
+ * turns far in a step (the slider-crank's crank, J'_yy = 1e-5 kg m^2: 0.06 in its Euler
+ * parameters per step, the residual 100 x larger after the step): there the guard sends the
+ * positions to fresh factors after one iteration.
+ * KEPT_RATE: an iteration must shrink the residual by this factor; at a contraction
+ * rho <= 1/2 the distance left to the fixed point, <= rho / (1 - rho) times the last
+ * correction, is at most that correction, so the stopping test means what it means for
+ * Newton's iteration.  KEPT_ITER: iterations allowed.  Either exceeded (near a change point
+ * S is ill-conditioned and its factor changes fast), the projection starts again from the
+ * sample on fresh factors, as before.  VEL_ROUNDOFF: a row of Phi_q qd - nu sums at most 14
+ * products and nu, so its computed value carries up to ~15 eps times the sum of their
+ * magnitudes (Higham, Accuracy and Stability of Numerical Algorithms, 2002, Sec. 3.1): below
+ * 16 eps of a bound of that sum it cannot be told from zero. */
+#define KEPT_RATE 0.5
+#define KEPT_ITER 4
+#define VEL_ROUNDOFF (16.0 * 2.220446049250313e-16)
+
+/* M->rhs (ma,) = Phi_q qd - nu on the active rows (Jc and nu of the model's q); returns the
+ * largest |rhs_k| relative to its round-off scale sum_c |Phi_q,kc| max|qd| + |nu_k| (a bound
+ * of the products' magnitudes: a row whose own qd components are round-off of the others',
+ * as a body at rest, is measured against the velocities' size; 0/0: 0). */
+static double velocity_residual(const mb_model *M, const double *qd, idx n)
+{
+    double worst = 0.0, vmax = 0.0;
+    for (idx i = 0; i < n; i++)
+        vmax = fmax(vmax, fabs(qd[i]));
+    for (idx k = 0; k < M->ma; k++) {
+        idx r = M->rows[k], b0 = M->rb[2 * r], b1 = M->rb[2 * r + 1];
+        const double *Jr = M->Jc + 14 * r;
+        double s = 0.0, a = 0.0;
+        for (int c = 0; c < 7; c++) {
+            s += Jr[c] * qd[7 * b0 + c];
+            a += fabs(Jr[c]);
+        }
+        if (b1 >= 0)
+            for (int c = 0; c < 7; c++) {
+                s += Jr[7 + c] * qd[7 * b1 + c];
+                a += fabs(Jr[7 + c]);
+            }
+        s -= M->nu[r];
+        a = a * vmax + fabs(M->nu[r]);
+        M->rhs[k] = s;
+        double e = a > 0.0 ? fabs(s) / a : fabs(s);
+        if (e > worst || e != e)
+            worst = e;
+    }
+    return worst;
+}
+
+/* q of an output sample at t put on Phi = 0 (to proj_tol) in place by the simplified Newton
+ * iteration on the factor in the model (above); *res the last max |Phi|.  Returns 1 done; 0
+ * when an iteration did not contract by KEPT_RATE or took more than KEPT_ITER (q moved:
+ * the caller starts again from the sample); -ST_CALLBACK. */
+static int positions_kept(const mb_model *M, mb_rk *R, double t, double *q, double *res)
+{
+    double prev = INFINITY;
+    for (int it = 0;; it++) {
+        R->count[C_CE]++;
+        if (load_state(M, R, t, q, NULL, 0))
+            return -ST_CALLBACK;
+        mb_constraints(M, 1, 0);
+        *res = phi_max(M);
+        if (*res <= R->proj_tol)
+            return 1;
+        if (it == KEPT_ITER || !(*res <= KEPT_RATE * prev))
+            return 0;
+        prev = *res;
+        R->count[C_NEWTON]++;
+        for (idx k = 0; k < M->ma; k++)
+            M->rhs[k] = M->phi[M->rows[k]];
+        mb_incidences(M);
+        mb_project_factored(M);
+        for (idx i = 0; i < R->nq; i++)
+            q[i] -= M->dq[i];
+    }
+}
+
+/* qd put on Phi_q qd = nu (to round-off) at the model's q (Phi_q and nu evaluated there) in
+ * place, by the simplified iteration on the factor in the model; returns 1 done, 0 as
+ * positions_kept (qd moved). */
+static int velocities_kept(const mb_model *M, mb_rk *R, double *qd)
+{
+    double prev = INFINITY;
+    for (int it = 0;; it++) {
+        double e = velocity_residual(M, qd, R->nq);
+        if (e <= VEL_ROUNDOFF)
+            return 1;
+        if (it == KEPT_ITER || !(e <= KEPT_RATE * prev))
+            return 0;
+        prev = e;
+        if (it == 0)
+            mb_incidences(M); /* Mt, Phi_q of this q */
+        mb_project_factored(M);
+        for (idx i = 0; i < R->nq; i++)
+            qd[i] -= M->dq[i];
+    }
+}
+
+/* (q, qd) of an output sample at t (y: the sample before it) put on the constraints as
+ * project_state puts them, on the factors already made where they serve (above): q on S_e
+ * while that has served the step's samples (R->kept; the first that does not converge on it
+ * clears it), else by Newton's iteration on fresh factors; qd on the factor q's projection
+ * left (S_e, or the fresh one of its last step), else on a fresh one.  Each of the two
+ * projections counted in C_KEPT or C_FRESH.  Returns what project_state returns. */
+static int project_sample(const mb_model *M, mb_rk *R, double t, double *q, double *qd,
+                          const double *y)
+{
+    idx n = R->nq;
+    double res;
+    int ok = 0, near = 0; /* near: the model holds a factor of q's neighbourhood */
+    if (R->kept) {
+        /* S_e into the model: DOP853's extra stages, an earlier sample's fresh projection
+         * or a Python call since the step may have factored another S there */
+        memcpy(M->env, R->Se, (size_t)M->nenv * sizeof(double));
+        if ((ok = positions_kept(M, R, t, q, &res)) < 0)
+            return -ok;
+        R->kept = near = ok;
+    }
+    R->count[ok ? C_KEPT : C_FRESH]++;
+    if (!ok) { /* from the sample, Newton's iteration on fresh factors */
+        int factored = 0;
+        int64_t before = R->count[C_FACT];
+        memcpy(q, y, (size_t)n * sizeof(double));
+        ok = project_positions(M, R, t, q, 10, &res, &factored);
+        R->out[O_RES] = res;
+        if (ok < 0)
+            return -ok;
+        if (!ok && res > R->proj_fail)
+            return ST_PROJECTION;
+        near = R->count[C_FACT] > before; /* (of the q one correction before) */
+    }
+    R->out[O_RES] = res;
+    ok = near && velocities_kept(M, R, qd);
+    R->count[ok ? C_KEPT : C_FRESH]++;
+    if (ok)
+        return ST_ACCEPTED;
+    memcpy(qd, y + n, (size_t)n * sizeof(double));
+    return project_velocities(M, R, t, q, qd, 0);
+}
+
 /* One sample of the last accepted step [t0, t0 + h] at t (the work of mb_rk_dense per
  * output, shared with mb_rk_steps' outputs): q, qd (nq,), *w the interpolant with the
  * end's correction blended in; when project, q and qd put on the constraints and *flag = 1
@@ -463,7 +632,8 @@ static int dense_sample(const mb_model *M, mb_rk *R, double t0, double h, double
     *w = y[2 * n];
     if (!project)
         return ST_ACCEPTED;
-    int st = project_state(M, R, t, q, qd, 0);
+    int st = R->reuse && !R->kkt ? project_sample(M, R, t, q, qd, y)
+                                 : project_state(M, R, t, q, qd, 0);
     if (st == ST_CALLBACK)
         return st;
     if (st) {

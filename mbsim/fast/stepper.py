@@ -20,7 +20,11 @@ Buffers (all owned here, handed to C once):
   its derivative) (ny,);
 - ``out`` (5,): error norm, smallest change-point measure of the trial's stages, measure of
   the last derivative, last projection residual, failure code of a factorisation;
-- ``count`` (4,): the work done (``COUNTERS``), added to ``system.counters`` after a call.
+- ``Se`` (nenv,): the Schur factor of the last accepted end, on which the output samples
+  are projected (``REUSE_FACTOR``);
+- ``count`` (6,): the work done (``COUNTERS``), added to ``system.counters`` after a call,
+  then the output samples projected on ``Se`` and those that fell back to fresh factors
+  (``OUTPUT_COUNTERS``), added to ``output_projections``.
 
 A third call takes many accepted steps in a row (``steps``: up to the last of a window of
 output times), with the step-size controller of :mod:`mbsim.integrators.base` and the
@@ -44,6 +48,13 @@ ST_ACCEPTED, ST_REJECTED, ST_SOLVE, ST_ALARM, ST_PROJECTION, ST_NONFINITE, ST_CA
 O_ERR, O_SMIN, O_SLAST, O_RES, O_CODE = range(5)
 COUNTERS = ("function_evaluations", "constraint_evaluations", "factorizations",
             "newton_iterations")
+OUTPUT_COUNTERS = ("kept", "fresh")
+"""step.c's C_KEPT, C_FRESH after COUNTERS: output samples projected on the step's kept
+Schur factor, and those where that iteration gave up and the projection factored afresh
+(CompiledStep.output_projections)."""
+REUSE_FACTOR = True
+"""Project the output samples on the accepted step's kept Schur factor (step.c:
+project_kept); False: a fresh factorisation per sample, as before (the tests' comparison)."""
 ERROR_FORMS = {None: 0, "embedded": 1, "dop853": 2}
 DENSE_FORMS = {"poly": 0, "dop853": 1, "hermite": 2}
 N_K = 16  # rows of K: DOP853's 12 stages, f(t + h, y_new) and 3 extra stages
@@ -56,13 +67,14 @@ class RK(ctypes.Structure):
 
     _fields_ = (
         [(n, ctypes.c_int64) for n in
-         ("ns", "nq", "err_kind", "dense_kind", "np", "project", "kkt", "stab")]
+         ("ns", "nq", "err_kind", "dense_kind", "np", "project", "kkt", "stab", "reuse",
+          "kept")]
         + [(n, ctypes.c_double) for n in
            ("rtol", "atol", "tangent", "proj_tol", "proj_fail", "alpha", "beta")]
         + [("load", ctypes.c_void_p)]
         + [(n, ctypes.c_void_p) for n in
            ("A", "B", "C", "E", "E3", "P", "AX", "CX", "D", "y", "f", "K", "y_new", "y_acc",
-            "f_acc", "ys", "vm", "qw", "Fd", "out", "count")]
+            "f_acc", "ys", "vm", "qw", "Fd", "Se", "out", "count")]
     )
 
 
@@ -174,13 +186,16 @@ class CompiledStep:
         for name, a in self._keep.items():
             setattr(r, name, a.ctypes.data)
         # the buffers, from one allocation (one pointer each by offset)
+        r.reuse = int(REUSE_FACTOR)
         self._buffers = _lib.carve(y=ny, f=ny, y_new=ny, y_acc=ny, f_acc=ny, ys=ny, qw=ny,
-                                   K=(N_K, ny), vm=system.model.m, Fd=7 * ny, out=5)
+                                   K=(N_K, ny), vm=system.model.m, Fd=7 * ny,
+                                   Se=system.c.s.nenv, out=5)
         for name, (_, address) in self._buffers.items():
             setattr(r, name, address)
         self.y, self.f, self.y_new, self.y_acc, self.f_acc, self.K, self.out = (
             self._buffers[k][0] for k in ("y", "f", "y_new", "y_acc", "f_acc", "K", "out"))
-        self.count = np.zeros(4, dtype=np.int64)
+        self.count = np.zeros(len(COUNTERS) + len(OUTPUT_COUNTERS), dtype=np.int64)
+        self.output_projections = dict.fromkeys(OUTPUT_COUNTERS, 0)
         r.count = self.count.ctypes.data
         self._pending = []  # a KeyboardInterrupt (or SystemExit) met in the callback
         self._load = _load_callback(system, self._pending)
@@ -191,8 +206,11 @@ class CompiledStep:
 
     def _counted(self, status):
         c = self.system.counters
-        for name, n in zip(COUNTERS, self.count.tolist()):
+        counts = self.count.tolist()
+        for name, n in zip(COUNTERS, counts):
             c[name] += n
+        for name, n in zip(OUTPUT_COUNTERS, counts[len(COUNTERS):]):
+            self.output_projections[name] += n
         self.count[:] = 0
         if self._pending:  # raised where the C call was made (_load_callback)
             raise self._pending.pop()
