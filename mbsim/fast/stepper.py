@@ -20,8 +20,8 @@ Buffers (all owned here, handed to C once):
   its derivative) (ny,);
 - ``out`` (5,): error norm, smallest change-point measure of the trial's stages, measure of
   the last derivative, last projection residual, failure code of a factorisation;
-- ``Se`` (nenv,): the Schur factor of the last accepted end, on which the output samples
-  are projected (``REUSE_FACTOR``);
+- ``Se`` (nenv,): the Schur factor of the last accepted end, on which the output samples'
+  positions are projected (``REUSE_FACTOR``);
 - ``count`` (6,): the work done (``COUNTERS``), added to ``system.counters`` after a call,
   then the output samples projected on ``Se`` and those that fell back to fresh factors
   (``OUTPUT_COUNTERS``), added to ``output_projections``.
@@ -49,12 +49,13 @@ O_ERR, O_SMIN, O_SLAST, O_RES, O_CODE = range(5)
 COUNTERS = ("function_evaluations", "constraint_evaluations", "factorizations",
             "newton_iterations")
 OUTPUT_COUNTERS = ("kept", "fresh")
-"""step.c's C_KEPT, C_FRESH after COUNTERS: output samples projected on the step's kept
-Schur factor, and those where that iteration gave up and the projection factored afresh
-(CompiledStep.output_projections)."""
+"""step.c's C_KEPT, C_FRESH after COUNTERS: the output samples' projections (of q and of qd,
+two per sample) made on a Schur factor already made, and those where that iteration gave up
+and the projection factored afresh (``CompiledStep.output_projections``)."""
 REUSE_FACTOR = True
-"""Project the output samples on the accepted step's kept Schur factor (step.c:
-project_kept); False: a fresh factorisation per sample, as before (the tests' comparison)."""
+"""Project the output samples on factors already made (step.c: project_sample; the
+positions on the accepted end's, the velocities on the one the positions left); False: fresh
+factorisations at every sample, as before (tests/integrators/test_output_projection.py)."""
 ERROR_FORMS = {None: 0, "embedded": 1, "dop853": 2}
 DENSE_FORMS = {"poly": 0, "dop853": 1, "hermite": 2}
 N_K = 16  # rows of K: DOP853's 12 stages, f(t + h, y_new) and 3 extra stages
