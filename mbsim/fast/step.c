@@ -46,8 +46,8 @@ enum {
     ST_CALLBACK = 6   /* the Python loads raised: Python takes the step again */
 };
 enum { O_ERR, O_SMIN, O_SLAST, O_RES, O_CODE, N_OUT };
-/* C_KEPT: output samples' projections (of q, of qd) on a factor already made (project_sample);
- * C_FRESH: those where that iteration gave up and the projection factored afresh */
+/* C_KEPT: output samples whose velocities were projected on the factor their positions'
+ * projection made (project_sample); C_FRESH: those projected on a fresh one */
 enum { C_FE, C_CE, C_FACT, C_NEWTON, C_KEPT, C_FRESH, N_COUNT };
 enum { ERR_NONE, ERR_EMBEDDED, ERR_DOP853 };
 enum { DENSE_POLY, DENSE_DOP853, DENSE_HERMITE };
@@ -66,8 +66,7 @@ typedef struct {
     idx project;  /* 1: project q, qd after an accepted step and at every output */
     idx kkt;      /* the model's KKT path (identity metric in the projections) */
     idx stab;     /* Baumgarte terms in gamma (alpha, beta) */
-    idx reuse;    /* 1: the output samples project on factors already made (project_sample) */
-    idx kept;     /* out: 1 when Se holds the Schur factor of the last accepted end */
+    idx reuse;    /* 1: an output sample's velocities on its positions' factor (project_sample) */
     double rtol, atol;
     double tangent;   /* the change-point policy's switch (0: off) */
     double proj_tol;  /* projection tolerance on max |Phi| */
@@ -88,7 +87,6 @@ typedef struct {
     double *vm;       /* (m,) work: Phi_q qd on all rows */
     double *qw;       /* (nq,) work: an output's q after one Newton step */
     double *Fd;       /* (7, ny) work: DOP853's interpolation coefficients */
-    double *Se;       /* (nenv,) the Schur factor of the last accepted end (M->env's copy) */
     double *out;      /* (N_OUT,) O_* */
     int64_t *count;   /* (N_COUNT,) C_*: added to, never reset here */
 } mb_rk;
@@ -178,11 +176,14 @@ static int projection_solve(const mb_model *M, mb_rk *R, int factored)
  * a failure.  *factored (in and out): 1 when the model's Phi, Phi_q and, unless kkt, its
  * Schur factor are already those of q at t (a derivative just evaluated there), so the
  * first iteration evaluates and factors nothing; on return, whether the factor is still
- * that of the (final) q. */
+ * that of the (final) q.  *steps (when not NULL): the Newton steps taken (after one, the
+ * model holds the factor of q one correction before the final q). */
 static int project_positions(const mb_model *M, mb_rk *R, double t, double *q, int max_iter,
-                             double *res, int *factored)
+                             double *res, int *factored, int *steps)
 {
     idx n = R->nq;
+    if (steps)
+        *steps = 0;
     for (int it = 0; it <= max_iter; it++) {
         if (!*factored) {
             R->count[C_CE]++;
@@ -201,6 +202,8 @@ static int project_positions(const mb_model *M, mb_rk *R, double t, double *q, i
         if (projection_solve(M, R, *factored))
             return -ST_SOLVE;
         *factored = 0; /* q moves: its Phi, Phi_q and factor are evaluated next */
+        if (steps)
+            (*steps)++;
         for (idx i = 0; i < n; i++)
             q[i] -= M->dq[i];
     }
@@ -234,7 +237,7 @@ static int project_state(const mb_model *M, mb_rk *R, double t, double *q, doubl
                          int factored)
 {
     double res = 0.0;
-    int ok = project_positions(M, R, t, q, 10, &res, &factored);
+    int ok = project_positions(M, R, t, q, 10, &res, &factored, NULL);
     R->out[O_RES] = res;
     if (ok < 0)
         return -ok;
@@ -342,7 +345,6 @@ int mb_rk_trial(const mb_model *M, mb_rk *R, double t, double h)
     int st;
     R->out[O_ERR] = 0.0;
     R->out[O_SMIN] = INFINITY;
-    R->kept = 0;
     memcpy(K, R->f, (size_t)ny * sizeof(double));
     for (idx s = 1; s < ns; s++) {
         combine(R, R->y, R->A + s * ns, s, h, R->ys);
@@ -369,13 +371,7 @@ int mb_rk_trial(const mb_model *M, mb_rk *R, double t, double h)
      * model: the projection starts from them */
     if ((st = project_state(M, R, t + h, R->y_acc, R->y_acc + n, 1)))
         return st;
-    if ((st = rhs_at(M, R, t + h, R->y_acc, R->f_acc, 1))) /* S factored by the projection */
-        return st;
-    if (!R->kkt) { /* S of the end, kept for the step's output samples (project_sample) */
-        memcpy(R->Se, M->env, (size_t)M->nenv * sizeof(double));
-        R->kept = 1;
-    }
-    return ST_ACCEPTED;
+    return rhs_at(M, R, t + h, R->y_acc, R->f_acc, 1); /* S factored by the projection */
 }
 
 /* -- dense output ------------------------------------------------------------------------ */
@@ -454,35 +450,31 @@ static int dense_blend(const mb_rk *R)
     return 0;
 }
 
-/* The output samples' projections on factors already made.  Each sample lies within one
- * step of the accepted end, whose Schur factor S_e (of Phi_q Mt^-1 Phi_q^T there) the trial
- * kept in Se; factoring S afresh at every sample (at the interpolated q for the Newton step,
- * again at the projected q for the velocities) costs more than the rest of the projection.
- * A simplified Newton iteration on a factor S~ of a nearby q instead,
- *     q  <- q  - Mt^-1 Phi_q(q)^T S~^-1 Phi(q),
- *     qd <- qd - Mt^-1 Phi_q(q)^T S~^-1 (Phi_q(q) qd - nu(q))   (q the projected one),
- * with Mt and Phi_q of the current q (mb_incidences), contracts by about ||I - S(q) S~^-1||.
- * Its fixed points are the fresh projection's: Phi = 0 to proj_tol, and for qd the same point
- * to round-off, since every correction lies in the range of Mt^-1 Phi_q(q)^T, where the
- * point with Phi_q qd = nu is unique (the Mt-orthogonal projection).  Positions differ from
- * the fresh Newton's by the tangential part of the first corrections' difference,
- * O(||I - S S~^-1|| |dq|).  The positions iterate on S_e; the velocities on the factor the
- * positions left: S_e, or, where the positions fell back, the fresh one of the interpolated
- * q, within the projection's correction of q (a contraction ~ |dq|: one iteration).  The
- * contraction on S_e is ~ cond(S) times the relative change of Phi_q over the rest of the
- * step: measured 0.05-0.5 on the governor's DOP853 steps, but above 1 where a light body
- * turns far in a step (the slider-crank's crank, J'_yy = 1e-5 kg m^2: 0.06 in its Euler
- * parameters per step, the residual 100 x larger after the step): there the guard sends the
- * positions to fresh factors after one iteration.
+/* An output sample's velocities on the factor its positions' projection made.  The
+ * positions' Newton iteration (project_positions, as the step's end is projected) factors S =
+ * Phi_q Mt^-1 Phi_q^T at the interpolated q and corrects it, usually once, by |dq|, the
+ * interpolant's error; the velocities were then projected on a second, fresh factor at the
+ * projected q.  The simplified iteration on the first factor S~ instead,
+ *     qd <- qd - Mt^-1 Phi_q(q)^T S~^-1 (Phi_q(q) qd - nu(q)),
+ * with Mt and Phi_q of the projected q (mb_incidences), contracts by about ||I - S S~^-1||
+ * ~ cond(S) |dq| (1e-8 at the decks' tolerances: one iteration, and one more evaluation of
+ * the residual to see it), and its fixed point is the fresh projection's to round-off: every
+ * correction lies in the range of Mt^-1 Phi_q(q)^T, where the point with Phi_q qd = nu is
+ * unique (the Mt-orthogonal projection).  (The end's factor, one step away, was measured as
+ * the positions' iteration matrix too: it contracts by 0.05-0.5 on the governor's DOP853
+ * steps and expands 100 x where a light body turns far in a step, the slider-crank's crank
+ * (J'_yy = 1e-5 kg m^2); the extra iterations cost more than the factorisations saved, on
+ * the governor, the slider-crank, the four cranks and a 40-link chain:
+ * docs/benchmarks.md.)
  * KEPT_RATE: an iteration must shrink the residual by this factor; at a contraction
  * rho <= 1/2 the distance left to the fixed point, <= rho / (1 - rho) times the last
- * correction, is at most that correction, so the stopping test means what it means for
- * Newton's iteration.  KEPT_ITER: iterations allowed.  Either exceeded (near a change point
- * S is ill-conditioned and its factor changes fast), the projection starts again from the
- * sample on fresh factors, as before.  VEL_ROUNDOFF: a row of Phi_q qd - nu sums at most 14
- * products and nu, so its computed value carries up to ~15 eps times the sum of their
- * magnitudes (Higham, Accuracy and Stability of Numerical Algorithms, 2002, Sec. 3.1): below
- * 16 eps of a bound of that sum it cannot be told from zero. */
+ * correction, is at most that correction.  KEPT_ITER: iterations allowed.  Either exceeded
+ * (near a change point S is ill-conditioned and its factor raised: kernels.c, PIVOT_FLOOR),
+ * the velocities are projected on a fresh factor, as before.  VEL_ROUNDOFF: a row of
+ * Phi_q qd - nu sums at most 14 products and nu, so its computed value carries up to ~15
+ * eps times the sum of their magnitudes (Higham, Accuracy and Stability of Numerical
+ * Algorithms, 2002, Sec. 3.1): below 16 eps of a bound of that sum it cannot be told from
+ * zero. */
 #define KEPT_RATE 0.5
 #define KEPT_ITER 4
 #define VEL_ROUNDOFF (16.0 * 2.220446049250313e-16)
@@ -519,38 +511,11 @@ static double velocity_residual(const mb_model *M, const double *qd, idx n)
     return worst;
 }
 
-/* q of an output sample at t put on Phi = 0 (to proj_tol) in place by the simplified Newton
- * iteration on the factor in the model (above); *res the last max |Phi|.  Returns 1 done; 0
- * when an iteration did not contract by KEPT_RATE or took more than KEPT_ITER (q moved:
- * the caller starts again from the sample); -ST_CALLBACK. */
-static int positions_kept(const mb_model *M, mb_rk *R, double t, double *q, double *res)
-{
-    double prev = INFINITY;
-    for (int it = 0;; it++) {
-        R->count[C_CE]++;
-        if (load_state(M, R, t, q, NULL, 0))
-            return -ST_CALLBACK;
-        mb_constraints(M, 1, 0);
-        *res = phi_max(M);
-        if (*res <= R->proj_tol)
-            return 1;
-        if (it == KEPT_ITER || !(*res <= KEPT_RATE * prev))
-            return 0;
-        prev = *res;
-        R->count[C_NEWTON]++;
-        for (idx k = 0; k < M->ma; k++)
-            M->rhs[k] = M->phi[M->rows[k]];
-        mb_incidences(M);
-        mb_project_factored(M);
-        for (idx i = 0; i < R->nq; i++)
-            q[i] -= M->dq[i];
-    }
-}
-
 /* qd put on Phi_q qd = nu (to round-off) at the model's q (Phi_q and nu evaluated there) in
- * place, by the simplified iteration on the factor in the model; returns 1 done, 0 as
- * positions_kept (qd moved). */
-static int velocities_kept(const mb_model *M, mb_rk *R, double *qd)
+ * place, by the simplified iteration on the Schur factor in the model (above).  Returns 1
+ * done; 0 when an iteration did not contract by KEPT_RATE or took more than KEPT_ITER (qd
+ * moved: the caller starts again from the sample). */
+static int velocities_on_factor(const mb_model *M, mb_rk *R, double *qd)
 {
     double prev = INFINITY;
     for (int it = 0;; it++) {
@@ -568,45 +533,26 @@ static int velocities_kept(const mb_model *M, mb_rk *R, double *qd)
     }
 }
 
-/* (q, qd) of an output sample at t (y: the sample before it) put on the constraints as
- * project_state puts them, on the factors already made where they serve (above): q on S_e
- * while that has served the step's samples (R->kept; the first that does not converge on it
- * clears it), else by Newton's iteration on fresh factors; qd on the factor q's projection
- * left (S_e, or the fresh one of its last step), else on a fresh one.  Each of the two
- * projections counted in C_KEPT or C_FRESH.  Returns what project_state returns. */
+/* (q, qd) of an output sample at t (y: the sample) put on the constraints as project_state
+ * puts them, the velocities on the factor of the positions' last Newton step (above) where
+ * there is one and it serves, counted in C_KEPT, else on a fresh one, in C_FRESH.  Returns
+ * what project_state returns. */
 static int project_sample(const mb_model *M, mb_rk *R, double t, double *q, double *qd,
                           const double *y)
 {
-    idx n = R->nq;
-    double res;
-    int ok = 0, near = 0; /* near: the model holds a factor of q's neighbourhood */
-    if (R->kept) {
-        /* S_e into the model: DOP853's extra stages, an earlier sample's fresh projection
-         * or a Python call since the step may have factored another S there */
-        memcpy(M->env, R->Se, (size_t)M->nenv * sizeof(double));
-        if ((ok = positions_kept(M, R, t, q, &res)) < 0)
-            return -ok;
-        R->kept = near = ok;
-    }
-    R->count[ok ? C_KEPT : C_FRESH]++;
-    if (!ok) { /* from the sample, Newton's iteration on fresh factors */
-        int factored = 0;
-        int64_t before = R->count[C_FACT];
-        memcpy(q, y, (size_t)n * sizeof(double));
-        ok = project_positions(M, R, t, q, 10, &res, &factored);
-        R->out[O_RES] = res;
-        if (ok < 0)
-            return -ok;
-        if (!ok && res > R->proj_fail)
-            return ST_PROJECTION;
-        near = R->count[C_FACT] > before; /* (of the q one correction before) */
-    }
+    double res = 0.0;
+    int factored = 0, steps;
+    int ok = project_positions(M, R, t, q, 10, &res, &factored, &steps);
     R->out[O_RES] = res;
-    ok = near && velocities_kept(M, R, qd);
+    if (ok < 0)
+        return -ok;
+    if (!ok && res > R->proj_fail)
+        return ST_PROJECTION;
+    ok = steps > 0 && velocities_on_factor(M, R, qd);
     R->count[ok ? C_KEPT : C_FRESH]++;
     if (ok)
         return ST_ACCEPTED;
-    memcpy(qd, y + n, (size_t)n * sizeof(double));
+    memcpy(qd, y + R->nq, (size_t)R->nq * sizeof(double));
     return project_velocities(M, R, t, q, qd, 0);
 }
 
@@ -645,7 +591,7 @@ static int dense_sample(const mb_model *M, mb_rk *R, double t0, double h, double
         double res;
         memcpy(R->qw, y, (size_t)n * sizeof(double));
         int fresh = 0;
-        int ok = project_positions(M, R, t, R->qw, 1, &res, &fresh);
+        int ok = project_positions(M, R, t, R->qw, 1, &res, &fresh, NULL);
         if (ok < 0)
             return -ok;
         if (rms_diff(R, q, R->qw, n) > 1.0)

@@ -20,11 +20,10 @@ Buffers (all owned here, handed to C once):
   its derivative) (ny,);
 - ``out`` (5,): error norm, smallest change-point measure of the trial's stages, measure of
   the last derivative, last projection residual, failure code of a factorisation;
-- ``Se`` (nenv,): the Schur factor of the last accepted end, on which the output samples'
-  positions are projected (``REUSE_FACTOR``);
 - ``count`` (6,): the work done (``COUNTERS``), added to ``system.counters`` after a call,
-  then the output samples projected on ``Se`` and those that fell back to fresh factors
-  (``OUTPUT_COUNTERS``), added to ``output_projections``.
+  then the output samples whose velocities were projected on their positions' factor and
+  those projected on a fresh one (``OUTPUT_COUNTERS``, ``REUSE_FACTOR``), added to
+  ``output_projections``.
 
 A third call takes many accepted steps in a row (``steps``: up to the last of a window of
 output times), with the step-size controller of :mod:`mbsim.integrators.base` and the
@@ -49,13 +48,13 @@ O_ERR, O_SMIN, O_SLAST, O_RES, O_CODE = range(5)
 COUNTERS = ("function_evaluations", "constraint_evaluations", "factorizations",
             "newton_iterations")
 OUTPUT_COUNTERS = ("kept", "fresh")
-"""step.c's C_KEPT, C_FRESH after COUNTERS: the output samples' projections (of q and of qd,
-two per sample) made on a Schur factor already made, and those where that iteration gave up
-and the projection factored afresh (``CompiledStep.output_projections``)."""
+"""step.c's C_KEPT, C_FRESH after COUNTERS: output samples whose velocities were projected
+on the Schur factor their positions' projection made, and those projected on a fresh one
+(``CompiledStep.output_projections``)."""
 REUSE_FACTOR = True
-"""Project the output samples on factors already made (step.c: project_sample; the
-positions on the accepted end's, the velocities on the one the positions left); False: fresh
-factorisations at every sample, as before (tests/integrators/test_output_projection.py)."""
+"""Project an output sample's velocities on the factor its positions' Newton step made
+(step.c: project_sample); False: on a fresh factorisation, as before
+(tests/integrators/test_output_projection.py)."""
 ERROR_FORMS = {None: 0, "embedded": 1, "dop853": 2}
 DENSE_FORMS = {"poly": 0, "dop853": 1, "hermite": 2}
 N_K = 16  # rows of K: DOP853's 12 stages, f(t + h, y_new) and 3 extra stages
@@ -68,14 +67,13 @@ class RK(ctypes.Structure):
 
     _fields_ = (
         [(n, ctypes.c_int64) for n in
-         ("ns", "nq", "err_kind", "dense_kind", "np", "project", "kkt", "stab", "reuse",
-          "kept")]
+         ("ns", "nq", "err_kind", "dense_kind", "np", "project", "kkt", "stab", "reuse")]
         + [(n, ctypes.c_double) for n in
            ("rtol", "atol", "tangent", "proj_tol", "proj_fail", "alpha", "beta")]
         + [("load", ctypes.c_void_p)]
         + [(n, ctypes.c_void_p) for n in
            ("A", "B", "C", "E", "E3", "P", "AX", "CX", "D", "y", "f", "K", "y_new", "y_acc",
-            "f_acc", "ys", "vm", "qw", "Fd", "Se", "out", "count")]
+            "f_acc", "ys", "vm", "qw", "Fd", "out", "count")]
     )
 
 
@@ -189,8 +187,7 @@ class CompiledStep:
         # the buffers, from one allocation (one pointer each by offset)
         r.reuse = int(REUSE_FACTOR)
         self._buffers = _lib.carve(y=ny, f=ny, y_new=ny, y_acc=ny, f_acc=ny, ys=ny, qw=ny,
-                                   K=(N_K, ny), vm=system.model.m, Fd=7 * ny,
-                                   Se=system.c.s.nenv, out=5)
+                                   K=(N_K, ny), vm=system.model.m, Fd=7 * ny, out=5)
         for name, (_, address) in self._buffers.items():
             setattr(r, name, address)
         self.y, self.f, self.y_new, self.y_acc, self.f_acc, self.K, self.out = (

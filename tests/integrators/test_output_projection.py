@@ -1,19 +1,17 @@
-"""The projection of the output samples on factors already made (mbsim/fast/step.c:
-project_sample) against the projection on fresh factors at every sample (the stepper's
-``REUSE_FACTOR`` off, as before).
+"""The output samples' velocities projected on the Schur factor their positions' Newton
+step made (mbsim/fast/step.c: project_sample) against their projection on a fresh factor
+(the stepper's ``REUSE_FACTOR`` off, as before).
 
-Both put the same interpolated sample on the same constraint manifold: the positions to
-max |Phi| <= proj_tol, the velocities onto Phi_q qd = nu at the projected q (the
-Mt-orthogonal projection, the same point to round-off at the same q).  The positions differ
-by the tangential part of the two iterations' corrections, of the size of the correction
-(the interpolant's error, within the error test's scale atol + rtol |q| of the step) times
-the simplified iteration's contraction (<= 1/2 by its guard); the velocities by the
-projection's change with q over that difference.  So each output of the two runs agrees
-within the step's error scale (atol + rtol |y| componentwise), and both meet the constraints
-to the projection tolerance (positions) and to round-off (velocities: 16 eps of the terms'
-size, step.c's VEL_ROUNDOFF, with a factor 4 for the residual's own evaluation here), or,
-where the fresh projection itself is not at round-off (the four cranks' flat positions, a
-change point, where the simplified iteration gives up and factors afresh), as well as it.
+The positions take the same Newton iteration in both: equal bit for bit.  The velocities
+are put on Phi_q qd = nu at that q in both: the fresh projection in one solve, the
+simplified iteration as its fixed point, the Mt-orthogonal projection, the same point to
+round-off.  So the velocities agree within the projections' own tolerance, 1e-3 of the
+step's error scale (proj_tol = 1e-3 atol for the positions: Index1), and both runs' outputs
+meet the constraints: max |Phi| <= proj_tol, and Phi_q qd - nu at round-off (16 eps of the
+terms' size, step.c's VEL_ROUNDOFF, with a factor 4 for the residual's own evaluation here)
+or, where the fresh projection itself is not at round-off (the four cranks' flat positions,
+change points, where the simplified iteration does not contract and the projection factors
+afresh), as well as it.
 """
 
 from __future__ import annotations
@@ -50,10 +48,16 @@ def problem_state(name):
     return pb.model, pb.q0, pb.qd0
 
 
-CASES = {
-    "governor": lambda: deck_state("governor"),
-    "slider_crank": lambda: problem_state("slider_crank"),
-    "four_cranks": lambda: problem_state("parallel_fourbar"),  # passes flat positions
+def chain_state(n):
+    model = M.chain(n)
+    return model, model.q0.copy(), np.zeros(model.nq)
+
+
+CASES = {  # (state, t_end)
+    "governor": (lambda: deck_state("governor"), 0.6),
+    "slider_crank": (lambda: problem_state("slider_crank"), 0.6),
+    "four_cranks": (lambda: problem_state("parallel_fourbar"), 0.6),  # passes flat positions
+    "chain_40": (lambda: chain_state(40), 0.1),  # CSR Jacobians, the ground held (CROSS)
 }
 
 
@@ -74,13 +78,14 @@ def velocity_bound(system, q, qd, t):
 
 @pytest.mark.parametrize("method", ["projection-dop853", "projection"])
 @pytest.mark.parametrize("case", list(CASES))
-def test_outputs_on_kept_factors_agree_with_fresh_factorizations(case, method, monkeypatch):
-    model, q, qd = CASES[case]()
-    t_end = 0.6
-    a = solver(model, q, qd, method, True, monkeypatch, t_end)  # factors already made
-    b = solver(model, q, qd, method, False, monkeypatch, t_end)  # fresh at every sample
+def test_velocities_on_the_positions_factor_agree_with_a_fresh_factorization(case, method,
+                                                                             monkeypatch):
+    state, t_end = CASES[case]
+    model, q, qd = state()
+    a = solver(model, q, qd, method, True, monkeypatch, t_end)  # on the positions' factor
+    b = solver(model, q, qd, method, False, monkeypatch, t_end)  # on a fresh factor
     samples = 0
-    worst_q = worst_qd = 0.0
+    worst_qd = 0.0
     while a.t < t_end:
         assert a.step()[0] and b.step()[0]
         assert a.t == b.t and np.array_equal(a.y, b.y)  # the outputs never feed back
@@ -88,27 +93,19 @@ def test_outputs_on_kept_factors_agree_with_fresh_factorizations(case, method, m
         Qa, QDa, _ = a.dense_output_many(times)
         Qb, QDb, _ = b.dense_output_many(times)
         samples += times.size
+        assert np.array_equal(Qa, Qb)  # the same Newton iteration
         for k, t in enumerate(times):
-            sq = OPTIONS["atol"] + OPTIONS["rtol"] * np.abs(Qb[k])
             sv = OPTIONS["atol"] + OPTIONS["rtol"] * np.abs(QDb[k])
-            worst_q = max(worst_q, float(np.max(np.abs(Qa[k] - Qb[k]) / sq)))
             worst_qd = max(worst_qd, float(np.max(np.abs(QDa[k] - QDb[k]) / sv)))
             ph, v = a.system.residuals(Qa[k], QDa[k], t)
             assert np.abs(ph).max() <= a.proj_tol, (case, t)
-            # at round-off, or no worse than the fresh projection's: at the four cranks' flat
-            # positions S's raised pivot (kernels.c: PIVOT_FLOOR) leaves the fresh one at
-            # ~1e-11, and the simplified iteration does not contract there (its fallback)
             vb = velocity_bound(a.system, Qa[k], QDa[k], t)
             vb = np.maximum(vb, 2 * np.abs(b.system.residuals(Qb[k], QDb[k], t)[1]
                                            [b.system.rows]))
             bad = np.abs(v[a.system.rows]) > vb
             assert not bad.any(), (case, t, np.abs(v[a.system.rows])[bad], vb[bad])
-    print(f"{case} {method}: worst |dq| {worst_q:.3g}, |dqd| {worst_qd:.3g} of the error scale")
-    assert worst_q <= 1.0 and worst_qd <= 1.0, (worst_q, worst_qd)
     counts = a._compiled.output_projections
-    assert counts["kept"] + counts["fresh"] == 2 * samples  # q and qd of every sample
+    print(f"{case} {method}: worst |dqd| {worst_qd:.3g} of the error scale, {counts}")
+    assert worst_qd <= 1e-3
+    assert counts["kept"] + counts["fresh"] == samples
     assert b._compiled.output_projections == {"kept": 0, "fresh": 0}
-    if case == "slider_crank":  # the light crank (J'_yy = 1e-5 kg m^2) turns ~0.1 rad per
-        # step: on the end's factor the positions' residual grows ~100 x (step.c), far past
-        # the guard's 1/2, so every sample's positions are projected on fresh factors
-        assert counts["fresh"] >= samples
