@@ -1240,8 +1240,8 @@ void mb_project_factored(const mb_model *M)
 
 /* Mi, JG and XG of the model's q and Jc (the last mb_constraints, jac), the Schur factor in
  * env left as it is, so that mb_project_factored then gives dq = Mt^-1 Phi_q^T S~^-1 rhs
- * with Mt and Phi_q of this q and S~ the factor of a nearby q that the caller put in env: a
- * simplified Newton step (step.c's output projections on the step's own factor). */
+ * with Mt and Phi_q of this q and S~ the factor of a nearby q still in env: a simplified
+ * Newton step (step.c: an output sample's velocities on its positions' factor). */
 void mb_incidences(const mb_model *M)
 {
     minv_blocks(M, 0);
