@@ -823,12 +823,12 @@ static inline double pair_dot(const double *x, const double *y, idx code)
  * the sums over incidences below skip it, and fixed_body_multipliers adds its reaction. */
 #define CROSS 14
 
-/* JG[g] (the 7 entries of incidence g's row on its body, from Jc) and XG[g] = Mt_b^-1 JG[g]
- * (Mi of minv_blocks), each padded to 8 with a zero. */
-static void incidence_blocks(const mb_model *M, const double *Jc, int unit)
+static int schur_factor(const mb_model *M, const double *Jc, int unit)
 {
-    const idx *inc = M->inc, *rows = M->sidx;
-    double *XG = M->XG, *JG = M->JG;
+    const idx *sidx = M->sidx, *inc = M->inc, *pairs = M->pairs;
+    idx ma = M->ma;
+    const idx *rows = sidx, *fc = sidx + 2 * ma, *off = sidx + 3 * ma;
+    double *XG = M->XG, *JG = M->JG, *env = M->env;
     for (idx g = 0; g < M->ninc; g++) {
         idx o = inc[3 * g + 1], cross = o >= CROSS;
         const double *Jr = Jc + 14 * rows[inc[3 * g]] + (cross ? o - CROSS : o);
@@ -841,15 +841,6 @@ static void incidence_blocks(const mb_model *M, const double *Jc, int unit)
         else
             apply_minv(M, unit, inc[3 * g + 2], JG + 8 * g, XG + 8 * g);
     }
-}
-
-static int schur_factor(const mb_model *M, const double *Jc, int unit)
-{
-    const idx *sidx = M->sidx, *pairs = M->pairs;
-    idx ma = M->ma;
-    const idx *fc = sidx + 2 * ma, *off = sidx + 3 * ma;
-    double *XG = M->XG, *JG = M->JG, *env = M->env;
-    incidence_blocks(M, Jc, unit);
     memset(env, 0, (size_t)M->nenv * sizeof(double));
     int own = Jc == M->Jc; /* the kernels' Phi_q: the pairs' column masks hold (else Jg) */
     for (idx k = 0; k < M->npairs; k++) {
@@ -1236,16 +1227,6 @@ void mb_project_factored(const mb_model *M)
     memset(M->dq, 0, (size_t)M->nq * sizeof(double));
     add_incidences(M, M->lam, 1.0, M->dq);
     held_coupling(M, M->dq, -1.0);
-}
-
-/* Mi, JG and XG of the model's q and Jc (the last mb_constraints, jac), the Schur factor in
- * env left as it is, so that mb_project_factored then gives dq = Mt^-1 Phi_q^T S~^-1 rhs
- * with Mt and Phi_q of this q and S~ the factor of a nearby q still in env: a simplified
- * Newton step (step.c: an output sample's velocities on its positions' factor). */
-void mb_incidences(const mb_model *M)
-{
-    minv_blocks(M, 0);
-    incidence_blocks(M, M->Jc, 0);
 }
 
 /* -- kinematic analysis: Phi = 0, Phi_q qd = nu, Phi_q qdd = gamma on one LU --------------- */

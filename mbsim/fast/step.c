@@ -32,7 +32,6 @@ void mb_constraints(const mb_model *M, int jac, int gam);
 int mb_project(const mb_model *M, int unit);
 void mb_project_factored(const mb_model *M);
 void mb_jac_times(const mb_model *M, const double *x, double *out);
-void mb_incidences(const mb_model *M);
 
 /* What a call returns. */
 enum {
@@ -451,21 +450,25 @@ static int dense_blend(const mb_rk *R)
 }
 
 /* An output sample's velocities on the factor its positions' projection made.  The
- * positions' Newton iteration (project_positions, as the step's end is projected) factors S =
- * Phi_q Mt^-1 Phi_q^T at the interpolated q and corrects it, usually once, by |dq|, the
- * interpolant's error; the velocities were then projected on a second, fresh factor at the
- * projected q.  The simplified iteration on the first factor S~ instead,
- *     qd <- qd - Mt^-1 Phi_q(q)^T S~^-1 (Phi_q(q) qd - nu(q)),
- * with Mt and Phi_q of the projected q (mb_incidences), contracts by about ||I - S S~^-1||
- * ~ cond(S) |dq| (1e-8 at the decks' tolerances: one iteration, and one more evaluation of
- * the residual to see it), and its fixed point is the fresh projection's to round-off: every
- * correction lies in the range of Mt^-1 Phi_q(q)^T, where the point with Phi_q qd = nu is
- * unique (the Mt-orthogonal projection).  (The end's factor, one step away, was measured as
- * the positions' iteration matrix too: it contracts by 0.05-0.5 on the governor's DOP853
- * steps and expands 100 x where a light body turns far in a step, the slider-crank's crank
- * (J'_yy = 1e-5 kg m^2); the extra iterations cost more than the factorisations saved, on
- * the governor, the slider-crank, the four cranks and a 40-link chain:
- * docs/benchmarks.md.)
+ * positions' Newton iteration (project_positions, as the step's end is projected) factors
+ * S~ = Phi_q Mt^-1 Phi_q^T at the interpolated q~ and corrects it, usually once, by dq, of
+ * the size of the interpolant's error; the velocities were then projected on a second,
+ * fresh factor at the projected q = q~ - dq.  The simplified iteration on the first,
+ *     qd <- qd - D~ S~^-1 (Phi_q(q) qd - nu(q)),   D~ = Mt^-1 Phi_q^T at q~
+ * (mb_project_factored on the factor, Mt^-1 and Phi_q the model holds from q~), ends on
+ * Phi_q(q) qd = nu to round-off, as the fresh projection does, and contracts by about
+ * ||I - Phi_q(q) D~ S~^-1||, which is O(|dq|) (1e-9 to 1e-6 at the decks' tolerances: one
+ * iteration, then one more evaluation of the residual to see it).  Its end differs from the
+ * Mt-orthogonal projection at q by the change of D over dq times the velocities'
+ * correction, both of the size of the interpolant's error: second order (measured <= 3e-5
+ * of the step's error scale: tests/integrators/test_output_projection.py).  Refreshing D at
+ * q (Mt^-1 and Phi_q's incidence blocks) would make the end the orthogonal projection to
+ * round-off, for 0.6-1.1 us a sample, 30-40 % of what the iteration saves.  (The end's factor,
+ * one step away, was measured as the positions' iteration matrix too: it contracts by
+ * 0.05-0.5 on the governor's DOP853 steps and expands 100 x where a light body turns far in
+ * a step, the slider-crank's crank (J'_yy = 1e-5 kg m^2); its extra iterations cost more than
+ * the factorisations saved, on the governor, the slider-crank, the four cranks and a 40-link
+ * chain: docs/benchmarks.md.)
  * KEPT_RATE: an iteration must shrink the residual by this factor; at a contraction
  * rho <= 1/2 the distance left to the fixed point, <= rho / (1 - rho) times the last
  * correction, is at most that correction.  KEPT_ITER: iterations allowed.  Either exceeded
@@ -512,9 +515,10 @@ static double velocity_residual(const mb_model *M, const double *qd, idx n)
 }
 
 /* qd put on Phi_q qd = nu (to round-off) at the model's q (Phi_q and nu evaluated there) in
- * place, by the simplified iteration on the Schur factor in the model (above).  Returns 1
- * done; 0 when an iteration did not contract by KEPT_RATE or took more than KEPT_ITER (qd
- * moved: the caller starts again from the sample). */
+ * place, by the simplified iteration on the Schur factor, Mt^-1 and incidence blocks the
+ * model holds from a nearby q (above).  Returns 1 done; 0 when an iteration did not
+ * contract by KEPT_RATE or took more than KEPT_ITER (qd moved: the caller starts again from
+ * the sample). */
 static int velocities_on_factor(const mb_model *M, mb_rk *R, double *qd)
 {
     double prev = INFINITY;
@@ -525,8 +529,6 @@ static int velocities_on_factor(const mb_model *M, mb_rk *R, double *qd)
         if (it == KEPT_ITER || !(e <= KEPT_RATE * prev))
             return 0;
         prev = e;
-        if (it == 0)
-            mb_incidences(M); /* Mt, Phi_q of this q */
         mb_project_factored(M);
         for (idx i = 0; i < R->nq; i++)
             qd[i] -= M->dq[i];
