@@ -457,27 +457,29 @@ static int dense_blend(const mb_rk *R)
  *     qd <- qd - D~ S~^-1 (Phi_q(q) qd - nu(q)),   D~ = Mt^-1 Phi_q^T at q~
  * (mb_project_factored on the factor, Mt^-1 and Phi_q the model holds from q~), ends on
  * Phi_q(q) qd = nu to round-off, as the fresh projection does, and contracts by about
- * ||I - Phi_q(q) D~ S~^-1||, which is O(|dq|) (1e-9 to 1e-6 at the decks' tolerances: one
- * iteration, then one more evaluation of the residual to see it).  Its end differs from the
- * Mt-orthogonal projection at q by the change of D over dq times the velocities'
- * correction, both of the size of the interpolant's error: second order (measured <= 3e-5
- * of the step's error scale: tests/integrators/test_output_projection.py).  Refreshing D at
- * q (Mt^-1 and Phi_q's incidence blocks) would make the end the orthogonal projection to
- * round-off, for 0.6-1.1 us a sample, 30-40 % of what the iteration saves.  (The end's factor,
- * one step away, was measured as the positions' iteration matrix too: it contracts by
- * 0.05-0.5 on the governor's DOP853 steps and expands 100 x where a light body turns far in
- * a step, the slider-crank's crank (J'_yy = 1e-5 kg m^2); its extra iterations cost more than
- * the factorisations saved, on the governor, the slider-crank, the four cranks and a 40-link
- * chain: docs/benchmarks.md.)
+ * ||I - Phi_q(q) D~ S~^-1||, which is O(|dq|): medians 1e-7 to 3e-6 per iteration on the
+ * samples of tests/integrators/test_output_projection.py, so one iteration and one more
+ * evaluation of the residual to see it (a second iteration on a fifth of the
+ * slider-crank's).  Its end differs from the Mt-orthogonal projection at q by the change
+ * of D over dq times the velocities' correction, both of the size of the interpolant's
+ * error: second order (measured <= 3e-5 of the step's error scale).  Refreshing D at q
+ * (Mt^-1 and Phi_q's incidence blocks) would make the end that projection to round-off,
+ * for 0.4-3 us a sample, 25-50 % of what the iteration saves (governor, slider-crank, four
+ * cranks).  (The end's factor, one step away, was measured as the positions' iteration
+ * matrix too: it contracts by 0.05-0.5 on the governor's DOP853 steps and expands 100 x
+ * where a light body turns far in a step, the slider-crank's crank (J'_yy = 1e-5 kg m^2);
+ * its extra iterations cost more than the factorisations saved on the governor, the
+ * slider-crank, the four cranks and a 40-link chain: docs/benchmarks.md.)
  * KEPT_RATE: an iteration must shrink the residual by this factor; at a contraction
  * rho <= 1/2 the distance left to the fixed point, <= rho / (1 - rho) times the last
- * correction, is at most that correction.  KEPT_ITER: iterations allowed.  Either exceeded
- * (near a change point S is ill-conditioned and its factor raised: kernels.c, PIVOT_FLOOR),
- * the velocities are projected on a fresh factor, as before.  VEL_ROUNDOFF: a row of
- * Phi_q qd - nu sums at most 14 products and nu, so its computed value carries up to ~15
- * eps times the sum of their magnitudes (Higham, Accuracy and Stability of Numerical
- * Algorithms, 2002, Sec. 3.1): below 16 eps of a bound of that sum it cannot be told from
- * zero. */
+ * correction, is at most that correction.  KEPT_ITER: iterations allowed; a factorisation
+ * costs 4-7 solves on the same rows (governor 3.1 / 0.66 us, four cranks 10.0 / 1.5 us), so
+ * beyond 4 the fresh factor is the cheaper.  Either exceeded (near a change point S is
+ * ill-conditioned and its factor raised: kernels.c, PIVOT_FLOOR), the velocities are
+ * projected on a fresh factor, as before.  VEL_ROUNDOFF: a row of Phi_q qd - nu sums at most
+ * 14 products and nu, so its computed value carries up to ~15 eps times the sum of their
+ * magnitudes (Higham, Accuracy and Stability of Numerical Algorithms, 2002, Sec. 3.1):
+ * below 16 eps of a bound of that sum it cannot be told from zero. */
 #define KEPT_RATE 0.5
 #define KEPT_ITER 4
 #define VEL_ROUNDOFF (16.0 * 2.220446049250313e-16)

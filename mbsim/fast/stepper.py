@@ -184,8 +184,8 @@ class CompiledStep:
         self._keep = tableau_arrays(tab, err_form)  # the arrays C points into
         for name, a in self._keep.items():
             setattr(r, name, a.ctypes.data)
-        # the buffers, from one allocation (one pointer each by offset)
         r.reuse = int(REUSE_FACTOR)
+        # the buffers, from one allocation (one pointer each by offset)
         self._buffers = _lib.carve(y=ny, f=ny, y_new=ny, y_acc=ny, f_acc=ny, ys=ny, qw=ny,
                                    K=(N_K, ny), vm=system.model.m, Fd=7 * ny, out=5)
         for name, (_, address) in self._buffers.items():
