@@ -45,7 +45,9 @@ enum {
     ST_CALLBACK = 6   /* the Python loads raised: Python takes the step again */
 };
 enum { O_ERR, O_SMIN, O_SLAST, O_RES, O_CODE, N_OUT };
-enum { C_FE, C_CE, C_FACT, C_NEWTON, N_COUNT };
+/* C_KEPT: output samples whose velocities were projected on the factor their positions'
+ * projection made (project_sample); C_FRESH: those projected on a fresh one */
+enum { C_FE, C_CE, C_FACT, C_NEWTON, C_KEPT, C_FRESH, N_COUNT };
 enum { ERR_NONE, ERR_EMBEDDED, ERR_DOP853 };
 enum { DENSE_POLY, DENSE_DOP853, DENSE_HERMITE };
 
@@ -63,6 +65,7 @@ typedef struct {
     idx project;  /* 1: project q, qd after an accepted step and at every output */
     idx kkt;      /* the model's KKT path (identity metric in the projections) */
     idx stab;     /* Baumgarte terms in gamma (alpha, beta) */
+    idx reuse;    /* 1: an output sample's velocities on its positions' factor (project_sample) */
     double rtol, atol;
     double tangent;   /* the change-point policy's switch (0: off) */
     double proj_tol;  /* projection tolerance on max |Phi| */
@@ -172,11 +175,14 @@ static int projection_solve(const mb_model *M, mb_rk *R, int factored)
  * a failure.  *factored (in and out): 1 when the model's Phi, Phi_q and, unless kkt, its
  * Schur factor are already those of q at t (a derivative just evaluated there), so the
  * first iteration evaluates and factors nothing; on return, whether the factor is still
- * that of the (final) q. */
+ * that of the (final) q.  *steps (when not NULL): the Newton steps taken (after one, the
+ * model holds the factor of q one correction before the final q). */
 static int project_positions(const mb_model *M, mb_rk *R, double t, double *q, int max_iter,
-                             double *res, int *factored)
+                             double *res, int *factored, int *steps)
 {
     idx n = R->nq;
+    if (steps)
+        *steps = 0;
     for (int it = 0; it <= max_iter; it++) {
         if (!*factored) {
             R->count[C_CE]++;
@@ -195,6 +201,8 @@ static int project_positions(const mb_model *M, mb_rk *R, double t, double *q, i
         if (projection_solve(M, R, *factored))
             return -ST_SOLVE;
         *factored = 0; /* q moves: its Phi, Phi_q and factor are evaluated next */
+        if (steps)
+            (*steps)++;
         for (idx i = 0; i < n; i++)
             q[i] -= M->dq[i];
     }
@@ -228,7 +236,7 @@ static int project_state(const mb_model *M, mb_rk *R, double t, double *q, doubl
                          int factored)
 {
     double res = 0.0;
-    int ok = project_positions(M, R, t, q, 10, &res, &factored);
+    int ok = project_positions(M, R, t, q, 10, &res, &factored, NULL);
     R->out[O_RES] = res;
     if (ok < 0)
         return -ok;
@@ -441,6 +449,117 @@ static int dense_blend(const mb_rk *R)
     return 0;
 }
 
+/* An output sample's velocities on the factor its positions' projection made.  The
+ * positions' Newton iteration (project_positions, as the step's end is projected) factors
+ * S~ = Phi_q Mt^-1 Phi_q^T at the interpolated q~ and corrects it, usually once, by dq, of
+ * the size of the interpolant's error; the velocities were then projected on a second,
+ * fresh factor at the projected q = q~ - dq.  The simplified iteration on the first,
+ *     qd <- qd - D~ S~^-1 (Phi_q(q) qd - nu(q)),   D~ = Mt^-1 Phi_q^T at q~
+ * (mb_project_factored on the factor, Mt^-1 and Phi_q the model holds from q~), ends on
+ * Phi_q(q) qd = nu to round-off, as the fresh projection does, and contracts by about
+ * ||I - Phi_q(q) D~ S~^-1||, which is O(|dq|): medians 1e-7 to 3e-6 per iteration on the
+ * samples of tests/integrators/test_output_projection.py, so one iteration and one more
+ * evaluation of the residual to see it (a second iteration on a fifth of the
+ * slider-crank's).  Its end differs from the Mt-orthogonal projection at q by the change
+ * of D over dq times the velocities' correction, both of the size of the interpolant's
+ * error: second order (measured <= 3e-5 of the step's error scale).  Refreshing D at q
+ * (Mt^-1 and Phi_q's incidence blocks) would make the end that projection to round-off,
+ * for 0.4-3 us a sample, 25-50 % of what the iteration saves (governor, slider-crank, four
+ * cranks).  (The end's factor, one step away, was measured as the positions' iteration
+ * matrix too: it contracts by 0.05-0.5 on the governor's DOP853 steps and expands 100 x
+ * where a light body turns far in a step, the slider-crank's crank (J'_yy = 1e-5 kg m^2);
+ * its extra iterations cost more than the factorisations saved on the governor, the
+ * slider-crank, the four cranks and a 40-link chain: docs/benchmarks.md.)
+ * KEPT_RATE: an iteration must shrink the residual by this factor; at a contraction
+ * rho <= 1/2 the distance left to the fixed point, <= rho / (1 - rho) times the last
+ * correction, is at most that correction.  KEPT_ITER: iterations allowed; a factorisation
+ * costs 4-7 solves on the same rows (governor 3.1 / 0.66 us, four cranks 10.0 / 1.5 us), so
+ * beyond 4 the fresh factor is the cheaper.  Either exceeded (near a change point S is
+ * ill-conditioned and its factor raised: kernels.c, PIVOT_FLOOR), the velocities are
+ * projected on a fresh factor, as before.  VEL_ROUNDOFF: a row of Phi_q qd - nu sums at most
+ * 14 products and nu, so its computed value carries up to ~15 eps times the sum of their
+ * magnitudes (Higham, Accuracy and Stability of Numerical Algorithms, 2002, Sec. 3.1):
+ * below 16 eps of a bound of that sum it cannot be told from zero. */
+#define KEPT_RATE 0.5
+#define KEPT_ITER 4
+#define VEL_ROUNDOFF (16.0 * 2.220446049250313e-16)
+
+/* M->rhs (ma,) = Phi_q qd - nu on the active rows (Jc and nu of the model's q); returns the
+ * largest |rhs_k| relative to its round-off scale sum_c |Phi_q,kc| max|qd| + |nu_k| (a bound
+ * of the products' magnitudes: a row whose own qd components are round-off of the others',
+ * as a body at rest, is measured against the velocities' size; 0/0: 0). */
+static double velocity_residual(const mb_model *M, const double *qd, idx n)
+{
+    double worst = 0.0, vmax = 0.0;
+    for (idx i = 0; i < n; i++)
+        vmax = fmax(vmax, fabs(qd[i]));
+    for (idx k = 0; k < M->ma; k++) {
+        idx r = M->rows[k], b0 = M->rb[2 * r], b1 = M->rb[2 * r + 1];
+        const double *Jr = M->Jc + 14 * r;
+        double s = 0.0, a = 0.0;
+        for (int c = 0; c < 7; c++) {
+            s += Jr[c] * qd[7 * b0 + c];
+            a += fabs(Jr[c]);
+        }
+        if (b1 >= 0)
+            for (int c = 0; c < 7; c++) {
+                s += Jr[7 + c] * qd[7 * b1 + c];
+                a += fabs(Jr[7 + c]);
+            }
+        s -= M->nu[r];
+        a = a * vmax + fabs(M->nu[r]);
+        M->rhs[k] = s;
+        double e = a > 0.0 ? fabs(s) / a : fabs(s);
+        if (e > worst || e != e)
+            worst = e;
+    }
+    return worst;
+}
+
+/* qd put on Phi_q qd = nu (to round-off) at the model's q (Phi_q and nu evaluated there) in
+ * place, by the simplified iteration on the Schur factor, Mt^-1 and incidence blocks the
+ * model holds from a nearby q (above).  Returns 1 done; 0 when an iteration did not
+ * contract by KEPT_RATE or took more than KEPT_ITER (qd moved: the caller starts again from
+ * the sample). */
+static int velocities_on_factor(const mb_model *M, mb_rk *R, double *qd)
+{
+    double prev = INFINITY;
+    for (int it = 0;; it++) {
+        double e = velocity_residual(M, qd, R->nq);
+        if (e <= VEL_ROUNDOFF)
+            return 1;
+        if (it == KEPT_ITER || !(e <= KEPT_RATE * prev))
+            return 0;
+        prev = e;
+        mb_project_factored(M);
+        for (idx i = 0; i < R->nq; i++)
+            qd[i] -= M->dq[i];
+    }
+}
+
+/* (q, qd) of an output sample at t (y: the sample) put on the constraints as project_state
+ * puts them, the velocities on the factor of the positions' last Newton step (above) where
+ * there is one and it serves, counted in C_KEPT, else on a fresh one, in C_FRESH.  Returns
+ * what project_state returns. */
+static int project_sample(const mb_model *M, mb_rk *R, double t, double *q, double *qd,
+                          const double *y)
+{
+    double res = 0.0;
+    int factored = 0, steps;
+    int ok = project_positions(M, R, t, q, 10, &res, &factored, &steps);
+    R->out[O_RES] = res;
+    if (ok < 0)
+        return -ok;
+    if (!ok && res > R->proj_fail)
+        return ST_PROJECTION;
+    ok = steps > 0 && velocities_on_factor(M, R, qd);
+    R->count[ok ? C_KEPT : C_FRESH]++;
+    if (ok)
+        return ST_ACCEPTED;
+    memcpy(qd, y + R->nq, (size_t)R->nq * sizeof(double));
+    return project_velocities(M, R, t, q, qd, 0);
+}
+
 /* One sample of the last accepted step [t0, t0 + h] at t (the work of mb_rk_dense per
  * output, shared with mb_rk_steps' outputs): q, qd (nq,), *w the interpolant with the
  * end's correction blended in; when project, q and qd put on the constraints and *flag = 1
@@ -463,7 +582,8 @@ static int dense_sample(const mb_model *M, mb_rk *R, double t0, double h, double
     *w = y[2 * n];
     if (!project)
         return ST_ACCEPTED;
-    int st = project_state(M, R, t, q, qd, 0);
+    int st = R->reuse && !R->kkt ? project_sample(M, R, t, q, qd, y)
+                                 : project_state(M, R, t, q, qd, 0);
     if (st == ST_CALLBACK)
         return st;
     if (st) {
@@ -475,7 +595,7 @@ static int dense_sample(const mb_model *M, mb_rk *R, double t0, double h, double
         double res;
         memcpy(R->qw, y, (size_t)n * sizeof(double));
         int fresh = 0;
-        int ok = project_positions(M, R, t, R->qw, 1, &res, &fresh);
+        int ok = project_positions(M, R, t, R->qw, 1, &res, &fresh, NULL);
         if (ok < 0)
             return -ok;
         if (rms_diff(R, q, R->qw, n) > 1.0)

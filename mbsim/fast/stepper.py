@@ -20,7 +20,10 @@ Buffers (all owned here, handed to C once):
   its derivative) (ny,);
 - ``out`` (5,): error norm, smallest change-point measure of the trial's stages, measure of
   the last derivative, last projection residual, failure code of a factorisation;
-- ``count`` (4,): the work done (``COUNTERS``), added to ``system.counters`` after a call.
+- ``count`` (6,): the work done (``COUNTERS``), added to ``system.counters`` after a call,
+  then the output samples whose velocities were projected on their positions' factor and
+  those projected on a fresh one (``OUTPUT_COUNTERS``, ``REUSE_FACTOR``), added to
+  ``output_projections``.
 
 A third call takes many accepted steps in a row (``steps``: up to the last of a window of
 output times), with the step-size controller of :mod:`mbsim.integrators.base` and the
@@ -44,6 +47,14 @@ ST_ACCEPTED, ST_REJECTED, ST_SOLVE, ST_ALARM, ST_PROJECTION, ST_NONFINITE, ST_CA
 O_ERR, O_SMIN, O_SLAST, O_RES, O_CODE = range(5)
 COUNTERS = ("function_evaluations", "constraint_evaluations", "factorizations",
             "newton_iterations")
+OUTPUT_COUNTERS = ("kept", "fresh")
+"""step.c's C_KEPT, C_FRESH after COUNTERS: output samples whose velocities were projected
+on the Schur factor their positions' projection made, and those projected on a fresh one
+(``CompiledStep.output_projections``)."""
+REUSE_FACTOR = True
+"""Project an output sample's velocities on the factor its positions' Newton step made
+(step.c: project_sample); False: on a fresh factorisation, as before
+(tests/integrators/test_output_projection.py)."""
 ERROR_FORMS = {None: 0, "embedded": 1, "dop853": 2}
 DENSE_FORMS = {"poly": 0, "dop853": 1, "hermite": 2}
 N_K = 16  # rows of K: DOP853's 12 stages, f(t + h, y_new) and 3 extra stages
@@ -56,7 +67,7 @@ class RK(ctypes.Structure):
 
     _fields_ = (
         [(n, ctypes.c_int64) for n in
-         ("ns", "nq", "err_kind", "dense_kind", "np", "project", "kkt", "stab")]
+         ("ns", "nq", "err_kind", "dense_kind", "np", "project", "kkt", "stab", "reuse")]
         + [(n, ctypes.c_double) for n in
            ("rtol", "atol", "tangent", "proj_tol", "proj_fail", "alpha", "beta")]
         + [("load", ctypes.c_void_p)]
@@ -173,6 +184,7 @@ class CompiledStep:
         self._keep = tableau_arrays(tab, err_form)  # the arrays C points into
         for name, a in self._keep.items():
             setattr(r, name, a.ctypes.data)
+        r.reuse = int(REUSE_FACTOR)
         # the buffers, from one allocation (one pointer each by offset)
         self._buffers = _lib.carve(y=ny, f=ny, y_new=ny, y_acc=ny, f_acc=ny, ys=ny, qw=ny,
                                    K=(N_K, ny), vm=system.model.m, Fd=7 * ny, out=5)
@@ -180,7 +192,8 @@ class CompiledStep:
             setattr(r, name, address)
         self.y, self.f, self.y_new, self.y_acc, self.f_acc, self.K, self.out = (
             self._buffers[k][0] for k in ("y", "f", "y_new", "y_acc", "f_acc", "K", "out"))
-        self.count = np.zeros(4, dtype=np.int64)
+        self.count = np.zeros(len(COUNTERS) + len(OUTPUT_COUNTERS), dtype=np.int64)
+        self.output_projections = dict.fromkeys(OUTPUT_COUNTERS, 0)
         r.count = self.count.ctypes.data
         self._pending = []  # a KeyboardInterrupt (or SystemExit) met in the callback
         self._load = _load_callback(system, self._pending)
@@ -191,8 +204,11 @@ class CompiledStep:
 
     def _counted(self, status):
         c = self.system.counters
-        for name, n in zip(COUNTERS, self.count.tolist()):
+        counts = self.count.tolist()
+        for name, n in zip(COUNTERS, counts):
             c[name] += n
+        for name, n in zip(OUTPUT_COUNTERS, counts[len(COUNTERS):]):
+            self.output_projections[name] += n
         self.count[:] = 0
         if self._pending:  # raised where the C call was made (_load_callback)
             raise self._pending.pop()
