@@ -24,7 +24,7 @@ import ctypes
 import numpy as np
 
 from mbsim.fast import _lib
-from mbsim.fast.stepper import _load_callback
+from mbsim.fast.stepper import load_callback
 
 GA_OK, GA_NEWTON, GA_CALLBACK = range(3)
 O_POWER, O_T = range(2)
@@ -117,7 +117,7 @@ class CompiledNewton:
         self.count = np.zeros(5, dtype=np.int64)
         g.count = self.count.ctypes.data
         self._pending = []
-        self._load = _load_callback(s, self._pending)
+        self._load = load_callback(s, self._pending)
         g.load = ctypes.cast(self._load, ctypes.c_void_p).value if self._load else None
         if s.sparse:
             self._lu = None
@@ -148,7 +148,7 @@ class CompiledNewton:
             c[name] += k
         self.jacobian_evaluations = mine[4]
         self.count[:] = 0
-        if self._pending:  # a KeyboardInterrupt met in a callback (stepper._load_callback)
+        if self._pending:  # a KeyboardInterrupt met in a callback (stepper.load_callback)
             raise self._pending.pop()
         if status == GA_CALLBACK:
             self._raise_python_loads(float(self.out[O_T]))

@@ -196,7 +196,7 @@ class CompiledStep:
         self.output_projections = dict.fromkeys(OUTPUT_COUNTERS, 0)
         r.count = self.count.ctypes.data
         self._pending = []  # a KeyboardInterrupt (or SystemExit) met in the callback
-        self._load = _load_callback(system, self._pending)
+        self._load = load_callback(system, self._pending)
         r.load = ctypes.cast(self._load, ctypes.c_void_p).value if self._load else None
         self.ptr = ctypes.addressof(r)
         self.ns = ns
@@ -210,7 +210,7 @@ class CompiledStep:
         for name, n in zip(OUTPUT_COUNTERS, counts[len(COUNTERS):]):
             self.output_projections[name] += n
         self.count[:] = 0
-        if self._pending:  # raised where the C call was made (_load_callback)
+        if self._pending:  # raised where the C call was made (load_callback)
             raise self._pending.pop()
         return status
 
@@ -302,11 +302,13 @@ def solve_error(code):
                           else dyn._NOT_PD)
 
 
-def _load_callback(system, pending):
+def load_callback(system, pending):
     """The per-stage Python part (time targets, Python force elements) as a C callback, or
     None when the model has neither.  It reads q, qd where C loaded them (the system's own
-    input buffers); an exception returns 1 and the caller takes the step in Python again,
-    where the same exception is raised and handled.  A KeyboardInterrupt or SystemExit
+    input buffers); an exception returns 1 and the caller raises it in Python again (a
+    compiled step is taken again in Python; the implicit integrators' Newton iteration,
+    :mod:`mbsim.fast.implicit`, calls the loads again at the state C left), where it is
+    handled.  A KeyboardInterrupt or SystemExit
     (Ctrl-C arrives in the callback: the only Python code running during the C call)
     returns 1 too and is kept in ``pending``, to be raised once the C call is back
     (:meth:`CompiledStep._counted`); ctypes would print and drop it."""

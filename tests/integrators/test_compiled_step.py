@@ -156,7 +156,7 @@ def test_the_derivative_after_the_projection_is_a_fresh_evaluation(kind, name):
 
 def test_which_models_call_python_per_stage():
     """The C step leaves C per stage only for time targets and Python force elements
-    (mbsim.fast.stepper._load_callback): none on the governor and the reference problems,
+    (mbsim.fast.stepper.load_callback): none on the governor and the reference problems,
     a callback on the vehicle (tires) and the compressor (pressure forces)."""
     for kind, name, calls in [("deck", "governor", False), ("problem", "slider_crank", False),
                               ("deck", "vehicle", True), ("deck", "compressor", True)]:
