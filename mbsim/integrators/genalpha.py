@@ -66,7 +66,11 @@ from mbsim.integrators.base import (
     rms_norm,
 )
 
-KKT_REG = 1e-10  # relative regularisation of the Newton matrix's zero block (see below)
+# relative regularisation of the Newton matrix's zero block, eps = KKT_REG |Phi_q|^2 / |A|: near
+# a change point of the mechanism (kept rows nearly dependent) the plain matrix is
+# numerically singular and the iteration stalled (issue 11); only the iteration matrix
+# changes, never the residual, so the converged step is the same (mbsim/fast/implicit.c)
+KKT_REG = 1e-10
 REFERENCE_RTOL = 1e-6  # below it the local tolerance shrinks as rtol^(3/2) (module doc)
 NOISE_MARGIN = 10.0  # the tightened atol: not below this x the round-off of q (module doc)
 
