@@ -322,20 +322,17 @@ int mb_ga_tangent(const mb_model *M, mb_ga *G, double t, const double *q, const 
     for (idx j = 0; j < n; j++) {
         if (!G->free[j])
             continue;
-        double d = 1.5e-8 * (fabs(q[j]) > 1.0 ? fabs(q[j]) : 1.0);
-        xq[j] += d;
-        if ((st = residual(M, G, t, xq, qd, qdd, lam, r)))
-            return st;
-        xq[j] = q[j];
-        for (idx i = 0; i < n; i++)
-            K[n * i + j] = (r[i] - r0[i]) / d;
-        d = 1.5e-8 * (fabs(qd[j]) > 1.0 ? fabs(qd[j]) : 1.0);
-        xv[j] += d;
-        if ((st = residual(M, G, t, q, xv, qdd, lam, r)))
-            return st;
-        xv[j] = qd[j];
-        for (idx i = 0; i < n; i++)
-            C[n * i + j] = (r[i] - r0[i]) / d;
+        for (int v = 0; v < 2; v++) { /* column j of K (v = 0: q moved), then of C (qd) */
+            double *x = v ? xv : xq, *D = v ? C : K;
+            double x0 = x[j], d = 1.5e-8 * (fabs(x0) > 1.0 ? fabs(x0) : 1.0);
+            x[j] += d;
+            st = residual(M, G, t, v ? q : xq, v ? xv : qd, qdd, lam, r);
+            x[j] = x0;
+            if (st)
+                return st;
+            for (idx i = 0; i < n; i++)
+                D[n * i + j] = (r[i] - r0[i]) / d;
+        }
     }
     return GA_OK;
 }

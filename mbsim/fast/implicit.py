@@ -148,7 +148,7 @@ class CompiledNewton:
             c[name] += k
         self.jacobian_evaluations = mine[4]
         self.count[:] = 0
-        if self._pending:  # a KeyboardInterrupt met in a callback (stepper.load_callback)
+        if self._pending:  # a KeyboardInterrupt (or a sparse solve's error) met in a callback
             raise self._pending.pop()
         if status == GA_CALLBACK:
             self._raise_python_loads(float(self.out[O_T]))
@@ -220,9 +220,9 @@ class CompiledNewton:
                 A = A + sp.csr_matrix(gp / bp * self.KC[1] + self.KC[0] / bp)
             S = sp.bmat([[A, J.T], [J, -eps * sp.identity(m)]], format="csc")
             self._lu = spla.splu(S)
-        except Exception:  # noqa: BLE001 - a singular matrix or a bad value: Newton fails
-            return 1
-        except BaseException as exc:  # noqa: BLE001 - raised after the C call (_counted)
+        except (RuntimeError, ValueError, ArithmeticError):  # singular, or not finite
+            return 1  # Newton fails: the step is cut, as for a dense singular matrix
+        except BaseException as exc:  # noqa: BLE001 - anything else: raised after the call
             self._pending.append(exc)
             return 1
         return 0
@@ -233,9 +233,9 @@ class CompiledNewton:
             x = np.ctypeslib.as_array(ctypes.cast(address, ctypes.POINTER(ctypes.c_double)),
                                       shape=(int(k), N))
             x[:] = self._lu.solve(np.ascontiguousarray(x.T)).T
-        except Exception:  # noqa: BLE001 - as _factor_sparse
+        except (RuntimeError, ValueError, ArithmeticError):  # as _factor_sparse
             return 1
-        except BaseException as exc:  # noqa: BLE001 - raised after the C call (_counted)
+        except BaseException as exc:  # noqa: BLE001 - anything else: raised after the call
             self._pending.append(exc)
             return 1
         return 0

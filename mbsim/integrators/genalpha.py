@@ -125,7 +125,6 @@ class GeneralizedAlpha(Integrator):
         self.a = self.qdd.copy()
         jac = self.options.get("jacobian", "auto")
         self.use_fd = (jac == "fd") or (jac == "auto" and s.nq <= self.FD_MAX_NQ)
-        self.KC = None  # (K, C) finite-difference residual Jacobians
         # (t, q, qd, qdd, lam, K, C): the first tangent of this run, and the one another run
         # of the same system offers for the same start (:meth:`offer_tangent`)
         self.first_tangent = None
@@ -198,8 +197,13 @@ class GeneralizedAlpha(Integrator):
         self.counters["jacobian_evaluations"] += self._core.jacobian_evaluations
         return K, C
 
+    @property
+    def KC(self):
+        """(K, C) the finite-difference residual Jacobians in the iteration matrix, or None
+        (kept by the compiled iteration, which reads them)."""
+        return self._core.KC
+
     def _set_tangent(self, KC):
-        self.KC = KC
         self._core.set_tangent(KC)
 
     def _newton(self, h, shift=True):
