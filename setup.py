@@ -1,4 +1,4 @@
-"""Build step of mbsim: the C kernels (mbsim/fast/kernels.c, step.c, outputs.c, implicit.c) as
+"""Build step of mbsim: the C kernels (mbsim/fast/kernels.c, step.c, outputs.c, implicit.c, partition.c) as
 one plain shared library.
 
 Everything else is declared in pyproject.toml.  The library is not a Python extension
@@ -16,7 +16,8 @@ from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
 SOURCES = [Path("mbsim") / "fast" / "kernels.c", Path("mbsim") / "fast" / "step.c",
-           Path("mbsim") / "fast" / "outputs.c", Path("mbsim") / "fast" / "implicit.c"]
+           Path("mbsim") / "fast" / "outputs.c", Path("mbsim") / "fast" / "implicit.c",
+           Path("mbsim") / "fast" / "partition.c"]
 
 
 class BuildKernels(build_ext):

@@ -1,4 +1,4 @@
-"""Find, build and load the C kernels (mbsim/fast/kernels.c, step.c, outputs.c) through ctypes.
+"""Find, build and load the C kernels (mbsim/fast/*.c, SOURCES) through ctypes.
 
 Where the shared library comes from, in this order:
 
@@ -41,11 +41,13 @@ log = logging.getLogger(__name__)
 
 HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "kernels.c"
-SOURCES = (SOURCE, HERE / "step.c", HERE / "outputs.c", HERE / "implicit.c")
+SOURCES = (SOURCE, HERE / "step.c", HERE / "outputs.c", HERE / "implicit.c",
+           HERE / "partition.c")
 """The files of the one library: the physics (kernels.c), the integrators' step
 (step.c, :mod:`mbsim.fast.stepper`), the equations at a run's outputs (outputs.c,
-:func:`mbsim.analyses.trajectory.output_rows`) and the implicit integrators' Newton
-iteration (implicit.c, :mod:`mbsim.fast.implicit`)."""
+:func:`mbsim.analyses.trajectory.output_rows`), the implicit integrators' Newton
+iteration (implicit.c, :mod:`mbsim.fast.implicit`) and the coordinate-partitioning stage
+(partition.c, :mod:`mbsim.fast.partition`)."""
 HEADERS = (HERE / "mb_model.h",)
 """What both sources include (the one definition of mb_model): part of the source hash."""
 CFLAGS = ["-O2", "-std=c99", "-fPIC", "-shared"]  # -O3: no faster (benchmarks/kernels.py)
@@ -67,7 +69,7 @@ class KernelBuildError(MbsimError):
 
 
 def source_hash(text: bytes | None = None) -> str:
-    """First 16 hex digits of the SHA-256 of the sources (kernels.c, step.c, outputs.c, then
+    """First 16 hex digits of the SHA-256 of the sources (SOURCES in order, then
     the header mb_model.h: their bytes one after the other; setup.py computes the same)."""
     text = b"".join(p.read_bytes() for p in (*SOURCES, *HEADERS)) if text is None else text
     return hashlib.sha256(text).hexdigest()[:16]
@@ -226,6 +228,8 @@ def _declare(lib):
                          I),
         "mb_ga_tangent": ([P, P, ctypes.c_double, P, P, P, P, P, P], I),
         "mb_ga_solve": ([P, P, ctypes.c_int64], I),
+        "mb_gcp_size": ([], ctypes.c_int64),
+        "mb_gcp_stage": ([P, P, ctypes.c_double, P, P, P, P, P, I], I),
         "mb_outputs": ([P, I, ctypes.c_int64, ctypes.c_int64, P, P, P, P, P, P, P, P, P],
                        ctypes.c_int64),
     }

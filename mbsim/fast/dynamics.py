@@ -78,6 +78,11 @@ class SolveError(Exception):
 _NOT_PD = "singular constraint Jacobian (Phi_q M^-1 Phi_q^T not positive definite)"
 
 
+def solve_error(status):
+    """The SolveError of a failed mb_accelerations (its STATUS_* code)."""
+    return SolveError("singular KKT matrix" if status == STATUS_SINGULAR else _NOT_PD)
+
+
 class System:
     """One model's equations of motion on its active constraint rows, with counters.
 
@@ -261,7 +266,7 @@ class System:
     def _solve(self, have_jac):
         status = self._acc(self.c.ptr, self.kkt, have_jac)
         if status != STATUS_OK:
-            raise SolveError("singular KKT matrix" if status == STATUS_SINGULAR else _NOT_PD)
+            raise solve_error(status)
 
     def _reaction_loop(self, q, qd, t, have_jac):
         """Loads that depend on the multipliers (friction with the joint's reaction as its

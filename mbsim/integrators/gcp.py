@@ -55,6 +55,15 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse.linalg as spla
 
+from mbsim.fast.dynamics import solve_error
+from mbsim.fast.partition import (
+    GP_CALLBACK,
+    GP_NEWTON,
+    GP_SINGULAR,
+    GP_SOLVE,
+    P_CODE,
+    CompiledStage,
+)
 from mbsim.integrators import changepoints as cp
 from mbsim.integrators.base import quintic_hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
@@ -84,6 +93,15 @@ class Partition:
         return (self.C is None and other.C is None and np.array_equal(self.iu, other.iu))
 
 
+class _Residual:
+    """The last Newton iterate's Phi (``_raise_newton_failure``'s T)."""
+
+    __slots__ = ("phi",)
+
+    def __init__(self, phi):
+        self.phi = phi
+
+
 class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
     formulation = "gcp"
     repartition_ratio = 1.2
@@ -111,6 +129,11 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._tangent_ok = True  # False once the mass matrix is singular on a tangent space
         self._tangent_wanted = False  # a stage of the failed step was near a change point
         self.part = self._partition(self.t, self.q)
+        self._compiled = self._compiled_stage()
+        self._c_part = None  # the partition the compiled stage holds
+        self._c_calls = 0  # compiled stage calls so far (whose factor its buffers hold)
+        self._last_calls = 0  # _c_calls when the latest stage was taken
+        self._last_ratio = 1.0  # the change-point measure of the latest stage's Phi_u
         self.n_err = 2 * self.part.k  # (v, vd); the work integral is not controlled
         # the approach to a change point and the step across it (changepoints.Approach),
         # followed by the measure of Phi_u at the accepted states (None: a new partition)
@@ -119,6 +142,17 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._pivot = None  # (_accept)
         self._pivot_iu = None  # u of the last accepted step
         self._start()
+
+    def _compiled_stage(self):
+        """The stages in coordinates in C (:mod:`mbsim.fast.partition`), unless option
+        ``compiled_step`` is false (the Python path, the same equations;
+        tests/integrators/test_gcp_compiled.py compares the two), the Jacobian is sparse
+        (Phi_u factored by splu) or loads depend on the multipliers (System.reaction_loop:
+        the loop between solves that only the Python path has)."""
+        s = self.system
+        if not self.options.get("compiled_step", True) or s.sparse or s.reaction_loop:
+            return None
+        return CompiledStage(s, self.q, self.t, self.newton_tol, self.policy.newton_iter)
 
     # -- partitioning ----------------------------------------------------------------------
     def _partition(self, t, q, tangent=False):
@@ -198,12 +232,11 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         The start is the RK combination of the full stage velocities (``_trial``), exact to
         the local error, so that two Newton steps (correct, confirm) usually suffice."""
         s, (iv, iu), C = self.system, (part.iv, part.iu), part.C
-        if self._pred is not None:
-            q, self._pred = self._pred, None
-        else:  # second-order Taylor predictor from the last accepted state
-            t0, q0, qd0, qdd0 = self._ref
-            tau = t - t0
-            q = q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
+        q = self._predicted(t)
+        if C is None and self._compiled is not None:
+            out = self._compiled_call(t, v, vd, q, part, accelerations=False)
+            if out is not None:
+                return out[0], out[1], None
         if C is not None:
             q, qd, fac, T = cp.complete(s, t, q, v, vd, C, self.newton_tol,
                                         self.policy.newton_iter)
@@ -230,6 +263,53 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._jac = T.jac
         return q, qd, fac
 
+    def _predicted(self, t):
+        """The Newton start of the stage at t: the RK combination of the stage velocities
+        when ``_trial`` set one (``_pred``), else the second-order Taylor predictor from the
+        last accepted state."""
+        if self._pred is not None:
+            q, self._pred = self._pred, None
+            return q
+        t0, q0, qd0, qdd0 = self._ref
+        tau = t - t0
+        return q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
+
+    def _compiled_call(self, t, v, vd, q, part, accelerations):
+        """(q, qd, qdd, power) of a stage in coordinates from the compiled stage (qdd, power
+        None without accelerations), or None where the Python loads raised inside it (the
+        caller takes the stage in Python, where the loads raise again to be seen).  Raises
+        what the Python stage would."""
+        c = self._compiled
+        if self._c_part is not part:
+            c.partition(part.iv, part.iu)
+            self._c_part = part
+        st, q, qd, qdd, power, ratio = c.stage(t, v, vd, q, accelerations)
+        self._c_calls += 1
+        if st == GP_CALLBACK:
+            return None
+        if st == GP_NEWTON:
+            self._raise_newton_failure(_Residual(self.system.fc._phi.copy()), t)
+        if st == GP_SINGULAR:
+            raise StageFailure(f"t = {t:.6g} s: singular Phi_u (the dependent coordinates' "
+                               f"Jacobian has a zero pivot)")
+        if st == GP_SOLVE:
+            raise solve_error(int(c.out[P_CODE]))
+        self._jac = None  # in the compiled stage's buffers until the next call (_factored)
+        self._last_ratio = ratio
+        return q, qd, qdd, power
+
+    def _factored(self, fac, calls):
+        """(fac, Phi_q) of the latest stage: ``fac`` itself from a Python stage, else the
+        compiled stage's, copied out when its buffers still hold it (``calls``: the count of
+        compiled calls when the stage was taken), otherwise factored again at its q."""
+        if fac is not None:
+            return fac, self._jac
+        if calls == self._c_calls:
+            return self._compiled.factor(), self._compiled.jacobian()
+        t, q = self._last[0], self._last[2]
+        jac = self.system.terms(q, t, phi=False).jac
+        return self._factor(jac, self.part.iu), jac
+
     def _tangent_accelerations(self, t, q, qd, fac, part):
         """(qdd, power) in tangent coordinates from the reduced equations (module doc;
         :func:`changepoints.accelerations`)."""
@@ -246,12 +326,20 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
     def _rhs(self, t, y, ctx=None):
         part = ctx or self.part
         k = part.k
-        q, qd, fac = self._complete(t, y[:k], y[k:2 * k], part)
-        if part.C is None:
-            qdd, _, power = self.system.accelerations(q, qd, t, jac=self._jac)
+        out = None
+        if part.C is None and self._compiled is not None:
+            out = self._compiled_call(t, y[:k], y[k:2 * k], self._predicted(t), part, True)
+        if out is not None:
+            q, qd, qdd, power = out
+            fac = None
         else:
-            qdd, power = self._tangent_accelerations(t, q, qd, fac, part)
+            q, qd, fac = self._complete(t, y[:k], y[k:2 * k], part)
+            if part.C is None:
+                qdd, _, power = self.system.accelerations(q, qd, t, jac=self._jac)
+            else:
+                qdd, power = self._tangent_accelerations(t, q, qd, fac, part)
         self._last = (t, y, q, qd, qdd, fac)
+        self._last_calls = self._c_calls
         out = np.empty_like(y)
         out[:k], out[k:2 * k], out[-1] = y[k:2 * k], part.v(qdd), power
         return out
@@ -288,7 +376,8 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         need not fall near the change point (a step of DOP853 or RK4 crosses the four-bar's
         flat position, 1e-2 rad wide at the default switch, with stages on both sides)."""
         if self.part.C is None and self._tangent_ok:
-            ratio = self._pivot_ratio(self._last[5])
+            fac = self._last[5]
+            ratio = self._last_ratio if fac is None else self._pivot_ratio(fac)
             if ratio < self.policy.tangent:
                 self._tangent_wanted = True
                 raise StageFailure(f"t = {t:.6g} s: Phi_u near singular (pivot ratio "
@@ -406,6 +495,8 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
 
     def _accept(self, t, y, f):
         lt, ly, q, qd, qdd, fac = self._last  # the FSAL stage: the accepted state
+        fac, self._jac = self._factored(fac, self._last_calls)
+        self._last = (lt, ly, q, qd, qdd, fac)
         self._dense_q = self._QD  # the accepted trial's full-q stages (dense output)
         self._ref_prev = self._ref
         self._ref = (t, q, qd, qdd)

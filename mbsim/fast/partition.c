@@ -1,0 +1,178 @@
+/* The stage of the coordinate-partitioning integrators (gcp-*) in C (plain C99).
+ *
+ * Compiled into the same shared library as kernels.c (mbsim.fast._lib) and called through
+ * ctypes by mbsim/fast/partition.py for mbsim/integrators/gcp.py, whose module doc gives
+ * the method (Wehage & Haug 1982; Haug Sec. 11.4).  One call evaluates one stage in
+ * coordinates (v independent, u = the rest) from the stage's (v, vd) and a predicted q:
+ *
+ * 1. u solves Phi(u, v, t) = 0 by Newton on Phi_u du = Phi (Haug eq. 11.4.8), Phi_u factored
+ *    by LAPACK's dgetrf at every iterate; the stop is changepoints.newton's: max |du| <=
+ *    newton_tol, or after max_iter iterations max |Phi| <= newton_tol at the last iterate;
+ * 2. ud solves Phi_u ud = nu - Phi_v vd on the last iterate's factor (Haug eq. 11.4.9);
+ * 3. qdd, lam and the power from the equations of motion (mb_accelerations) with the Phi_q
+ *    of that iterate, as the Python stage passes it (System.accelerations' jac).
+ *
+ * Returned beside q, qd, qdd: the change-point measure of the last factor (smallest /
+ * largest |U_ii|, changepoints.measure_from_lu), which the caller compares with its
+ * policy's switch.  The step's combination of stages, its error test, the tangent
+ * coordinates near a change point and every fallback stay in Python.
+ *
+ * The factor stays in LU, piv (column-major, LAPACK's 1-based pivots) until the next call:
+ * the caller copies it out where it needs it (the sensitivity at an accepted step).
+ * Nothing here allocates.
+ */
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "mb_model.h" /* the one definition of mb_model, shared with kernels.c */
+
+/* kernels.c */
+void mb_terms(const mb_model *M, int jac, int gam, int mode);
+void mb_gather_dense(const mb_model *M, const double *J, double *Jc);
+int mb_accelerations(const mb_model *M, int kkt, int have_jac);
+enum { JAC_CALLER = 1 }; /* mb_accelerations' have_jac (kernels.c): Phi_q from Jg */
+
+/* Python's part: fills tv (time targets) and, when forces, the loads of the Python force
+ * elements at the q, qd loaded into the model; nonzero: it raised. */
+typedef int (*load_fn)(double t, int forces);
+typedef void (*getrf_fn)(int *m, int *n, double *a, int *lda, int *ipiv, int *info);
+typedef void (*getrs_fn)(char *trans, int *n, int *nrhs, double *a, int *lda, int *ipiv,
+                         double *b, int *ldb, int *info);
+
+/* What a call returns. */
+enum {
+    GP_OK = 0,
+    GP_NEWTON = 1,   /* Newton neither stopped moving nor left max |Phi| <= newton_tol */
+    GP_SINGULAR = 2, /* Phi_u exactly singular (dgetrf's info > 0) */
+    GP_SOLVE = 3,    /* the equations of motion failed (mb_accelerations' code in out) */
+    GP_CALLBACK = 4  /* the Python loads raised: the caller takes the stage in Python */
+};
+enum { GP_FE, GP_CE, GP_FACT, GP_NEWTON_IT, GP_N };
+enum { P_POWER, P_RATIO, P_CODE, P_N };
+
+typedef struct {
+    idx nq, ma, k;   /* coordinates, dependent (= active rows), independent */
+    idx max_iter;
+    idx kkt;         /* the model's KKT path */
+    idx rheonomic;   /* nu from the driven rows (else zero) */
+    double newton_tol;
+    load_fn load;    /* NULL: nothing time-dependent or in Python */
+    getrf_fn getrf;
+    getrs_fn getrs;
+    const int64_t *iv, *iu; /* (k,), (ma,) the partition */
+    double *LU;      /* (ma, ma) column-major: the LU of the last iterate's Phi_u */
+    int *piv;        /* (ma,) its pivots */
+    double *x;       /* (ma,) work */
+    double *out;     /* (P_N,) P_* */
+    int64_t *count;  /* (GP_N,) GP_*: added to, never reset here */
+} mb_gcp;
+
+int64_t mb_gcp_size(void) { return (int64_t)sizeof(mb_gcp); }
+
+/* LU of Phi_u = J[:, iu] (the dense rows of the last mb_terms) into G->LU. */
+static int factor_u(const mb_model *M, mb_gcp *G)
+{
+    idx n = G->nq, m = G->ma;
+    for (idx c = 0; c < m; c++) {
+        const double *col = M->J + G->iu[c];
+        double *dst = G->LU + c * m;
+        for (idx r = 0; r < m; r++)
+            dst[r] = col[r * n];
+    }
+    int mi = (int)m, info = 0;
+    G->count[GP_FACT]++;
+    G->getrf(&mi, &mi, G->LU, &mi, G->piv, &info);
+    return info == 0 ? GP_OK : GP_SINGULAR;
+}
+
+static void solve_u(mb_gcp *G, double *b)
+{
+    int mi = (int)G->ma, one = 1, info = 0;
+    char no = 'N';
+    G->getrs(&no, &mi, &one, G->LU, &mi, G->piv, b, &mi, &info);
+}
+
+/* smallest / largest |U_ii| of the last factor (1 when empty or zero). */
+static double pivot_ratio(const mb_gcp *G)
+{
+    double lo = INFINITY, hi = 0.0;
+    for (idx i = 0; i < G->ma; i++) {
+        double d = fabs(G->LU[i * G->ma + i]);
+        lo = d < lo ? d : lo;
+        hi = d > hi ? d : hi;
+    }
+    return G->ma && hi > 0.0 ? lo / hi : 1.0;
+}
+
+/* One stage (module doc).  q: in, the predicted q (its v part is replaced by v); out, the
+ * completed q.  qd out; qdd out when accelerations (else q and qd only: an output sample).
+ * The model keeps the last iterate's Phi (phi_a: the caller's failure message) and Phi_q. */
+int mb_gcp_stage(const mb_model *M, mb_gcp *G, double t, const double *v, const double *vd,
+                 double *q, double *qd, double *qdd, int accelerations)
+{
+    idx n = G->nq, m = G->ma, k = G->k;
+    for (idx c = 0; c < k; c++)
+        q[G->iv[c]] = v[c];
+    int converged = 0, it = 0, st;
+    for (; it < G->max_iter && !converged; it++) {
+        memcpy(M->q, q, (size_t)n * sizeof(double));
+        if (G->load && G->load(t, 0))
+            return GP_CALLBACK;
+        G->count[GP_CE]++;
+        mb_terms(M, 1, 0, 1);
+        if ((st = factor_u(M, G)))
+            return st;
+        memcpy(G->x, M->phi_a, (size_t)m * sizeof(double));
+        solve_u(G, G->x);
+        double step = 0.0;
+        for (idx c = 0; c < m; c++) {
+            q[G->iu[c]] -= G->x[c];
+            double a = fabs(G->x[c]);
+            step = a > step || a != a ? a : step;
+        }
+        G->count[GP_NEWTON_IT]++;
+        converged = step <= G->newton_tol; /* NaN: not */
+    }
+    if (!converged) {
+        double res = 0.0;
+        for (idx r = 0; r < m; r++) {
+            double a = fabs(M->phi_a[r]);
+            res = a > res || a != a ? a : res;
+        }
+        if (!(res <= G->newton_tol))
+            return GP_NEWTON;
+    }
+    /* ud = Phi_u^-1 (nu - Phi_v vd) on the last factor */
+    for (idx r = 0; r < m; r++) {
+        const double *Jr = M->J + r * n;
+        double s = 0.0;
+        for (idx c = 0; c < k; c++)
+            s += Jr[G->iv[c]] * vd[c];
+        G->x[r] = (G->rheonomic ? M->nu_a[r] : 0.0) - s;
+    }
+    solve_u(G, G->x);
+    for (idx c = 0; c < k; c++)
+        qd[G->iv[c]] = vd[c];
+    for (idx c = 0; c < m; c++)
+        qd[G->iu[c]] = G->x[c];
+    G->out[P_RATIO] = pivot_ratio(G);
+    if (!accelerations)
+        return GP_OK;
+    memcpy(M->q, q, (size_t)n * sizeof(double));
+    memcpy(M->qd, qd, (size_t)n * sizeof(double));
+    if (G->load && G->load(t, 1))
+        return GP_CALLBACK;
+    M->par[2] = 0.0; /* no Baumgarte terms */
+    mb_gather_dense(M, M->J, M->Jg);
+    G->count[GP_FE]++;
+    G->count[GP_CE]++;
+    G->count[GP_FACT]++;
+    if ((st = mb_accelerations(M, (int)G->kkt, JAC_CALLER))) {
+        G->out[P_CODE] = st;
+        return GP_SOLVE;
+    }
+    memcpy(qdd, M->qdd, (size_t)n * sizeof(double));
+    G->out[P_POWER] = M->out[0];
+    return GP_OK;
+}

@@ -1,0 +1,160 @@
+"""The stage of coordinate partitioning in C (mbsim/fast/partition.c) against the Python
+stage of the same equations (option ``compiled_step: false``): at every stage of runs on the
+seed decks, over whole runs, and on its failure paths (Newton, the Python force elements'
+exceptions and Ctrl-C inside the C call)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg as la
+
+from mbsim.api import load_model, run_model
+from mbsim.fast.dynamics import System
+from mbsim.integrators.gcp import GeneralizedCoordinatePartitioning as Gcp
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+DECKS = [("governor", None), ("slider_crank", None), ("slider_crank", "free"),
+         ("four_bar", None), ("compressor", None), ("vehicle", None), ("andrews", None)]
+SPAN = 0.05  # s
+EPS = np.finfo(float).eps
+
+
+def python_stage(gcp, t, v, vd, q, part):
+    """The Python stage (``_complete``, then System.accelerations) from the same predicted q."""
+    compiled, gcp._compiled = gcp._compiled, None
+    try:
+        gcp._pred = q.copy()
+        qp, qdp, _ = gcp._complete(t, v, vd, part)
+        qddp, _, powerp = gcp.system.accelerations(qp, qdp, t, jac=gcp._jac)
+    finally:
+        gcp._compiled, gcp._pred = compiled, None
+    return qp, qdp, qddp, powerp
+
+
+def compare_stages(monkeypatch):
+    """Patch Gcp._compiled_call to evaluate every compiled stage with accelerations in Python
+    too, from the same prediction; returns the list of comparisons it fills."""
+    seen = []
+    compiled = Gcp._compiled_call
+
+    def both(self, t, v, vd, q, part, accelerations):
+        q_in = np.array(q, dtype=float)
+        got = compiled(self, t, v, vd, q_in.copy(), part, accelerations)
+        if got is None or not accelerations:
+            return got
+        fac, J = self._compiled.factor(), self._compiled.jacobian()
+        try:
+            want = python_stage(self, t, v, vd, q_in, part)
+        except ArithmeticError:
+            want = None
+        seen.append((self, t, np.array(vd), part, fac, J, got, want))
+        return got
+
+    monkeypatch.setattr(Gcp, "_compiled_call", both)
+    return seen
+
+
+def assert_same_stages(seen):
+    """Both sides take the same Newton iteration (the same kernels and LAPACK calls), so each
+    q is within newton_tol of the iteration's limit: they differ by at most 2 newton_tol.
+    The velocities are compared with the Python formula on the compiled stage's own factor and
+    Phi_q, where only the order of the sums in Phi_v vd differs: each entry of that product
+    is within k eps sum_c |Phi_v||vd| (the dot product's bound), and the solve carries it by
+    at most ||Phi_u^-1||_inf.  The accelerations and the power are the same kernel call on
+    the same inputs: within 64 eps of their scale."""
+    both = [s for s in seen if s[-1] is not None]
+    assert both and len(both) >= 0.9 * len(seen), (len(both), len(seen))
+    for gcp, t, vd, part, fac, J, got, want in both:
+        q, qd, qdd, power = got
+        qp, _, _, _ = want
+        assert np.abs(q - qp).max() <= 2 * gcp.newton_tol, (t, np.abs(q - qp).max())
+        iv, iu, k = part.iv, part.iu, part.k
+        nu = gcp.system.nu(q, t) if gcp.system.rheonomic else np.zeros(iu.size)
+        # nu at the last iterate; for a driven row nu = c'(t) does not depend on q
+        ud = la.lu_solve(fac, nu - J[:, iv] @ vd)
+        inv_norm = np.abs(la.lu_solve(fac, np.eye(iu.size))).sum(axis=1).max()
+        bound = 2 * k * EPS * inv_norm * (np.abs(J[:, iv]) @ np.abs(vd)).max() + 4 * EPS * (
+            np.abs(ud).max())
+        assert np.abs(qd[iu] - ud).max() <= bound, (t, np.abs(qd[iu] - ud).max(), bound)
+        assert np.array_equal(qd[iv], vd)
+        qddr, _, powerr = gcp.system.accelerations(q, qd, t, jac=J)
+        scale = np.abs(qddr).max()
+        assert np.abs(qdd - qddr).max() <= 64 * EPS * scale, (t, np.abs(qdd - qddr).max())
+        assert abs(power - powerr) <= 64 * EPS * max(abs(powerr), 1e-300)
+
+
+@pytest.mark.parametrize("deck, scene", DECKS, ids=[f"{d}-{s}" if s else d for d, s in DECKS])
+def test_compiled_stage_takes_the_python_stage(deck, scene, monkeypatch):
+    seen = compare_stages(monkeypatch)
+    spec, model = load_model(MODELS / f"{deck}.yaml", scene=scene)
+    opts = dict(spec.analysis.get("dynamic", {}))
+    t0 = float(opts.get("t_start", 0.0))
+    opts.update(integrator="gcp-dop853", error_estimate=False, t_end=t0 + SPAN)
+    res = run_model(model, "dynamic", opts)
+    assert res.status == "complete", res.message
+    assert_same_stages(seen)
+
+
+def run(deck, integrator, compiled, **extra):
+    spec, model = load_model(MODELS / f"{deck}.yaml")
+    opts = dict(spec.analysis.get("dynamic", {}), integrator=integrator, error_estimate=False,
+                compiled_step=compiled, **extra)
+    return run_model(model, "dynamic", opts)
+
+
+@pytest.mark.parametrize("integrator", ["gcp-dop853", "gcp-rk45"])
+def test_compiled_and_python_runs_agree_within_the_tolerance(integrator):
+    """A whole governor run both ways: the same steps (each stage agrees to round-off, above),
+    so the trajectories differ by far less than one unit of the run's tolerance; the
+    counters agree (the same accepted and rejected steps, the same Newton iterations)."""
+    rtol, atol = 1e-8, 1e-10
+    a = run("governor", integrator, True, rtol=rtol, atol=atol)
+    b = run("governor", integrator, False, rtol=rtol, atol=atol)
+    assert a.status == b.status == "complete"
+    for name in ("r", "p"):  # every body's position and Euler parameters
+        for body in a.names["bodies"]:
+            qa = a.channel(f"bodies/{body}/{name}").data
+            qb = b.channel(f"bodies/{body}/{name}").data
+            scale = atol + rtol * np.abs(qb).max()
+            assert np.abs(qa - qb).max() <= scale, (body, np.abs(qa - qb).max() / scale)
+    for name in ("steps", "rejected_steps", "newton_iterations", "function_evaluations"):
+        assert a.counters.get(name) == b.counters.get(name), name
+
+
+def test_newton_failure_reads_the_same_both_ways():
+    """A Newton iteration that cannot stop (newton_tol below round-off) fails the stage with
+    the Python stage's message (the constraints of the largest residuals), both ways."""
+    msgs = [run("governor", "gcp-dop853", c, newton_tol=1e-30).message for c in (True, False)]
+    assert "Newton iteration for the dependent coordinates did not converge" in msgs[0]
+    assert msgs[0] == msgs[1]
+
+
+def test_a_python_load_that_raises_inside_the_stage_is_raised(monkeypatch):
+    """A Python force element that raises during the C stage (the load callback returns 1):
+    the stage is taken again in Python, where the same exception fails the stage (a
+    ZeroDivisionError is numerical: the step shrinks to h_min and the run ends incomplete
+    naming it), with the Python stage's message; a KeyboardInterrupt there (Ctrl-C)
+    leaves the C call, is raised after it and ends the run as an interruption."""
+    apply = System.apply_python
+
+    def failing(self, st, t, loads):
+        if t > 0.01:
+            raise ZeroDivisionError("the element's law divided by zero")
+        return apply(self, st, t, loads)
+
+    monkeypatch.setattr(System, "apply_python", failing)
+    res, py = (run("compressor", "gcp-rk45", c, t_end=0.05) for c in (True, False))
+    assert res.status == "incomplete"
+    assert "the element's law divided by zero" in res.message
+    assert res.message == py.message
+    assert 0.0 < res.t[-1] <= 0.01 + 1e-12
+
+    def interrupted(self, st, t, loads):
+        if t > 0.01:
+            raise KeyboardInterrupt
+        return apply(self, st, t, loads)
+
+    monkeypatch.setattr(System, "apply_python", interrupted)
+    res = run("compressor", "gcp-rk45", True, t_end=0.05)
+    assert res.status == "incomplete" and "interrupted (Ctrl-C)" in res.message
