@@ -11,8 +11,9 @@ compressor's own rtol 1e-6, atol 1e-8; Andrews' mechanism its deck's settings), 
 ``compiled_step`` (true: each stage in coordinates in one C call; false: the same equations
 through Python), alternated repeat by repeat so that both see the same load.  Printed:
 process CPU per simulated second, median [min-max] over the repeats, for each path; the
-figure ``gcp stage: compiled / Python`` is the ratio of the medians; and the counters of
-both runs, which must agree (the same steps: tests/integrators/test_gcp_compiled.py).
+figure ``gcp stage: compiled / Python`` is the median of the repeats' ratios; and the
+counters of both runs, which agree up to round-off (each stage agrees to round-off:
+tests/integrators/test_gcp_compiled.py; a Newton iteration more or less can follow).
 """
 
 from __future__ import annotations

@@ -27,6 +27,14 @@
 
 #include "mb_model.h" /* the one definition of mb_model, shared with kernels.c */
 
+/* step.c */
+double mb_rk_error_norm(idx kind, idx ns, idx n, idx ld, const double *K, const double *E,
+                        const double *E3, double h, const double *y0, const double *y1,
+                        double rtol, double atol);
+void mb_rk_combine(const double *K, idx ny, const double *y, const double *a, idx s, double h,
+                   double *ys);
+enum { ERR_NONE }; /* step.c's error kinds: none, embedded, DOP853's */
+
 /* kernels.c */
 void mb_terms(const mb_model *M, int jac, int gam, int mode);
 void mb_gather_dense(const mb_model *M, const double *J, double *Jc);
@@ -46,10 +54,14 @@ enum {
     GP_NEWTON = 1,   /* Newton neither stopped moving nor left max |Phi| <= newton_tol */
     GP_SINGULAR = 2, /* Phi_u exactly singular (dgetrf's info > 0) */
     GP_SOLVE = 3,    /* the equations of motion failed (mb_accelerations' code in out) */
-    GP_CALLBACK = 4  /* the Python loads raised: the caller takes the stage in Python */
+    GP_CALLBACK = 4, /* the Python loads raised: the caller takes the stage in Python */
+    GP_ALARM = 5,    /* a stage's measure below the policy's switch (mb_gcp_trial) */
+    GP_BRANCH = 6    /* the step's q left the RK solution of the full q (mb_gcp_trial) */
 };
 enum { GP_FE, GP_CE, GP_FACT, GP_NEWTON_IT, GP_N };
-enum { P_POWER, P_RATIO, P_CODE, P_N };
+/* out: the last stage's power and measure, the kernels' failure code; the trial's error
+ * norm, the time of the stage that failed, and the branch test's deviation */
+enum { P_POWER, P_RATIO, P_CODE, P_ERR, P_T, P_DEV, P_N };
 
 typedef struct {
     idx nq, ma, k;   /* coordinates, dependent (= active rows), independent */
@@ -66,6 +78,19 @@ typedef struct {
     double *x;       /* (ma,) work */
     double *out;     /* (P_N,) P_* */
     int64_t *count;  /* (GP_N,) GP_*: added to, never reset here */
+    /* the trial step (mb_gcp_trial): the tableau as step.c reads it, and its buffers */
+    idx ns, err_kind;
+    double rtol, atol;
+    double tangent;  /* the policy's switch: a stage's measure below it is GP_ALARM */
+    double branch_jump; /* the branch test's bound in tolerances (INFINITY: no test) */
+    const double *A, *B, *C, *E, *E3; /* A (ns, ns) row-major; B, C (ns,); E, E3 (ns + 1,) */
+    double *y, *f;   /* (ny,) the step's start and its derivative, ny = 2 k + 1 */
+    double *q0, *qd0; /* (nq,) the accepted state's q and qd */
+    double *K;       /* (ns + 1, ny) the stages; K[ns] = f(t + h, y_new) */
+    double *QD;      /* (ns + 1, nq) every stage's full qd */
+    double *ys, *y_new; /* (ny,) */
+    double *pred;    /* (nq,) the RK combination of the full q at the step's end */
+    double *q, *qd, *qdd; /* (nq,) the last stage's */
 } mb_gcp;
 
 int64_t mb_gcp_size(void) { return (int64_t)sizeof(mb_gcp); }
@@ -174,5 +199,75 @@ int mb_gcp_stage(const mb_model *M, mb_gcp *G, double t, const double *v, const 
     }
     memcpy(qdd, M->qdd, (size_t)n * sizeof(double));
     G->out[P_POWER] = M->out[0];
+    return GP_OK;
+}
+
+/* One stage of the trial at t from the state ys, its Newton start the RK combination of
+ * the full q with the weights a (s of them): K row and QD row r filled.  Returns GP_*. */
+static int trial_stage(const mb_model *M, mb_gcp *G, double t, double h, const double *a,
+                       idx s, idx r)
+{
+    idx n = G->nq, k = G->k, ny = 2 * k + 1;
+    mb_rk_combine(G->QD, n, G->q0, a, s, h, G->q);
+    memcpy(G->pred, G->q, (size_t)n * sizeof(double));
+    int st = mb_gcp_stage(M, G, t, G->ys, G->ys + k, G->q, G->qd, G->qdd, 1);
+    if (st == GP_OK && G->out[P_RATIO] < G->tangent)
+        st = GP_ALARM;
+    if (st) {
+        G->out[P_T] = t;
+        return st;
+    }
+    double *Kr = G->K + r * ny;
+    memcpy(Kr, G->ys + k, (size_t)k * sizeof(double));
+    for (idx c = 0; c < k; c++)
+        Kr[k + c] = G->qdd[G->iv[c]];
+    Kr[2 * k] = G->out[P_POWER];
+    memcpy(G->QD + r * n, G->qd, (size_t)n * sizeof(double));
+    return GP_OK;
+}
+
+/* One trial step of size h from (t, y) in coordinates (gcp.GeneralizedCoordinatePartitioning
+ * ._trial, then rk.RungeKuttaIntegrator._attempt's error test): the stages, each started from
+ * the RK combination of the stages' full velocities (q' = qd with the stage weights); a stage
+ * whose measure is below the switch fails the trial (GP_ALARM: Python retries it in tangent
+ * coordinates); the end's q against that combination (GP_BRANCH past branch_jump
+ * tolerances); then out[P_ERR] = max(the embedded error norm of (v, vd), that of the full q
+ * from the stages' qd) when control.  On GP_OK: K, QD, y_new, pred and the last stage's q,
+ * qd, qdd (the step's end) filled; the caller compares out[P_ERR] with 1. */
+int mb_gcp_trial(const mb_model *M, mb_gcp *G, double t, double h, int control)
+{
+    idx n = G->nq, k = G->k, ny = 2 * k + 1, ns = G->ns;
+    int st;
+    G->out[P_ERR] = 0.0;
+    memcpy(G->K, G->f, (size_t)ny * sizeof(double));
+    memcpy(G->QD, G->qd0, (size_t)n * sizeof(double));
+    for (idx s = 1; s < ns; s++) {
+        const double *a = G->A + s * ns;
+        mb_rk_combine(G->K, ny, G->y, a, s, h, G->ys);
+        if ((st = trial_stage(M, G, t + G->C[s] * h, h, a, s, s)))
+            return st;
+    }
+    mb_rk_combine(G->K, ny, G->y, G->B, ns, h, G->y_new);
+    memcpy(G->ys, G->y_new, (size_t)ny * sizeof(double));
+    if ((st = trial_stage(M, G, t + h, h, G->B, ns, ns)))
+        return st;
+    double dev = 0.0; /* rms of (q - pred) / (atol + rtol |pred|) (gcp._check_branch) */
+    for (idx i = 0; i < n; i++) {
+        double z = (G->q[i] - G->pred[i]) / (G->atol + G->rtol * fabs(G->pred[i]));
+        dev += z * z;
+    }
+    dev = sqrt(dev / (double)(n > 1 ? n : 1));
+    G->out[P_DEV] = dev;
+    if (dev > G->branch_jump) {
+        G->out[P_T] = t + h;
+        return GP_BRANCH;
+    }
+    if (control && G->err_kind != ERR_NONE) {
+        double e1 = mb_rk_error_norm(G->err_kind, ns, 2 * k, ny, G->K, G->E, G->E3, h, G->y,
+                                     G->y_new, G->rtol, G->atol);
+        double e2 = mb_rk_error_norm(G->err_kind, ns, n, n, G->QD, G->E, G->E3, h, G->q0,
+                                     G->pred, G->rtol, G->atol);
+        G->out[P_ERR] = e1 > e2 || e1 != e1 ? e1 : e2;
+    }
     return GP_OK;
 }

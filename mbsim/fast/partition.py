@@ -22,8 +22,8 @@ from mbsim.fast import _lib
 from mbsim.fast.implicit import lapack
 from mbsim.fast.stepper import load_callback
 
-GP_OK, GP_NEWTON, GP_SINGULAR, GP_SOLVE, GP_CALLBACK = range(5)
-P_POWER, P_RATIO, P_CODE = range(3)
+GP_OK, GP_NEWTON, GP_SINGULAR, GP_SOLVE, GP_CALLBACK, GP_ALARM, GP_BRANCH = range(7)
+P_POWER, P_RATIO, P_CODE, P_ERR, P_T, P_DEV = range(6)
 COUNTERS = ("function_evaluations", "constraint_evaluations", "factorizations",
             "newton_iterations")
 """partition.c's counts, added to ``system.counters`` after each call."""
@@ -37,6 +37,11 @@ class GCP(ctypes.Structure):
         + [("newton_tol", ctypes.c_double)]
         + [(n, ctypes.c_void_p) for n in
            ("load", "getrf", "getrs", "iv", "iu", "LU", "piv", "x", "out", "count")]
+        + [(n, ctypes.c_int64) for n in ("ns", "err_kind")]
+        + [(n, ctypes.c_double) for n in ("rtol", "atol", "tangent", "branch_jump")]
+        + [(n, ctypes.c_void_p) for n in
+           ("A", "B", "C", "E", "E3", "y", "f", "q0", "qd0", "K", "QD", "ys", "y_new", "pred",
+            "q", "qd", "qdd")]
     )
 
 
@@ -55,7 +60,7 @@ class CompiledStage:
         g.nq, g.ma, g.max_iter = s.nq, m, int(max_iter)
         g.kkt, g.rheonomic, g.newton_tol = int(s.kkt), int(s.rheonomic), float(newton_tol)
         g.getrf, g.getrs = lapack()
-        self._buffers = _lib.carve(LU=(m, m), x=max(m, 1), out=3)
+        self._buffers = _lib.carve(LU=(m, m), x=max(m, 1), out=6)
         self.LU = self._buffers["LU"][0]  # column-major in C: row c of this view is column c
         g.LU, g.x, g.out = (self._buffers[n][1] for n in ("LU", "x", "out"))
         self.out = self._buffers["out"][0]
@@ -92,14 +97,65 @@ class CompiledStage:
         st = self.lib.mb_gcp_stage(self.system.c.ptr, self.ptr, t, v.ctypes.data,
                                    vd.ctypes.data, qo.ctypes.data, qd.ctypes.data,
                                    qdd.ctypes.data, int(accelerations))
+        self._count()
+        power = float(self.out[P_POWER]) if accelerations else None
+        return st, qo, qd, qdd if accelerations else None, power, float(self.out[P_RATIO])
+
+    def set_tableau(self, tableau, *, rtol, atol, control, tangent, branch_jump):
+        """The trial step's tableau (its error form when ``control``), tolerances, the
+        change-point switch (-inf: no test) and the branch test's bound (inf: none)."""
+        from mbsim.fast.stepper import ERROR_FORMS, tableau_arrays
+
+        g, n, ns = self.g, self.system.nq, tableau.n_stages
+        err_form = tableau.error_form if control else None
+        g.ns, g.err_kind = ns, ERROR_FORMS[err_form]
+        g.rtol, g.atol = rtol, atol
+        self.set_switches(tangent, branch_jump)
+        self._tableau = tableau_arrays(tableau, err_form)  # the arrays C points into
+        for name in ("A", "B", "C", "E", "E3"):
+            setattr(g, name, self._tableau[name].ctypes.data)
+        self._trial = _lib.carve(q0=n, qd0=n, QD=(ns + 1, n), pred=n, q=n, qd=n, qdd=n)
+        for name, (_, address) in self._trial.items():
+            setattr(g, name, address)
+        self._ny = None
+
+    def set_switches(self, tangent, branch_jump):
+        self.g.tangent, self.g.branch_jump = tangent, branch_jump
+
+    def _y_buffers(self, ny):
+        """y, f, ys, y_new and K (ns + 1, ny) for states of ny values (2 k + 1)."""
+        if self._ny != ny:
+            ns = self.g.ns
+            self._ybuf = _lib.carve(y=ny, f=ny, ys=ny, y_new=ny, K=(ns + 1, ny))
+            for name, (_, address) in self._ybuf.items():
+                setattr(self.g, name, address)
+            self._ny = ny
+        return self._ybuf
+
+    def trial(self, t, h, y, f, q0, qd0, control):
+        """One trial step in C (partition.c: mb_gcp_trial) from (t, y, f) and the accepted
+        state's q0, qd0.  Returns the status GP_*; out[P_ERR] the error norm, and the
+        buffers (``buffers``) the stages and the step's end."""
+        b = self._y_buffers(y.size)
+        b["y"][0][:] = y
+        b["f"][0][:] = f
+        self._trial["q0"][0][:] = q0
+        self._trial["qd0"][0][:] = qd0
+        st = self.lib.mb_gcp_trial(self.system.c.ptr, self.ptr, t, h, int(control))
+        self._count()
+        return st
+
+    def buffer(self, name):
+        """A trial buffer (a view: copy what must outlive the next call)."""
+        return (self._ybuf if name in self._ybuf else self._trial)[name][0]
+
+    def _count(self):
         c, counts = self.system.counters, self.count.tolist()
         for name, k in zip(COUNTERS, counts):
             c[name] += k
         self.count[:] = 0
         if self._pending:  # a KeyboardInterrupt met in the callback
             raise self._pending.pop()
-        power = float(self.out[P_POWER]) if accelerations else None
-        return st, qo, qd, qdd if accelerations else None, power, float(self.out[P_RATIO])
 
     def factor(self):
         """(lu, piv) of the last call's Phi_u as scipy's ``lu_factor`` returns them (copies)."""

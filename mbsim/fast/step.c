@@ -257,19 +257,21 @@ static double rms_diff(const mb_rk *R, const double *a, const double *b, idx n)
     return sqrt(s / (double)(n > 1 ? n : 1));
 }
 
-/* The embedded error norm of the trial (rk.Tableau.error_norm, rk.Dop853.error_norm) on
- * the 2 nq components of q and qd. */
-static double error_norm(const mb_rk *R, double h)
+/* The embedded error norm of a trial (rk.Tableau.error_norm, rk.Dop853.error_norm) of kind
+ * ERR_EMBEDDED or ERR_DOP853 on the first n components of the stages K ((ns + 1) rows of ld
+ * values), in the scale atol + rtol max(|y0|, |y1|) (rk.RungeKuttaIntegrator._scale).
+ * Shared with partition.c (coordinate partitioning's (v, vd) and its full q). */
+double mb_rk_error_norm(idx kind, idx ns, idx n, idx ld, const double *K, const double *E,
+                        const double *E3, double h, const double *y0, const double *y1,
+                        double rtol, double atol)
 {
-    idx n = 2 * R->nq, ny = n + 1, ns = R->ns;
-    const double *K = R->K, *y = R->y, *y1 = R->y_new;
-    if (R->err_kind == ERR_EMBEDDED) {
+    if (kind == ERR_EMBEDDED) {
         double s = 0.0;
         for (idx i = 0; i < n; i++) {
             double e = 0.0;
             for (idx j = 0; j <= ns; j++)
-                e += K[j * ny + i] * R->E[j];
-            double z = h * e / (R->atol + R->rtol * fmax(fabs(y[i]), fabs(y1[i])));
+                e += K[j * ld + i] * E[j];
+            double z = h * e / (atol + rtol * fmax(fabs(y0[i]), fabs(y1[i])));
             s += z * z;
         }
         return sqrt(s / (double)(n > 1 ? n : 1));
@@ -278,10 +280,10 @@ static double error_norm(const mb_rk *R, double h)
     for (idx i = 0; i < n; i++) {
         double a = 0.0, b = 0.0;
         for (idx j = 0; j <= ns; j++) {
-            a += K[j * ny + i] * R->E[j];
-            b += K[j * ny + i] * R->E3[j];
+            a += K[j * ld + i] * E[j];
+            b += K[j * ld + i] * E3[j];
         }
-        double sc = R->atol + R->rtol * fmax(fabs(y[i]), fabs(y1[i]));
+        double sc = atol + rtol * fmax(fabs(y0[i]), fabs(y1[i]));
         a /= sc;
         b /= sc;
         e5 += a * a;
@@ -292,21 +294,28 @@ static double error_norm(const mb_rk *R, double h)
     return fabs(h) * e5 / sqrt((e5 + 0.01 * e3) * (double)n);
 }
 
-/* ys = y + h sum_{j < s} a[j] K[j] (a stage's state).  Each component summed in the order
- * j = 0, 1, .. as a scalar loop over j would, from +0, the tableau's zeros (a quarter of
+/* The error norm of the trial on the 2 nq components of q and qd. */
+static double error_norm(const mb_rk *R, double h)
+{
+    return mb_rk_error_norm(R->err_kind, R->ns, 2 * R->nq, 2 * R->nq + 1, R->K, R->E, R->E3,
+                            h, R->y, R->y_new, R->rtol, R->atol);
+}
+
+/* ys = y + h sum_{j < s} a[j] K[j] (a stage's state; K: rows of ny values; shared with
+ * partition.c).  Each component summed in the order j = 0, 1, .. as a scalar loop over j would, from +0, the tableau's zeros (a quarter of
  * DOP853's) skipped: adding their +-0 products to a sum that starts at +0 changes no bit.
  * Four components at a time, their sums kept in registers over the stages (one load of K
  * per product instead of a load and a store of ys as well): the same operations in the
  * same order, so the same bits. */
-static void combine(const mb_rk *R, const double *y, const double *a, idx s, double h,
-                    double *ys)
+void mb_rk_combine(const double *K, idx ny, const double *y, const double *a, idx s, double h,
+                   double *ys)
 {
-    idx ny = 2 * R->nq + 1, nz = 0;
+    idx nz = 0;
     const double *Ks[16];
     double as[16];
     for (idx j = 0; j < s; j++) /* s <= 15: K has 16 rows */
         if (a[j] != 0.0) {
-            Ks[nz] = R->K + j * ny;
+            Ks[nz] = K + j * ny;
             as[nz++] = a[j];
         }
     idx i = 0;
@@ -330,6 +339,13 @@ static void combine(const mb_rk *R, const double *y, const double *a, idx s, dou
             s0 += Ks[k][i] * as[k];
         ys[i] = y[i] + h * s0;
     }
+}
+
+/* ys = y + h sum_{j < s} a[j] K[j] on the trial's stages (y = (q, qd, w)). */
+static void combine(const mb_rk *R, const double *y, const double *a, idx s, double h,
+                    double *ys)
+{
+    mb_rk_combine(R->K, 2 * R->nq + 1, y, a, s, h, ys);
 }
 
 /* One trial step of size h from (t, y) with y' = f (rk.RungeKuttaIntegrator._trial, then

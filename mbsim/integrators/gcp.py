@@ -57,11 +57,17 @@ import scipy.sparse.linalg as spla
 
 from mbsim.fast.dynamics import solve_error
 from mbsim.fast.partition import (
+    GP_ALARM,
     GP_CALLBACK,
     GP_NEWTON,
+    GP_OK,
     GP_SINGULAR,
     GP_SOLVE,
     P_CODE,
+    P_DEV,
+    P_ERR,
+    P_RATIO,
+    P_T,
     CompiledStage,
 )
 from mbsim.integrators import changepoints as cp
@@ -100,6 +106,16 @@ class _Residual:
 
     def __init__(self, phi):
         self.phi = phi
+
+
+def _singular_u(t):
+    return StageFailure(f"t = {t:.6g} s: singular Phi_u (the dependent coordinates' Jacobian "
+                        f"has a zero pivot)")
+
+
+def _branch_failure(t, dev):
+    return StageFailure(f"t = {t:.6g} s: the dependent coordinates moved {dev:.3g} tolerances "
+                        f"from the RK solution (another branch of the constraints)")
 
 
 class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
@@ -152,7 +168,11 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         s = self.system
         if not self.options.get("compiled_step", True) or s.sparse or s.reaction_loop:
             return None
-        return CompiledStage(s, self.q, self.t, self.newton_tol, self.policy.newton_iter)
+        stage = CompiledStage(s, self.q, self.t, self.newton_tol, self.policy.newton_iter)
+        stage.set_tableau(self.tableau, rtol=self.rtol, atol=self.atol,
+                          control=self.tableau.embedded and self.h_fixed is None,
+                          tangent=self.policy.tangent, branch_jump=self.policy.branch_jump)
+        return stage
 
     # -- partitioning ----------------------------------------------------------------------
     def _partition(self, t, q, tangent=False):
@@ -290,8 +310,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         if st == GP_NEWTON:
             self._raise_newton_failure(_Residual(self.system.fc._phi.copy()), t)
         if st == GP_SINGULAR:
-            raise StageFailure(f"t = {t:.6g} s: singular Phi_u (the dependent coordinates' "
-                               f"Jacobian has a zero pivot)")
+            raise _singular_u(t)
         if st == GP_SOLVE:
             raise solve_error(int(c.out[P_CODE]))
         self._jac = None  # in the compiled stage's buffers until the next call (_factored)
@@ -370,6 +389,59 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._check_branch(t + h, self._last[2], pred)
         return y_new, f_new
 
+    def _attempt(self, h):
+        """The trial step and its error test in one C call when the partition is in
+        coordinates (mbsim/fast/partition.c: mb_gcp_trial, the arithmetic of ``_trial``,
+        ``_check_singular``, ``_check_branch`` and the error norms), then ``_accept``;
+        in tangent coordinates, or where a Python load raised inside the call (taken again
+        here, where it raises to be seen), the stages in Python (rk's ``_attempt``)."""
+        c, part = self._compiled, self.part
+        if c is None or part.C is not None:
+            return super()._attempt(h)
+        if self._c_part is not part:
+            c.partition(part.iv, part.iu)
+            self._c_part = part
+        fixed = self.h_fixed is not None
+        c.set_switches(self.policy.tangent if self._tangent_ok else -np.inf,
+                       np.inf if fixed else self.policy.branch_jump)
+        q0, qd0 = self._ref[1], self._ref[2]
+        st = c.trial(self.t, h, self.y, self.f, q0, qd0, self.tableau.embedded and not fixed)
+        self._c_calls += 1
+        if st == GP_CALLBACK:
+            return super()._attempt(h)
+        if st != GP_OK:
+            self._raise_trial_failure(st)
+        err = float(c.out[P_ERR])
+        if not np.isfinite(err):  # NaN/inf in a stage: reject hard
+            raise StageFailure(f"error norm {err} at step {h:.3g} s")
+        y_new = c.buffer("y_new").copy()
+        if err > 1:
+            return err, y_new, None, None, None, None
+        self.K[:] = c.buffer("K")
+        K, f_new = self.K.copy(), self.K[-1].copy()
+        q, qd, qdd = (c.buffer(n).copy() for n in ("q", "qd", "qdd"))
+        self._last = (self.t + h, y_new, q, qd, qdd, None)
+        self._last_calls = self._c_calls
+        self._QD = (c.buffer("QD").copy(), q0, c.buffer("pred").copy())
+        ctx = self._context()
+        y_acc, f_acc = self._accept(self.t + h, y_new, f_new)
+        return err, y_new, y_acc, f_acc, K, ctx
+
+    def _raise_trial_failure(self, st):
+        """The exception of a failed compiled trial (status GP_*), as its Python stage or
+        check raises it."""
+        c = self._compiled
+        t = float(c.out[P_T])
+        if st == GP_NEWTON:
+            self._raise_newton_failure(_Residual(self.system.fc._phi.copy()), t)
+        if st == GP_SINGULAR:
+            raise _singular_u(t)
+        if st == GP_SOLVE:
+            raise solve_error(int(c.out[P_CODE]))
+        if st == GP_ALARM:
+            raise self._singular_failure(t, float(c.out[P_RATIO]))
+        raise _branch_failure(t, float(c.out[P_DEV]))
+
     def _check_singular(self, t):
         """A stage in coordinates with Phi_u near singular fails the trial, so that the step is
         tried again from its start in tangent coordinates (``_recover``): an accepted point
@@ -379,9 +451,14 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             fac = self._last[5]
             ratio = self._last_ratio if fac is None else self._pivot_ratio(fac)
             if ratio < self.policy.tangent:
-                self._tangent_wanted = True
-                raise StageFailure(f"t = {t:.6g} s: Phi_u near singular (pivot ratio "
-                                   f"{ratio:.3g}); tangent coordinates")
+                raise self._singular_failure(t, ratio)
+
+    def _singular_failure(self, t, ratio):
+        """The StageFailure of a stage below the switch; the step is retried from its start
+        in tangent coordinates (``_recover``)."""
+        self._tangent_wanted = True
+        return StageFailure(f"t = {t:.6g} s: Phi_u near singular (pivot ratio {ratio:.3g}); "
+                            f"tangent coordinates")
 
     def _check_branch(self, t, q, pred):
         """Reject a Newton solution q of the dependent coordinates more than the policy's
@@ -393,9 +470,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             return
         dev = rms_norm(q - pred, self.atol + self.rtol * np.abs(pred))
         if dev > self.policy.branch_jump:
-            raise StageFailure(f"t = {t:.6g} s: the dependent coordinates moved {dev:.3g} "
-                               f"tolerances from the RK solution (another branch of the "
-                               f"constraints)")
+            raise _branch_failure(t, dev)
 
     def _extra_error(self, h):
         """The embedded error estimate of the full q (q' = qd, the stages' full velocities),
