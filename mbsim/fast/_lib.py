@@ -231,6 +231,8 @@ def _declare(lib):
         "mb_gcp_size": ([], ctypes.c_int64),
         "mb_gcp_stage": ([P, P, ctypes.c_double, P, P, P, P, P, I], I),
         "mb_gcp_trial": ([P, P, ctypes.c_double, ctypes.c_double, I], I),
+        "mb_gcp_dense": ([P, P, ctypes.c_double, ctypes.c_double, ctypes.c_int64, P, P, P, P,
+                          P], I),
         "mb_outputs": ([P, I, ctypes.c_int64, ctypes.c_int64, P, P, P, P, P, P, P, P, P],
                        ctypes.c_int64),
     }

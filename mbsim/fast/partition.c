@@ -33,7 +33,13 @@ double mb_rk_error_norm(idx kind, idx ns, idx n, idx ld, const double *K, const 
                         double rtol, double atol);
 void mb_rk_combine(const double *K, idx ny, const double *y, const double *a, idx s, double h,
                    double *ys);
+void mb_dop853_coefficients(idx ny, idx ns, const double *K, const double *D,
+                            const double *y0, const double *y1, double h, double *F);
+void mb_rk_interpolate(idx kind, idx ny, idx ns, idx np, const double *K, const double *P,
+                       const double *F, const double *y0, const double *y1, double t0,
+                       double h, double t, double *y);
 enum { ERR_NONE }; /* step.c's error kinds: none, embedded, DOP853's */
+enum { DENSE_POLY, DENSE_DOP853, DENSE_HERMITE }; /* step.c's interpolants */
 
 /* kernels.c */
 void mb_terms(const mb_model *M, int jac, int gam, int mode);
@@ -89,8 +95,14 @@ typedef struct {
     double *K;       /* (ns + 1, ny) the stages; K[ns] = f(t + h, y_new) */
     double *QD;      /* (ns + 1, nq) every stage's full qd */
     double *ys, *y_new; /* (ny,) */
-    double *pred;    /* (nq,) the RK combination of the full q at the step's end */
+    double *pred;    /* (nq,) the Newton start of the last stage (the RK combination) */
+    double *pred_end; /* (nq,) that of the step's end (the extension's end point) */
     double *q, *qd, *qdd; /* (nq,) the last stage's */
+    /* the dense output (mb_gcp_dense): the interpolant's kind and data as step.c reads
+     * them; K and QD hold 16 rows (DOP853's extra stages after the step's) */
+    idx dense_kind, np;
+    const double *P, *AX, *CX, *D; /* P (ns + 1, np); AX (3, 16), CX (3,), D (4, 16) */
+    double *Fy, *Fq; /* (7, ny), (7, nq): DOP853's coefficients of y and of the full q */
 } mb_gcp;
 
 int64_t mb_gcp_size(void) { return (int64_t)sizeof(mb_gcp); }
@@ -202,16 +214,32 @@ int mb_gcp_stage(const mb_model *M, mb_gcp *G, double t, const double *v, const 
     return GP_OK;
 }
 
+/* The branch test's deviation of the last stage's q from its Newton start pred, the rms
+ * of (q - pred) / (atol + rtol |pred|) (gcp._check_branch), also left in out[P_DEV]. */
+static double branch_deviation(mb_gcp *G)
+{
+    idx n = G->nq;
+    double dev = 0.0;
+    for (idx i = 0; i < n; i++) {
+        double z = (G->q[i] - G->pred[i]) / (G->atol + G->rtol * fabs(G->pred[i]));
+        dev += z * z;
+    }
+    dev = sqrt(dev / (double)(n > 1 ? n : 1));
+    G->out[P_DEV] = dev;
+    return dev;
+}
+
 /* One stage of the trial at t from the state ys, its Newton start the RK combination of
- * the full q with the weights a (s of them): K row and QD row r filled.  Returns GP_*. */
+ * the full q with the weights a (s of them): K row and QD row r filled.  alarm: a measure
+ * below the switch is GP_ALARM.  Returns GP_*. */
 static int trial_stage(const mb_model *M, mb_gcp *G, double t, double h, const double *a,
-                       idx s, idx r)
+                       idx s, idx r, int alarm)
 {
     idx n = G->nq, k = G->k, ny = 2 * k + 1;
     mb_rk_combine(G->QD, n, G->q0, a, s, h, G->q);
     memcpy(G->pred, G->q, (size_t)n * sizeof(double));
     int st = mb_gcp_stage(M, G, t, G->ys, G->ys + k, G->q, G->qd, G->qdd, 1);
-    if (st == GP_OK && G->out[P_RATIO] < G->tangent)
+    if (st == GP_OK && alarm && G->out[P_RATIO] < G->tangent)
         st = GP_ALARM;
     if (st) {
         G->out[P_T] = t;
@@ -244,21 +272,15 @@ int mb_gcp_trial(const mb_model *M, mb_gcp *G, double t, double h, int control)
     for (idx s = 1; s < ns; s++) {
         const double *a = G->A + s * ns;
         mb_rk_combine(G->K, ny, G->y, a, s, h, G->ys);
-        if ((st = trial_stage(M, G, t + G->C[s] * h, h, a, s, s)))
+        if ((st = trial_stage(M, G, t + G->C[s] * h, h, a, s, s, 1)))
             return st;
     }
     mb_rk_combine(G->K, ny, G->y, G->B, ns, h, G->y_new);
     memcpy(G->ys, G->y_new, (size_t)ny * sizeof(double));
-    if ((st = trial_stage(M, G, t + h, h, G->B, ns, ns)))
+    if ((st = trial_stage(M, G, t + h, h, G->B, ns, ns, 1)))
         return st;
-    double dev = 0.0; /* rms of (q - pred) / (atol + rtol |pred|) (gcp._check_branch) */
-    for (idx i = 0; i < n; i++) {
-        double z = (G->q[i] - G->pred[i]) / (G->atol + G->rtol * fabs(G->pred[i]));
-        dev += z * z;
-    }
-    dev = sqrt(dev / (double)(n > 1 ? n : 1));
-    G->out[P_DEV] = dev;
-    if (dev > G->branch_jump) {
+    memcpy(G->pred_end, G->pred, (size_t)n * sizeof(double));
+    if (branch_deviation(G) > G->branch_jump) {
         G->out[P_T] = t + h;
         return GP_BRANCH;
     }
@@ -266,8 +288,51 @@ int mb_gcp_trial(const mb_model *M, mb_gcp *G, double t, double h, int control)
         double e1 = mb_rk_error_norm(G->err_kind, ns, 2 * k, ny, G->K, G->E, G->E3, h, G->y,
                                      G->y_new, G->rtol, G->atol);
         double e2 = mb_rk_error_norm(G->err_kind, ns, n, n, G->QD, G->E, G->E3, h, G->q0,
-                                     G->pred, G->rtol, G->atol);
+                                     G->pred_end, G->rtol, G->atol);
         G->out[P_ERR] = e1 > e2 || e1 != e1 ? e1 : e2;
+    }
+    return GP_OK;
+}
+
+/* The dense output of the last accepted trial [t0, t0 + h] (its buffers as mb_gcp_trial
+ * left them, the partition the step's) at times[0..nt) (gcp._dense_output_impl): DOP853's
+ * three extra stages, each started from the same RK combination of the full velocities
+ * and held to the branch test; then per output the interpolant of y = (v, vd, w) and the
+ * continuous extension of the full q from the stages' full velocities, q completed from
+ * that extension by Newton, and the branch test again.  Q, QDo (nt, nq), W (nt,);
+ * flags[i] = 1 where the output failed (Python takes it, with its fallback), else 0.
+ * Returns GP_OK, or the status of an extra stage that failed (the interpolant does not
+ * exist: Python takes the whole step's outputs). */
+int mb_gcp_dense(const mb_model *M, mb_gcp *G, double t0, double h, idx nt,
+                 const double *times, double *Q, double *QDo, double *W, int64_t *flags)
+{
+    idx n = G->nq, k = G->k, ny = 2 * k + 1, ns = G->ns;
+    int st;
+    if (G->dense_kind == DENSE_DOP853) {
+        for (idx e = 0; e < 3; e++) {
+            idx s = ns + 1 + e;
+            const double *a = G->AX + 16 * e;
+            mb_rk_combine(G->K, ny, G->y, a, s, h, G->ys);
+            if ((st = trial_stage(M, G, t0 + G->CX[e] * h, h, a, s, s, 0)))
+                return st;
+            if (branch_deviation(G) > G->branch_jump)
+                return GP_BRANCH;
+        }
+        mb_dop853_coefficients(ny, ns, G->K, G->D, G->y, G->y_new, h, G->Fy);
+        mb_dop853_coefficients(n, ns, G->QD, G->D, G->q0, G->pred_end, h, G->Fq);
+    }
+    for (idx i = 0; i < nt; i++) {
+        double t = times[i];
+        mb_rk_interpolate(G->dense_kind, ny, ns, G->np, G->K, G->P, G->Fy, G->y, G->y_new, t0,
+                          h, t, G->ys);
+        mb_rk_interpolate(G->dense_kind, n, ns, G->np, G->QD, G->P, G->Fq, G->q0,
+                          G->pred_end, t0, h, t, G->pred);
+        double *q = Q + i * n, *qd = QDo + i * n;
+        memcpy(q, G->pred, (size_t)n * sizeof(double));
+        st = mb_gcp_stage(M, G, t, G->ys, G->ys + k, q, qd, NULL, 0);
+        memcpy(G->q, q, (size_t)n * sizeof(double));
+        flags[i] = st != GP_OK || branch_deviation(G) > G->branch_jump;
+        W[i] = G->ys[2 * k];
     }
     return GP_OK;
 }

@@ -20,7 +20,7 @@ import numpy as np
 
 from mbsim.fast import _lib
 from mbsim.fast.implicit import lapack
-from mbsim.fast.stepper import load_callback
+from mbsim.fast.stepper import N_K, load_callback
 
 GP_OK, GP_NEWTON, GP_SINGULAR, GP_SOLVE, GP_CALLBACK, GP_ALARM, GP_BRANCH = range(7)
 P_POWER, P_RATIO, P_CODE, P_ERR, P_T, P_DEV = range(6)
@@ -41,7 +41,9 @@ class GCP(ctypes.Structure):
         + [(n, ctypes.c_double) for n in ("rtol", "atol", "tangent", "branch_jump")]
         + [(n, ctypes.c_void_p) for n in
            ("A", "B", "C", "E", "E3", "y", "f", "q0", "qd0", "K", "QD", "ys", "y_new", "pred",
-            "q", "qd", "qdd")]
+            "pred_end", "q", "qd", "qdd")]
+        + [(n, ctypes.c_int64) for n in ("dense_kind", "np")]
+        + [(n, ctypes.c_void_p) for n in ("P", "AX", "CX", "D", "Fy", "Fq")]
     )
 
 
@@ -104,17 +106,21 @@ class CompiledStage:
     def set_tableau(self, tableau, *, rtol, atol, control, tangent, branch_jump):
         """The trial step's tableau (its error form when ``control``), tolerances, the
         change-point switch (-inf: no test) and the branch test's bound (inf: none)."""
-        from mbsim.fast.stepper import ERROR_FORMS, tableau_arrays
+        from mbsim.fast.stepper import DENSE_FORMS, ERROR_FORMS, tableau_arrays
 
         g, n, ns = self.g, self.system.nq, tableau.n_stages
         err_form = tableau.error_form if control else None
         g.ns, g.err_kind = ns, ERROR_FORMS[err_form]
+        g.dense_kind = DENSE_FORMS[tableau.dense_form]
+        P = getattr(tableau, "P", None)
+        g.np = 0 if P is None else P.shape[1]
         g.rtol, g.atol = rtol, atol
         self.set_switches(tangent, branch_jump)
         self._tableau = tableau_arrays(tableau, err_form)  # the arrays C points into
-        for name in ("A", "B", "C", "E", "E3"):
+        for name in ("A", "B", "C", "E", "E3", "P", "AX", "CX", "D"):
             setattr(g, name, self._tableau[name].ctypes.data)
-        self._trial = _lib.carve(q0=n, qd0=n, QD=(ns + 1, n), pred=n, q=n, qd=n, qdd=n)
+        self._trial = _lib.carve(q0=n, qd0=n, QD=(N_K, n), pred=n, pred_end=n, q=n, qd=n,
+                                 qdd=n, Fq=(7, n))
         for name, (_, address) in self._trial.items():
             setattr(g, name, address)
         self._ny = None
@@ -125,8 +131,7 @@ class CompiledStage:
     def _y_buffers(self, ny):
         """y, f, ys, y_new and K (ns + 1, ny) for states of ny values (2 k + 1)."""
         if self._ny != ny:
-            ns = self.g.ns
-            self._ybuf = _lib.carve(y=ny, f=ny, ys=ny, y_new=ny, K=(ns + 1, ny))
+            self._ybuf = _lib.carve(y=ny, f=ny, ys=ny, y_new=ny, K=(N_K, ny), Fy=(7, ny))
             for name, (_, address) in self._ybuf.items():
                 setattr(self.g, name, address)
             self._ny = ny
@@ -146,8 +151,26 @@ class CompiledStage:
         return st
 
     def buffer(self, name):
-        """A trial buffer (a view: copy what must outlive the next call)."""
-        return (self._ybuf if name in self._ybuf else self._trial)[name][0]
+        """A trial buffer (a view: copy what must outlive the next call); K and QD: the
+        step's ns + 1 rows."""
+        a = (self._ybuf if name in self._ybuf else self._trial)[name][0]
+        return a[: self.g.ns + 1] if name in ("K", "QD") else a
+
+    def dense(self, t0, h, times):
+        """(status, Q, QD, W, flags) at ``times`` inside the last accepted trial
+        [t0, t0 + h] (partition.c: mb_gcp_dense), from the buffers that trial left; flags
+        (int64) 1 where an output failed."""
+        n, k = self.system.nq, times.size
+        times = np.ascontiguousarray(times, dtype=np.float64)
+        block = np.empty(k * (2 * n + 1))
+        Q, QD, W = block[:k * n].reshape(k, n), block[k * n:2 * k * n].reshape(k, n), \
+            block[2 * k * n:]
+        flags = np.zeros(k, dtype=np.int64)
+        st = self.lib.mb_gcp_dense(self.system.c.ptr, self.ptr, t0, h, k, times.ctypes.data,
+                                   Q.ctypes.data, QD.ctypes.data, W.ctypes.data,
+                                   flags.ctypes.data)
+        self._count()
+        return st, Q, QD, W, flags
 
     def _count(self):
         c, counts = self.system.counters, self.count.tolist()

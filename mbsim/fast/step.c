@@ -391,13 +391,33 @@ int mb_rk_trial(const mb_model *M, mb_rk *R, double t, double h)
 
 /* -- dense output ------------------------------------------------------------------------ */
 
+/* F (7, ny): DOP853's interpolation coefficients (rk.Dop853.dense) from the 16 stage rows
+ * K (ny values each: the step's ns + 1 and the three extra ones), y0 and y1 the step's ends.
+ * Shared with partition.c. */
+void mb_dop853_coefficients(idx ny, idx ns, const double *K, const double *D,
+                            const double *y0, const double *y1, double h, double *F)
+{
+    for (idx i = 0; i < ny; i++) {
+        double dy = y1[i] - y0[i];
+        F[i] = dy;
+        F[ny + i] = h * K[i] - dy;
+        F[2 * ny + i] = 2.0 * dy - h * (K[ns * ny + i] + K[i]);
+        for (idx r = 0; r < 4; r++) {
+            double acc = 0.0;
+            for (idx j = 0; j < 16; j++)
+                acc += D[16 * r + j] * K[j * ny + i];
+            F[(3 + r) * ny + i] = h * acc;
+        }
+    }
+}
+
 /* DOP853's three extra stages (K[ns + 1 ..], from the step's unprojected stages) and its
  * interpolation coefficients Fd (rk.Dop853.dense); y0 = R->y, y1 = R->y_new, K[0..ns]
  * as the accepted trial left them. */
 static int dop853_coefficients(const mb_model *M, mb_rk *R, double t0, double h)
 {
     idx n = R->nq, ny = 2 * n + 1, ns = R->ns;
-    double *K = R->K, *F = R->Fd;
+    double *K = R->K;
     int st;
     for (idx e = 0; e < 3; e++) {
         idx s = ns + 1 + e;
@@ -405,43 +425,35 @@ static int dop853_coefficients(const mb_model *M, mb_rk *R, double t0, double h)
         if ((st = rhs(M, R, t0 + R->CX[e] * h, R->ys, K + s * ny)))
             return st;
     }
-    for (idx i = 0; i < ny; i++) {
-        double dy = R->y_new[i] - R->y[i];
-        F[i] = dy;
-        F[ny + i] = h * K[i] - dy;
-        F[2 * ny + i] = 2.0 * dy - h * (K[ns * ny + i] + K[i]);
-        for (idx r = 0; r < 4; r++) {
-            double acc = 0.0;
-            for (idx j = 0; j < 16; j++)
-                acc += R->D[16 * r + j] * K[j * ny + i];
-            F[(3 + r) * ny + i] = h * acc;
-        }
-    }
+    mb_dop853_coefficients(ny, ns, K, R->D, R->y, R->y_new, h, R->Fd);
     return ST_ACCEPTED;
 }
 
-/* y (ny,) = the interpolant at t (rk.Tableau.dense and its subclasses'), unprojected. */
-static void interpolate(const mb_rk *R, double t0, double h, double t, double *y)
+/* y (ny,) = the interpolant of kind DENSE_* at t in [t0, t0 + h] (rk.Tableau.dense and its
+ * subclasses'), from the ends y0, y1, the stages K (rows of ny values; K[ns] the end's
+ * derivative) with P (ns + 1, np) for DENSE_POLY, or F (7, ny) for DENSE_DOP853.  Shared
+ * with partition.c. */
+void mb_rk_interpolate(idx kind, idx ny, idx ns, idx np, const double *K, const double *P,
+                       const double *F, const double *y0, const double *y1, double t0,
+                       double h, double t, double *y)
 {
-    idx ny = 2 * R->nq + 1, ns = R->ns;
-    const double *K = R->K, *y0 = R->y, *y1 = R->y_new;
     double x = (t - t0) / h;
-    if (R->dense_kind == DENSE_DOP853) {
+    if (kind == DENSE_DOP853) {
         for (idx i = 0; i < ny; i++) {
             double v = 0.0;
             for (idx k = 0; k < 7; k++) {
-                v += R->Fd[(6 - k) * ny + i];
+                v += F[(6 - k) * ny + i];
                 v *= k % 2 == 0 ? x : 1.0 - x;
             }
             y[i] = v + y0[i];
         }
-    } else if (R->dense_kind == DENSE_POLY) {
+    } else if (kind == DENSE_POLY) {
         for (idx i = 0; i < ny; i++) {
             double v = 0.0, xp = 1.0;
-            for (idx c = 0; c < R->np; c++) {
+            for (idx c = 0; c < np; c++) {
                 double qc = 0.0;
                 for (idx j = 0; j <= ns; j++)
-                    qc += K[j * ny + i] * R->P[j * R->np + c];
+                    qc += K[j * ny + i] * P[j * np + c];
                 xp *= x;
                 v += qc * xp;
             }
@@ -453,6 +465,13 @@ static void interpolate(const mb_rk *R, double t0, double h, double t, double *y
         for (idx i = 0; i < ny; i++)
             y[i] = h00 * y0[i] + h10 * h * K[i] + h01 * y1[i] + h11 * h * K[ns * ny + i];
     }
+}
+
+/* y (ny,) = the interpolant of the last step at t, unprojected. */
+static void interpolate(const mb_rk *R, double t0, double h, double t, double *y)
+{
+    mb_rk_interpolate(R->dense_kind, 2 * R->nq + 1, R->ns, R->np, R->K, R->P, R->Fd, R->y,
+                      R->y_new, t0, h, t, y);
 }
 
 /* Whether the projection's correction at the step's end (y_acc - y_new) is blended into

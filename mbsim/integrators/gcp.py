@@ -45,6 +45,14 @@ coordinate choice's Phi_u is above the switch again: RK4's error constant is lar
 position-like tangent coordinates than in the Euler parameters the null-space choice picks.
 A motion that approaches the change point slowly is given a step across it that keeps its
 stages clear of it (:class:`changepoints.Approach`; counter ``straddle_steps``).
+
+Where it runs.  In coordinates on a dense Jacobian, each trial step (its stages, the
+change-point alarm, the branch test and both error norms) and each step's outputs are one
+C call (mbsim/fast/partition.c, :mod:`mbsim.fast.partition`), as are the stages of the
+dense output's Python fallback; Python is visited per trial for the step-size control,
+``_accept`` (the sensitivity and re-partitioning) and the fallbacks.  Tangent coordinates,
+sparse Jacobians (splu) and loads that depend on the multipliers take the stages here in
+Python; so does every stage with option ``compiled_step: false``.
 """
 
 from __future__ import annotations
@@ -71,7 +79,7 @@ from mbsim.fast.partition import (
     CompiledStage,
 )
 from mbsim.integrators import changepoints as cp
-from mbsim.integrators.base import quintic_hermite, rms_norm
+from mbsim.integrators.base import IntegratorFailure, quintic_hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
 log = logging.getLogger(__name__)
@@ -149,6 +157,9 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._c_part = None  # the partition the compiled stage holds
         self._c_calls = 0  # compiled stage calls so far (whose factor its buffers hold)
         self._last_calls = 0  # _c_calls when the latest stage was taken
+        self._c_trials = 0  # compiled trials so far (whose stages its buffers hold)
+        self._c_accepted = -1  # _c_trials at the last step accepted from a compiled trial
+        self._c_last = False  # the last accepted step was a compiled trial
         self._last_ratio = 1.0  # the change-point measure of the latest stage's Phi_u
         self.n_err = 2 * self.part.k  # (v, vd); the work integral is not controlled
         # the approach to a change point and the step across it (changepoints.Approach),
@@ -396,6 +407,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         in tangent coordinates, or where a Python load raised inside the call (taken again
         here, where it raises to be seen), the stages in Python (rk's ``_attempt``)."""
         c, part = self._compiled, self.part
+        self._c_last = False
         if c is None or part.C is not None:
             return super()._attempt(h)
         if self._c_part is not part:
@@ -407,6 +419,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         q0, qd0 = self._ref[1], self._ref[2]
         st = c.trial(self.t, h, self.y, self.f, q0, qd0, self.tableau.embedded and not fixed)
         self._c_calls += 1
+        self._c_trials += 1
         if st == GP_CALLBACK:
             return super()._attempt(h)
         if st != GP_OK:
@@ -425,7 +438,46 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._QD = (c.buffer("QD").copy(), q0, c.buffer("pred").copy())
         ctx = self._context()
         y_acc, f_acc = self._accept(self.t + h, y_new, f_new)
+        self._c_last, self._c_accepted = True, self._c_trials
         return err, y_new, y_acc, f_acc, K, ctx
+
+    def dense_output_many(self, times):
+        """All outputs of the last step at once in C when the step was taken there
+        (partition.c: mb_gcp_dense, the arithmetic of ``_dense_output_impl`` without its
+        fallback); an output that fails there, and every output of a step whose extra
+        stages fail, go through the Python dense output (its quintic Hermite fallback)."""
+        if not self._c_last or self._c_accepted != self._c_trials:
+            return super().dense_output_many(times)
+        times = np.asarray(times, dtype=float)
+        k = times.size - int(times.size > 0 and times[-1] == self.t)  # (at t: the state)
+        if k == 0:
+            return super().dense_output_many(times)
+        t0, h, ctx = self._dense_args[0], self._dense_args[1], self._dense_args[5]
+        c = self._compiled
+        if self._c_part is not ctx:
+            c.partition(ctx.iv, ctx.iu)
+            self._c_part = ctx
+        status, Q, QD, W, flags = c.dense(t0, h, times[:k])
+        self._c_calls += 1
+        if status != GP_OK:
+            return super().dense_output_many(times)
+        if k < times.size:
+            Q = np.vstack([Q, self.q])
+            QD = np.vstack([QD, self.qd])
+            W = np.append(W, self.w)
+        redo = np.flatnonzero(flags)
+        dense = self.dense_output_safe() if redo.size else None
+        for i in redo:
+            try:
+                Q[i], QD[i], W[i] = dense(times[i])
+            except IntegratorFailure as exc:
+                exc.done = (Q[:i], QD[:i], W[:i])
+                raise
+        if not (np.isfinite(Q).all() and np.isfinite(QD).all()):
+            i = int(np.argmin(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1)))
+            raise IntegratorFailure(f"t = {times[i]:.6g} s: the state is not finite "
+                                    f"(NaN or inf)", done=(Q[:i], QD[:i], W[:i]))
+        return Q, QD, W
 
     def _raise_trial_failure(self, st):
         """The exception of a failed compiled trial (status GP_*), as its Python stage or

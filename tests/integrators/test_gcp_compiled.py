@@ -1,8 +1,8 @@
 """The stage and the trial step of coordinate partitioning in C (mbsim/fast/partition.c)
 against the Python stage and trial of the same equations (option ``compiled_step: false``):
-at every stage (the dense output's) and every trial of runs on the seed decks, over whole
-runs, and on the failure paths (Newton, the Python force elements' exceptions and Ctrl-C
-inside the C call)."""
+at every stage (the dense output's), every trial and every step's outputs of runs on the
+seed decks, over whole runs, and on the failure paths (Newton, the Python force elements'
+exceptions and Ctrl-C inside the C call)."""
 
 from pathlib import Path
 
@@ -12,6 +12,7 @@ import scipy.linalg as la
 
 from mbsim.api import load_model, run_model
 from mbsim.fast.dynamics import System
+from mbsim.integrators.base import Integrator
 from mbsim.integrators.gcp import GeneralizedCoordinatePartitioning as Gcp
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
@@ -157,6 +158,42 @@ def test_compiled_trial_takes_the_python_trial(deck, scene, monkeypatch):
         worst = np.abs((y_c - y_p) / scale).max()
         assert worst <= bound, (h, worst)
         assert abs(err_c - err_p) <= bound, (h, err_c, err_p)
+
+
+DENSE = [("governor", "gcp-dop853"), ("governor", "gcp-rk45"), ("slider_crank", "gcp-dop853"),
+         ("four_bar", "gcp-dop853"), ("four_bar", "gcp-rk4"), ("andrews", "gcp-dop853")]
+
+
+@pytest.mark.parametrize("deck, integrator", DENSE, ids=[f"{d}-{i}" for d, i in DENSE])
+def test_compiled_dense_output_takes_the_python_dense_output(deck, integrator, monkeypatch):
+    """Every step's outputs in C (mb_gcp_dense) against the Python dense output of the same
+    step: the interpolants are the same arithmetic up to the order of sums, and each output's
+    q is completed by Newton from the same start, so the positions agree within 2 newton_tol
+    (each within newton_tol of the same limit); the velocities and the work integral, which
+    follow q (and, through DOP853's extra stages, their own Newton iterates), within
+    2 newton_tol / atol units of the error test's scale atol + rtol |x| (as the trial's)."""
+    seen = []
+    compiled = Gcp.dense_output_many
+
+    def both(self, times):
+        got = compiled(self, times)
+        seen.append((self, self._c_last, got, Integrator.dense_output_many(self, times)))
+        return got
+
+    monkeypatch.setattr(Gcp, "dense_output_many", both)
+    spec, model = load_model(MODELS / f"{deck}.yaml")
+    opts = dict(spec.analysis.get("dynamic", {}), integrator=integrator, error_estimate=False)
+    if integrator == "gcp-rk4":
+        opts["step"] = 1e-3
+    res = run_model(model, "dynamic", opts)
+    assert res.status == "complete", res.message
+    assert sum(c for _, c, _, _ in seen) >= 0.9 * len(seen) > 0  # the steps taken in C
+    for gcp, _, (Q, QD, W), (Qp, QDp, Wp) in seen:
+        units = 2 * gcp.newton_tol / gcp.atol
+        assert np.abs(Q - Qp).max() <= 2 * gcp.newton_tol
+        for got, want in ((QD, QDp), (W, Wp)):
+            worst = (np.abs(got - want) / (gcp.atol + gcp.rtol * np.abs(want))).max()
+            assert worst <= units, worst
 
 
 def run(deck, integrator, compiled, **extra):
