@@ -65,6 +65,8 @@ SCRIPTS = {
     "fourbar40": ("peers.py", ["--cases", "fourbar40", "--max-cpu", "150"],
                   ["--cases", "fourbar40", "--quick"]),
     "passages": ("passage_scatter.py", ["--starts", "5,5,5,3,3"], ["--quick"]),  # issue 23
+    "gcp_stage": ("gcp_stage.py", [], ["--repeats", "1", "--decks", "governor",
+                                       "--integrators", "gcp-dop853"]),
 }
 DEFAULT_SCRIPTS = tuple(SCRIPTS)
 

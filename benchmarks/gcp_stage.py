@@ -9,7 +9,9 @@ estimate (the estimate's companion is another integrator's run), rtol 1e-8, atol
 compressor's own rtol 1e-6, atol 1e-8; Andrews' mechanism its deck's settings), as
 ``run_model`` runs it after one untimed warm-up run; the two paths by the deck option
 ``compiled_step`` (true: each stage in coordinates in one C call; false: the same equations
-through Python), alternated repeat by repeat so that both see the same load.  Printed:
+through Python), alternated repeat by repeat so that both see the same load.  Under a
+checkout without the compiled stage (``before_after.py --scripts gcp_stage`` with an older
+"before") both paths are its Python stage.  Printed:
 process CPU per simulated second, median [min-max] over the repeats, for each path; the
 figure ``gcp stage: compiled / Python`` is the median of the repeats' ratios; and the
 counters of both runs, which agree up to round-off (each stage agrees to round-off:
@@ -24,10 +26,11 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
+# common.ROOT: the checkout measured ($MBSIM_ROOT, set by before_after.py for each side,
+# else this tree), put first on sys.path by common
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import figure  # noqa: E402
+from common import ROOT, figure  # noqa: E402
 
 from mbsim.api import load_model, run_model  # noqa: E402
 
