@@ -66,8 +66,9 @@ enum {
 };
 enum { GP_FE, GP_CE, GP_FACT, GP_NEWTON_IT, GP_N };
 /* out: the last stage's power and measure, the kernels' failure code; the trial's error
- * norm, the time of the stage that failed, and the branch test's deviation */
-enum { P_POWER, P_RATIO, P_CODE, P_ERR, P_T, P_DEV, P_N };
+ * norm, the time of the stage that failed, the branch test's deviation, and the
+ * sensitivity max |Phi_u^-1 Phi_v| at the step's end (an accepted trial) */
+enum { P_POWER, P_RATIO, P_CODE, P_ERR, P_T, P_DEV, P_SENS, P_N };
 
 typedef struct {
     idx nq, ma, k;   /* coordinates, dependent (= active rows), independent */
@@ -103,6 +104,7 @@ typedef struct {
     idx dense_kind, np;
     const double *P, *AX, *CX, *D; /* P (ns + 1, np); AX (3, 16), CX (3,), D (4, 16) */
     double *Fy, *Fq; /* (7, ny), (7, nq): DOP853's coefficients of y and of the full q */
+    double *Z;       /* (k, ma): Phi_u^-1 Phi_v, column by column (the sensitivity) */
 } mb_gcp;
 
 int64_t mb_gcp_size(void) { return (int64_t)sizeof(mb_gcp); }
@@ -229,6 +231,27 @@ static double branch_deviation(mb_gcp *G)
     return dev;
 }
 
+/* max |Phi_u^-1 Phi_v| on the last stage's factor and Phi_q (gcp._sensitivity: how far u
+ * moves per unit of v, the re-partitioning test at an accepted step). */
+static double sensitivity(const mb_model *M, mb_gcp *G)
+{
+    idx n = G->nq, m = G->ma, k = G->k;
+    if (!m || !k)
+        return 0.0;
+    for (idx c = 0; c < k; c++)
+        for (idx r = 0; r < m; r++)
+            G->Z[c * m + r] = M->J[r * n + G->iv[c]];
+    int mi = (int)m, ki = (int)k, info = 0;
+    char no = 'N';
+    G->getrs(&no, &mi, &ki, G->LU, &mi, G->piv, G->Z, &mi, &info);
+    double s = 0.0;
+    for (idx i = 0; i < m * k; i++) {
+        double a = fabs(G->Z[i]);
+        s = a > s || a != a ? a : s;
+    }
+    return s;
+}
+
 /* One stage of the trial at t from the state ys, its Newton start the RK combination of
  * the full q with the weights a (s of them): K row and QD row r filled.  alarm: a measure
  * below the switch is GP_ALARM.  Returns GP_*. */
@@ -291,6 +314,8 @@ int mb_gcp_trial(const mb_model *M, mb_gcp *G, double t, double h, int control)
                                      G->pred_end, G->rtol, G->atol);
         G->out[P_ERR] = e1 > e2 || e1 != e1 ? e1 : e2;
     }
+    if (G->out[P_ERR] <= 1.0)
+        G->out[P_SENS] = sensitivity(M, G);
     return GP_OK;
 }
 

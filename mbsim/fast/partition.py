@@ -23,7 +23,7 @@ from mbsim.fast.implicit import lapack
 from mbsim.fast.stepper import N_K, load_callback
 
 GP_OK, GP_NEWTON, GP_SINGULAR, GP_SOLVE, GP_CALLBACK, GP_ALARM, GP_BRANCH = range(7)
-P_POWER, P_RATIO, P_CODE, P_ERR, P_T, P_DEV = range(6)
+P_POWER, P_RATIO, P_CODE, P_ERR, P_T, P_DEV, P_SENS = range(7)
 COUNTERS = ("function_evaluations", "constraint_evaluations", "factorizations",
             "newton_iterations")
 """partition.c's counts, added to ``system.counters`` after each call."""
@@ -43,7 +43,7 @@ class GCP(ctypes.Structure):
            ("A", "B", "C", "E", "E3", "y", "f", "q0", "qd0", "K", "QD", "ys", "y_new", "pred",
             "pred_end", "q", "qd", "qdd")]
         + [(n, ctypes.c_int64) for n in ("dense_kind", "np")]
-        + [(n, ctypes.c_void_p) for n in ("P", "AX", "CX", "D", "Fy", "Fq")]
+        + [(n, ctypes.c_void_p) for n in ("P", "AX", "CX", "D", "Fy", "Fq", "Z")]
     )
 
 
@@ -62,7 +62,7 @@ class CompiledStage:
         g.nq, g.ma, g.max_iter = s.nq, m, int(max_iter)
         g.kkt, g.rheonomic, g.newton_tol = int(s.kkt), int(s.rheonomic), float(newton_tol)
         g.getrf, g.getrs = lapack()
-        self._buffers = _lib.carve(LU=(m, m), x=max(m, 1), out=6)
+        self._buffers = _lib.carve(LU=(m, m), x=max(m, 1), out=7)
         self.LU = self._buffers["LU"][0]  # column-major in C: row c of this view is column c
         g.LU, g.x, g.out = (self._buffers[n][1] for n in ("LU", "x", "out"))
         self.out = self._buffers["out"][0]
@@ -131,7 +131,9 @@ class CompiledStage:
     def _y_buffers(self, ny):
         """y, f, ys, y_new and K (ns + 1, ny) for states of ny values (2 k + 1)."""
         if self._ny != ny:
-            self._ybuf = _lib.carve(y=ny, f=ny, ys=ny, y_new=ny, K=(N_K, ny), Fy=(7, ny))
+            k = (ny - 1) // 2
+            self._ybuf = _lib.carve(y=ny, f=ny, ys=ny, y_new=ny, K=(N_K, ny), Fy=(7, ny),
+                                    Z=(k, self.system.m))
             for name, (_, address) in self._ybuf.items():
                 setattr(self.g, name, address)
             self._ny = ny
@@ -139,8 +141,9 @@ class CompiledStage:
 
     def trial(self, t, h, y, f, q0, qd0, control):
         """One trial step in C (partition.c: mb_gcp_trial) from (t, y, f) and the accepted
-        state's q0, qd0.  Returns the status GP_*; out[P_ERR] the error norm, and the
-        buffers (``buffers``) the stages and the step's end."""
+        state's q0, qd0.  Returns the status GP_*; out[P_ERR] the error norm, out[P_RATIO]
+        and out[P_SENS] the end's measure and sensitivity (err <= 1), and the buffers
+        (``buffer``) the stages and the step's end."""
         b = self._y_buffers(y.size)
         b["y"][0][:] = y
         b["f"][0][:] = f

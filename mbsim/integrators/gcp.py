@@ -75,6 +75,7 @@ from mbsim.fast.partition import (
     P_DEV,
     P_ERR,
     P_RATIO,
+    P_SENS,
     P_T,
     CompiledStage,
 )
@@ -160,6 +161,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._c_trials = 0  # compiled trials so far (whose stages its buffers hold)
         self._c_accepted = -1  # _c_trials at the last step accepted from a compiled trial
         self._c_last = False  # the last accepted step was a compiled trial
+        self._c_end = None  # (sensitivity, measure) of a compiled trial's end (_accept)
         self._last_ratio = 1.0  # the change-point measure of the latest stage's Phi_u
         self.n_err = 2 * self.part.k  # (v, vd); the work integral is not controlled
         # the approach to a change point and the step across it (changepoints.Approach),
@@ -435,9 +437,13 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         q, qd, qdd = (c.buffer(n).copy() for n in ("q", "qd", "qdd"))
         self._last = (self.t + h, y_new, q, qd, qdd, None)
         self._last_calls = self._c_calls
-        self._QD = (c.buffer("QD").copy(), q0, c.buffer("pred").copy())
+        self._QD = (c.buffer("QD").copy(), q0, c.buffer("pred_end").copy())
         ctx = self._context()
-        y_acc, f_acc = self._accept(self.t + h, y_new, f_new)
+        self._c_end = (float(c.out[P_SENS]), float(c.out[P_RATIO]))
+        try:
+            y_acc, f_acc = self._accept(self.t + h, y_new, f_new)
+        finally:
+            self._c_end = None
         self._c_last, self._c_accepted = True, self._c_trials
         return err, y_new, y_acc, f_acc, K, ctx
 
@@ -622,15 +628,18 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
 
     def _accept(self, t, y, f):
         lt, ly, q, qd, qdd, fac = self._last  # the FSAL stage: the accepted state
-        fac, self._jac = self._factored(fac, self._last_calls)
-        self._last = (lt, ly, q, qd, qdd, fac)
         self._dense_q = self._QD  # the accepted trial's full-q stages (dense output)
         self._ref_prev = self._ref
         self._ref = (t, q, qd, qdd)
         cur = self.part
         if cur.C is None:
-            sens = self._sensitivity(fac, self._jac, cur.iv)
-            self._pivot = self._pivot_ratio(fac)
+            if self._c_end is not None:  # the compiled trial's, at its end's factor
+                sens, self._pivot = self._c_end
+            else:
+                fac, self._jac = self._factored(fac, self._last_calls)
+                self._last = (lt, ly, q, qd, qdd, fac)
+                sens = self._sensitivity(fac, self._jac, cur.iv)
+                self._pivot = self._pivot_ratio(fac)
             change = self._pivot < self.policy.tangent  # towards a change point
             limit = self.ratio * max(1.0, cur.s0)
         else:  # max |T| grows as 1 / cos of the tangent's rotation since the partition
