@@ -1,25 +1,27 @@
-/* The stage of the coordinate-partitioning integrators (gcp-*) in C (plain C99).
+/* The step of the coordinate-partitioning integrators (gcp-*) in C (plain C99).
  *
  * Compiled into the same shared library as kernels.c (mbsim.fast._lib) and called through
  * ctypes by mbsim/fast/partition.py for mbsim/integrators/gcp.py, whose module doc gives
- * the method (Wehage & Haug 1982; Haug Sec. 11.4).  One call evaluates one stage in
- * coordinates (v independent, u = the rest) from the stage's (v, vd) and a predicted q:
+ * the method (Wehage & Haug 1982; Haug Sec. 11.4).  A stage in coordinates (v independent,
+ * u = the rest) from the stage's (v, vd) and a predicted q (mb_gcp_stage):
  *
- * 1. u solves Phi(u, v, t) = 0 by Newton on Phi_u du = Phi (Haug eq. 11.4.8), Phi_u factored
- *    by LAPACK's dgetrf at every iterate; the stop is changepoints.newton's: max |du| <=
- *    newton_tol, or after max_iter iterations max |Phi| <= newton_tol at the last iterate;
- * 2. ud solves Phi_u ud = nu - Phi_v vd on the last iterate's factor (Haug eq. 11.4.9);
+ * 1. u solves Phi(u, v, t) = 0 by Newton on Phi_u du = Phi, Phi_u factored by LAPACK's
+ *    dgetrf at every iterate; the stop is changepoints.newton's: max |du| <= newton_tol,
+ *    or after max_iter iterations max |Phi| <= newton_tol at the last iterate;
+ * 2. ud solves Phi_u ud = nu - Phi_v vd on the last iterate's factor;
  * 3. qdd, lam and the power from the equations of motion (mb_accelerations) with the Phi_q
- *    of that iterate, as the Python stage passes it (System.accelerations' jac).
+ *    of that iterate, as the Python stage passes it (System.accelerations' jac);
  *
- * Returned beside q, qd, qdd: the change-point measure of the last factor (smallest /
- * largest |U_ii|, changepoints.measure_from_lu), which the caller compares with its
- * policy's switch.  The step's combination of stages, its error test, the tangent
- * coordinates near a change point and every fallback stay in Python.
+ * and beside them the change-point measure of the last factor (smallest / largest |U_ii|,
+ * changepoints.measure_from_lu).  One call takes a whole trial step of the RK tableau from
+ * such stages, its change-point alarm, branch test and error norms (mb_gcp_trial); one
+ * call all outputs of the last accepted step (mb_gcp_dense).  The step-size control, the
+ * sensitivity's re-partitioning, the tangent coordinates near a change point and every
+ * fallback stay in Python, visited once per trial.  The tableau's arithmetic (stage
+ * combinations, error norms, interpolants) is step.c's, shared.
  *
- * The factor stays in LU, piv (column-major, LAPACK's 1-based pivots) until the next call:
- * the caller copies it out where it needs it (the sensitivity at an accepted step).
- * Nothing here allocates.
+ * The last stage's factor stays in LU, piv (column-major, LAPACK's 1-based pivots) until
+ * the next call: the caller copies it out where it needs it.  Nothing here allocates.
  */
 #include <math.h>
 #include <stdint.h>
@@ -144,7 +146,7 @@ static double pivot_ratio(const mb_gcp *G)
     return G->ma && hi > 0.0 ? lo / hi : 1.0;
 }
 
-/* One stage (module doc).  q: in, the predicted q (its v part is replaced by v); out, the
+/* One stage (module doc: 1-3).  q: in, the predicted q (its v part is replaced by v); out, the
  * completed q.  qd out; qdd out when accelerations (else q and qd only: an output sample).
  * The model keeps the last iterate's Phi (phi_a: the caller's failure message) and Phi_q. */
 int mb_gcp_stage(const mb_model *M, mb_gcp *G, double t, const double *v, const double *vd,
