@@ -243,6 +243,25 @@ class Integrator(ABC):
             raise
         return Q, QD, W
 
+    def _redo_flagged(self, times, Q, QD, W, flags):
+        """The outputs of a compiled dense output completed: those ``flags`` marks taken by
+        :meth:`dense_output_safe` (a family's Python dense output with its fallbacks), then
+        every row checked finite; failures as :class:`IntegratorFailure` carrying the
+        outputs before the failed one.  Returns (Q, QD, W)."""
+        redo = np.flatnonzero(flags)
+        dense = self.dense_output_safe() if redo.size else None
+        for i in redo:  # (one Python dense output: the outputs integrated to share a start)
+            try:
+                Q[i], QD[i], W[i] = dense(times[i])
+            except IntegratorFailure as exc:
+                exc.done = (Q[:i], QD[:i], W[:i])
+                raise
+        if not (np.isfinite(Q).all() and np.isfinite(QD).all()):
+            i = int(np.argmin(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1)))
+            raise IntegratorFailure(f"t = {times[i]:.6g} s: the state is not finite "
+                                    f"(NaN or inf)", done=(Q[:i], QD[:i], W[:i]))
+        return Q, QD, W
+
     def all_counters(self) -> dict:
         out = dict(self.system.counters)
         out.update(self.counters)

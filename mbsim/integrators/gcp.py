@@ -80,7 +80,7 @@ from mbsim.fast.partition import (
     CompiledStage,
 )
 from mbsim.integrators import changepoints as cp
-from mbsim.integrators.base import IntegratorFailure, quintic_hermite, rms_norm
+from mbsim.integrators.base import quintic_hermite, rms_norm
 from mbsim.integrators.rk import ClassicRK4, Dop853, RungeKuttaIntegrator, StageFailure
 
 log = logging.getLogger(__name__)
@@ -320,12 +320,8 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._c_calls += 1
         if st == GP_CALLBACK:
             return None
-        if st == GP_NEWTON:
-            self._raise_newton_failure(_Residual(self.system.fc._phi.copy()), t)
-        if st == GP_SINGULAR:
-            raise _singular_u(t)
-        if st == GP_SOLVE:
-            raise solve_error(int(c.out[P_CODE]))
+        if st != GP_OK:
+            self._raise_compiled_failure(st, t)
         self._jac = None  # in the compiled stage's buffers until the next call (_factored)
         self._last_ratio = ratio
         return q, qd, qdd, power
@@ -425,7 +421,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         if st == GP_CALLBACK:
             return super()._attempt(h)
         if st != GP_OK:
-            self._raise_trial_failure(st)
+            self._raise_compiled_failure(st, float(c.out[P_T]))
         err = float(c.out[P_ERR])
         if not np.isfinite(err):  # NaN/inf in a stage: reject hard
             raise StageFailure(f"error norm {err} at step {h:.3g} s")
@@ -471,25 +467,13 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             Q = np.vstack([Q, self.q])
             QD = np.vstack([QD, self.qd])
             W = np.append(W, self.w)
-        redo = np.flatnonzero(flags)
-        dense = self.dense_output_safe() if redo.size else None
-        for i in redo:
-            try:
-                Q[i], QD[i], W[i] = dense(times[i])
-            except IntegratorFailure as exc:
-                exc.done = (Q[:i], QD[:i], W[:i])
-                raise
-        if not (np.isfinite(Q).all() and np.isfinite(QD).all()):
-            i = int(np.argmin(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1)))
-            raise IntegratorFailure(f"t = {times[i]:.6g} s: the state is not finite "
-                                    f"(NaN or inf)", done=(Q[:i], QD[:i], W[:i]))
-        return Q, QD, W
+            flags = np.append(flags, 0)
+        return self._redo_flagged(times, Q, QD, W, flags)
 
-    def _raise_trial_failure(self, st):
-        """The exception of a failed compiled trial (status GP_*), as its Python stage or
-        check raises it."""
+    def _raise_compiled_failure(self, st, t):
+        """The exception of a failed compiled stage or trial (status GP_*; t the stage's
+        time), as its Python stage or check raises it."""
         c = self._compiled
-        t = float(c.out[P_T])
         if st == GP_NEWTON:
             self._raise_newton_failure(_Residual(self.system.fc._phi.copy()), t)
         if st == GP_SINGULAR:

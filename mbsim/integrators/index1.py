@@ -58,7 +58,6 @@ from mbsim.integrators import changepoints as cp
 from mbsim.integrators.base import (
     NUMERICAL_ERRORS,
     ROUNDOFF_ULPS,
-    IntegratorFailure,
     quintic_hermite,
     rms_norm,
 )
@@ -437,19 +436,7 @@ class Index1(RungeKuttaIntegrator):
             return super().dense_output_many(times)
         if k < times.size:
             Q[k], QD[k], W[k] = self.q, self.qd, self.w
-        redo = np.flatnonzero(flags)
-        dense = self.dense_output_safe() if redo.size else None
-        for i in redo:  # (one Python dense output: the outputs integrated to share a start)
-            try:
-                Q[i], QD[i], W[i] = dense(times[i])
-            except IntegratorFailure as exc:
-                exc.done = (Q[:i], QD[:i], W[:i])
-                raise
-        if not (np.isfinite(Q).all() and np.isfinite(QD).all()):
-            i = int(np.argmin(np.isfinite(Q).all(axis=1) & np.isfinite(QD).all(axis=1)))
-            raise IntegratorFailure(f"t = {times[i]:.6g} s: the state is not finite "
-                                    f"(NaN or inf)", done=(Q[:i], QD[:i], W[:i]))
-        return Q, QD, W
+        return self._redo_flagged(times, Q, QD, W, flags)
 
     def _clear_crossing(self, h, y_new):
         """The step to take instead of an accepted tangent step of size h (end y_new) that

@@ -22,6 +22,17 @@ SPAN = 0.05  # s
 EPS = np.finfo(float).eps
 
 
+def run_span(deck, scene):
+    """The deck's dynamic run (scene) under gcp-dop853 over its first SPAN seconds, no
+    estimate: complete."""
+    spec, model = load_model(MODELS / f"{deck}.yaml", scene=scene)
+    opts = dict(spec.analysis.get("dynamic", {}))
+    t0 = float(opts.get("t_start", 0.0))
+    opts.update(integrator="gcp-dop853", error_estimate=False, t_end=t0 + SPAN)
+    res = run_model(model, "dynamic", opts)
+    assert res.status == "complete", res.message
+
+
 def python_stage(gcp, t, v, vd, q, part):
     """The Python stage (``_complete``, then System.accelerations) from the same predicted q."""
     compiled, gcp._compiled = gcp._compiled, None
@@ -90,12 +101,7 @@ def assert_same_stages(seen):
 @pytest.mark.parametrize("deck, scene", DECKS, ids=[f"{d}-{s}" if s else d for d, s in DECKS])
 def test_compiled_stage_takes_the_python_stage(deck, scene, monkeypatch):
     seen = compare_stages(monkeypatch)
-    spec, model = load_model(MODELS / f"{deck}.yaml", scene=scene)
-    opts = dict(spec.analysis.get("dynamic", {}))
-    t0 = float(opts.get("t_start", 0.0))
-    opts.update(integrator="gcp-dop853", error_estimate=False, t_end=t0 + SPAN)
-    res = run_model(model, "dynamic", opts)
-    assert res.status == "complete", res.message
+    run_span(deck, scene)
     assert_same_stages(seen)
 
 
@@ -140,12 +146,7 @@ def test_compiled_trial_takes_the_python_trial(deck, scene, monkeypatch):
     scale atol + rtol |y| of the error test: both are compared within 2 newton_tol / atol
     tolerance units."""
     seen = compare_trials(monkeypatch)
-    spec, model = load_model(MODELS / f"{deck}.yaml", scene=scene)
-    opts = dict(spec.analysis.get("dynamic", {}))
-    t0 = float(opts.get("t_start", 0.0))
-    opts.update(integrator="gcp-dop853", error_estimate=False, t_end=t0 + SPAN)
-    res = run_model(model, "dynamic", opts)
-    assert res.status == "complete", res.message
+    run_span(deck, scene)
     same = [isinstance(w, Exception) == isinstance(g, Exception) for _, _, w, g in seen]
     assert seen and sum(same) >= 0.9 * len(seen), (sum(same), len(seen))
     for gcp, h, want, got in seen:
