@@ -45,6 +45,8 @@ enum { DENSE_POLY, DENSE_DOP853, DENSE_HERMITE }; /* step.c's interpolants */
 
 /* kernels.c */
 void mb_terms(const mb_model *M, int jac, int gam, int mode);
+void mb_applied_forces(const mb_model *M);
+void mb_mass_blocks(const mb_model *M);
 void mb_gather_dense(const mb_model *M, const double *J, double *Jc);
 int mb_accelerations(const mb_model *M, int kkt, int have_jac);
 enum { JAC_CALLER = 1 }; /* mb_accelerations' have_jac (kernels.c): Phi_q from Jg */
@@ -64,7 +66,8 @@ enum {
     GP_SOLVE = 3,    /* the equations of motion failed (mb_accelerations' code in out) */
     GP_CALLBACK = 4, /* the Python loads raised: the caller takes the stage in Python */
     GP_ALARM = 5,    /* a stage's measure below the policy's switch (mb_gcp_trial) */
-    GP_BRANCH = 6    /* the step's q left the RK solution of the full q (mb_gcp_trial) */
+    GP_BRANCH = 6,   /* the step's q left the RK solution of the full q (mb_gcp_trial) */
+    GP_REDUCED = 7   /* tangent coordinates: the reduced mass matrix T^T M T is singular */
 };
 enum { GP_FE, GP_CE, GP_FACT, GP_NEWTON_IT, GP_N };
 /* out: the last stage's power and measure, the kernels' failure code; the trial's error
@@ -107,6 +110,17 @@ typedef struct {
     const double *P, *AX, *CX, *D; /* P (ns + 1, np); AX (3, 16), CX (3,), D (4, 16) */
     double *Fy, *Fq; /* (7, ny), (7, nq): DOP853's coefficients of y and of the full q */
     double *Z;       /* (k, ma): Phi_u^-1 Phi_v, column by column (the sensitivity) */
+    /* tangent coordinates (tangent_stage): v = Ct q; NULL in coordinates */
+    const double *Ct; /* (k, nq) row-major */
+    double *At;      /* (nq, nq) column-major: the LU of A = [Phi_q; Ct] at the last iterate */
+    int *pivA;       /* (nq,) */
+    double *T;       /* (k, nq): the basis A^-1 [0; I], column by column; then M T */
+    double *p;       /* (nq,) A^-1 [gamma; 0]; then M p */
+    double *R;       /* (k, k) column-major: T^T M T, factored */
+    int *pivR;       /* (k,) */
+    double *w;       /* (nq,) work */
+    double *MT;      /* (k, nq): M T, column by column */
+    double *ra;      /* (k,) the reduced equations' right-hand side, then v'' */
 } mb_gcp;
 
 int64_t mb_gcp_size(void) { return (int64_t)sizeof(mb_gcp); }
@@ -146,12 +160,158 @@ static double pivot_ratio(const mb_gcp *G)
     return G->ma && hi > 0.0 ? lo / hi : 1.0;
 }
 
+/* out (nq, ncol) column-major = M x (same layout), M block diagonal (the model's Mb). */
+static void mass_times(const mb_model *M, idx n, const double *x, idx ncol, double *out)
+{
+    for (idx c = 0; c < ncol; c++)
+        for (idx b = 0; b < M->nb; b++) {
+            const double *Mb = M->Mb + 49 * b, *xb = x + c * n + 7 * b;
+            for (int i = 0; i < 7; i++) {
+                double s = 0.0;
+                for (int j = 0; j < 7; j++)
+                    s += Mb[7 * i + j] * xb[j];
+                out[c * n + 7 * b + i] = s;
+            }
+        }
+}
+
+/* A stage in tangent coordinates v = Ct q (changepoints.complete, then
+ * changepoints.accelerations): q by Newton on [Phi(q, t); Ct q - v] = 0 through A = [Phi_q;
+ * Ct], qd = A^-1 [nu; vd], and qdd from the reduced equations (T^T M T) v'' = T^T (Q - M p),
+ * T = A^-1 [0; I], p = A^-1 [gamma; 0], the constraint forces dropping out (T^T Phi_q^T =
+ * 0); power = Q.qd - lam.nu with [lam; mu] = A^-T (Q - M qdd).  out[P_SENS] = max |T| (the
+ * tangent partition's sensitivity). */
+static int tangent_stage(const mb_model *M, mb_gcp *G, double t, const double *v,
+                         const double *vd, double *q, double *qd, double *qdd,
+                         int accelerations)
+{
+    idx n = G->nq, m = G->ma, k = G->k;
+    int ni = (int)n, one = 1, info = 0, converged = 0;
+    char no = 'N', tr = 'T';
+    for (int it = 0; it < G->max_iter && !converged; it++) {
+        memcpy(M->q, q, (size_t)n * sizeof(double));
+        if (G->load && G->load(t, 0))
+            return GP_CALLBACK;
+        G->count[GP_CE]++;
+        mb_terms(M, 1, 0, 1);
+        for (idx c = 0; c < n; c++) {
+            double *col = G->At + c * n;
+            for (idx r = 0; r < m; r++)
+                col[r] = M->J[r * n + c];
+            for (idx i = 0; i < k; i++)
+                col[m + i] = G->Ct[i * n + c];
+        }
+        G->count[GP_FACT]++;
+        G->getrf(&ni, &ni, G->At, &ni, G->pivA, &info);
+        if (info)
+            return GP_SINGULAR;
+        memcpy(G->w, M->phi_a, (size_t)m * sizeof(double));
+        for (idx i = 0; i < k; i++) {
+            double s = 0.0;
+            for (idx c = 0; c < n; c++)
+                s += G->Ct[i * n + c] * q[c];
+            G->w[m + i] = s - v[i];
+        }
+        G->getrs(&no, &ni, &one, G->At, &ni, G->pivA, G->w, &ni, &info);
+        double step = 0.0;
+        for (idx i = 0; i < n; i++) {
+            q[i] -= G->w[i];
+            double a = fabs(G->w[i]);
+            step = a > step || a != a ? a : step;
+        }
+        G->count[GP_NEWTON_IT]++;
+        converged = step <= G->newton_tol;
+    }
+    if (!converged) {
+        double res = 0.0;
+        for (idx r = 0; r < m; r++) {
+            double a = fabs(M->phi_a[r]);
+            res = a > res || a != a ? a : res;
+        }
+        if (!(res <= G->newton_tol))
+            return GP_NEWTON;
+    }
+    for (idx r = 0; r < m; r++)
+        qd[r] = G->rheonomic ? M->nu_a[r] : 0.0;
+    memcpy(qd + m, vd, (size_t)k * sizeof(double));
+    G->getrs(&no, &ni, &one, G->At, &ni, G->pivA, qd, &ni, &info);
+    if (!accelerations)
+        return GP_OK;
+    memcpy(M->q, q, (size_t)n * sizeof(double));
+    memcpy(M->qd, qd, (size_t)n * sizeof(double));
+    if (G->load && G->load(t, 1))
+        return GP_CALLBACK;
+    G->count[GP_CE]++;
+    mb_terms(M, 0, 1, 0); /* gamma, nu at (q, qd) */
+    mb_applied_forces(M);
+    mb_mass_blocks(M);
+    /* T = A^-1 [0; I], p = A^-1 [gamma; 0] */
+    memset(G->T, 0, (size_t)(n * k) * sizeof(double));
+    for (idx i = 0; i < k; i++)
+        G->T[i * n + m + i] = 1.0;
+    int ki = (int)k;
+    G->getrs(&no, &ni, &ki, G->At, &ni, G->pivA, G->T, &ni, &info);
+    double sens = 0.0;
+    for (idx i = 0; i < n * k; i++) {
+        double a = fabs(G->T[i]);
+        sens = a > sens || a != a ? a : sens;
+    }
+    G->out[P_SENS] = sens;
+    memcpy(G->p, M->gamma_a, (size_t)m * sizeof(double));
+    memset(G->p + m, 0, (size_t)k * sizeof(double));
+    G->getrs(&no, &ni, &one, G->At, &ni, G->pivA, G->p, &ni, &info);
+    /* R = T^T M T, rhs = T^T (Q - M p) */
+    mass_times(M, n, G->p, 1, G->w);
+    for (idx i = 0; i < n; i++)
+        G->w[i] = M->Q[i] - G->w[i];
+    double *rhs = G->ra, *MT = G->MT;
+    mass_times(M, n, G->T, k, MT);
+    for (idx a = 0; a < k; a++) {
+        double s = 0.0;
+        for (idx i = 0; i < n; i++)
+            s += G->T[a * n + i] * G->w[i];
+        rhs[a] = s;
+        for (idx b = 0; b < k; b++) {
+            double r = 0.0;
+            for (idx i = 0; i < n; i++)
+                r += G->T[a * n + i] * MT[b * n + i];
+            G->R[b * k + a] = r;
+        }
+    }
+    G->count[GP_FACT]++;
+    G->getrf(&ki, &ki, G->R, &ki, G->pivR, &info);
+    if (info)
+        return GP_REDUCED;
+    G->getrs(&no, &ki, &one, G->R, &ki, G->pivR, rhs, &ki, &info);
+    for (idx i = 0; i < n; i++) { /* qdd = T v'' + p */
+        double s = G->p[i];
+        for (idx a = 0; a < k; a++)
+            s += G->T[a * n + i] * rhs[a];
+        qdd[i] = s;
+    }
+    double power = 0.0;
+    for (idx i = 0; i < n; i++)
+        power += M->Q[i] * qd[i];
+    if (G->rheonomic) {
+        mass_times(M, n, qdd, 1, G->w);
+        for (idx i = 0; i < n; i++)
+            G->w[i] = M->Q[i] - G->w[i];
+        G->getrs(&tr, &ni, &one, G->At, &ni, G->pivA, G->w, &ni, &info);
+        for (idx r = 0; r < m; r++)
+            power -= G->w[r] * M->nu_a[r];
+    }
+    G->out[P_POWER] = power;
+    return GP_OK;
+}
+
 /* One stage (module doc: 1-3).  q: in, the predicted q (its v part is replaced by v); out, the
  * completed q.  qd out; qdd out when accelerations (else q and qd only: an output sample).
  * The model keeps the last iterate's Phi (phi_a: the caller's failure message) and Phi_q. */
 int mb_gcp_stage(const mb_model *M, mb_gcp *G, double t, const double *v, const double *vd,
                  double *q, double *qd, double *qdd, int accelerations)
 {
+    if (G->Ct)
+        return tangent_stage(M, G, t, v, vd, q, qd, qdd, accelerations);
     idx n = G->nq, m = G->ma, k = G->k;
     for (idx c = 0; c < k; c++)
         q[G->iv[c]] = v[c];
@@ -264,7 +424,7 @@ static int trial_stage(const mb_model *M, mb_gcp *G, double t, double h, const d
     mb_rk_combine(G->QD, n, G->q0, a, s, h, G->q);
     memcpy(G->pred, G->q, (size_t)n * sizeof(double));
     int st = mb_gcp_stage(M, G, t, G->ys, G->ys + k, G->q, G->qd, G->qdd, 1);
-    if (st == GP_OK && alarm && G->out[P_RATIO] < G->tangent)
+    if (st == GP_OK && alarm && !G->Ct && G->out[P_RATIO] < G->tangent)
         st = GP_ALARM;
     if (st) {
         G->out[P_T] = t;
@@ -272,8 +432,15 @@ static int trial_stage(const mb_model *M, mb_gcp *G, double t, double h, const d
     }
     double *Kr = G->K + r * ny;
     memcpy(Kr, G->ys + k, (size_t)k * sizeof(double));
-    for (idx c = 0; c < k; c++)
-        Kr[k + c] = G->qdd[G->iv[c]];
+    for (idx c = 0; c < k; c++) { /* v'' = qdd[iv], or Ct qdd in tangent coordinates */
+        double a = 0.0;
+        if (G->Ct)
+            for (idx i = 0; i < n; i++)
+                a += G->Ct[c * n + i] * G->qdd[i];
+        else
+            a = G->qdd[G->iv[c]];
+        Kr[k + c] = a;
+    }
     Kr[2 * k] = G->out[P_POWER];
     memcpy(G->QD + r * n, G->qd, (size_t)n * sizeof(double));
     return GP_OK;
@@ -316,8 +483,14 @@ int mb_gcp_trial(const mb_model *M, mb_gcp *G, double t, double h, int control)
                                      G->pred_end, G->rtol, G->atol);
         G->out[P_ERR] = e1 > e2 || e1 != e1 ? e1 : e2;
     }
-    if (G->out[P_ERR] <= 1.0)
-        G->out[P_SENS] = sensitivity(M, G);
+    if (G->out[P_ERR] <= 1.0) {
+        if (!G->Ct)
+            G->out[P_SENS] = sensitivity(M, G);
+        else if (factor_u(M, G) == GP_OK) /* the coordinate choice's measure, to go back */
+            G->out[P_RATIO] = pivot_ratio(G);
+        else
+            G->out[P_RATIO] = 0.0;
+    }
     return GP_OK;
 }
 

@@ -25,7 +25,8 @@ from mbsim.fast import _lib
 from mbsim.fast.implicit import lapack
 from mbsim.fast.stepper import N_K, load_callback
 
-GP_OK, GP_NEWTON, GP_SINGULAR, GP_SOLVE, GP_CALLBACK, GP_ALARM, GP_BRANCH = range(7)
+(GP_OK, GP_NEWTON, GP_SINGULAR, GP_SOLVE, GP_CALLBACK, GP_ALARM, GP_BRANCH,
+ GP_REDUCED) = range(8)
 P_POWER, P_RATIO, P_CODE, P_ERR, P_T, P_DEV, P_SENS = range(7)
 COUNTERS = ("function_evaluations", "constraint_evaluations", "factorizations",
             "newton_iterations")
@@ -47,6 +48,8 @@ class GCP(ctypes.Structure):
             "pred_end", "q", "qd", "qdd")]
         + [(n, ctypes.c_int64) for n in ("dense_kind", "np")]
         + [(n, ctypes.c_void_p) for n in ("P", "AX", "CX", "D", "Fy", "Fq", "Z")]
+        + [(n, ctypes.c_void_p) for n in
+           ("Ct", "At", "pivA", "T", "p", "R", "pivR", "w", "MT", "ra")]
     )
 
 
@@ -71,6 +74,14 @@ class CompiledStage:
         self.out = self._buffers["out"][0]
         self.piv = np.zeros(max(m, 1), dtype=np.int32)
         g.piv = self.piv.ctypes.data
+        n, k = s.nq, s.nq - m  # tangent coordinates' buffers (k = the partition's size)
+        self._tangent = _lib.carve(At=(n, n), T=(max(k, 1), n), p=n, R=(max(k, 1), max(k, 1)),
+                                   w=n, MT=(max(k, 1), n), ra=max(k, 1))
+        for name, (_, address) in self._tangent.items():
+            setattr(g, name, address)
+        self.pivA, self.pivR = np.zeros(n, dtype=np.int32), np.zeros(max(k, 1), dtype=np.int32)
+        g.pivA, g.pivR = self.pivA.ctypes.data, self.pivR.ctypes.data
+        self.C = None  # the tangent coordinates' C (kept alive while C points into it)
         self.count = np.zeros(4, dtype=np.int64)
         g.count = self.count.ctypes.data
         self._pending = []
@@ -81,12 +92,16 @@ class CompiledStage:
         self.iv = self.iu = None
         self.ptr = ctypes.addressof(g)
 
-    def partition(self, iv, iu):
-        """The coordinate partition of the stages from now on."""
+    def partition(self, iv, iu, C=None):
+        """The partition of the stages from now on: coordinates iv, iu, or with C (k, nq)
+        tangent coordinates v = C q (iv, iu then the coordinate choice whose measure the
+        accepted steps report, to go back to)."""
         self.iv = np.ascontiguousarray(iv, dtype=np.int64)
         self.iu = np.ascontiguousarray(iu, dtype=np.int64)
         g = self.g
         g.k, g.iv, g.iu = self.iv.size, self.iv.ctypes.data, self.iu.ctypes.data
+        self.C = None if C is None else np.ascontiguousarray(C, dtype=np.float64)
+        g.Ct = None if C is None else self.C.ctypes.data
 
     def stage(self, t, v, vd, q, accelerations=True):
         """(status, q, qd, qdd, power, ratio): q completed from the prediction q (a fresh
@@ -187,7 +202,10 @@ class CompiledStage:
             raise self._pending.pop()
 
     def factor(self):
-        """(lu, piv) of the last call's Phi_u as scipy's ``lu_factor`` returns them (copies)."""
+        """(lu, piv) of the last call's Phi_u, or in tangent coordinates of its A = [Phi_q;
+        C], as scipy's ``lu_factor`` returns them (copies)."""
+        if self.C is not None:
+            return np.array(self._tangent["At"][0].T, order="F"), self.pivA - 1
         return np.array(self.LU.T, order="F"), self.piv[: self.system.m] - 1
 
     def jacobian(self):

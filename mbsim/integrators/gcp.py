@@ -69,6 +69,7 @@ from mbsim.fast.partition import (
     GP_CALLBACK,
     GP_NEWTON,
     GP_OK,
+    GP_REDUCED,
     GP_SINGULAR,
     GP_SOLVE,
     P_CODE,
@@ -266,7 +267,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         the local error, so that two Newton steps (correct, confirm) usually suffice."""
         s, (iv, iu), C = self.system, (part.iv, part.iu), part.C
         q = self._predicted(t)
-        if C is None and self._compiled is not None:
+        if self._compiled is not None:
             out = self._compiled_call(t, v, vd, q, part, accelerations=False)
             if out is not None:
                 return out[0], out[1], None
@@ -313,9 +314,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         caller takes the stage in Python, where the loads raise again to be seen).  Raises
         what the Python stage would."""
         c = self._compiled
-        if self._c_part is not part:
-            c.partition(part.iv, part.iu)
-            self._c_part = part
+        self._hold(part)
         st, q, qd, qdd, power, ratio = c.stage(t, v, vd, q, accelerations)
         self._c_calls += 1
         if st == GP_CALLBACK:
@@ -325,6 +324,12 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._jac = None  # in the compiled stage's buffers until the next call (_factored)
         self._last_ratio = ratio
         return q, qd, qdd, power
+
+    def _hold(self, part):
+        """The compiled stage's partition made ``part``."""
+        if self._c_part is not part:
+            self._compiled.partition(part.iv, part.iu, part.C)
+            self._c_part = part
 
     def _factored(self, fac, calls):
         """(fac, Phi_q) of the latest stage: ``fac`` itself from a Python stage, else the
@@ -355,7 +360,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         part = ctx or self.part
         k = part.k
         out = None
-        if part.C is None and self._compiled is not None:
+        if self._compiled is not None:
             out = self._compiled_call(t, y[:k], y[k:2 * k], self._predicted(t), part, True)
         if out is not None:
             q, qd, qdd, power = out
@@ -406,11 +411,9 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         here, where it raises to be seen), the stages in Python (rk's ``_attempt``)."""
         c, part = self._compiled, self.part
         self._c_last = False
-        if c is None or part.C is not None:
+        if c is None:
             return super()._attempt(h)
-        if self._c_part is not part:
-            c.partition(part.iv, part.iu)
-            self._c_part = part
+        self._hold(part)
         fixed = self.h_fixed is not None
         c.set_switches(self.policy.tangent if self._tangent_ok else -np.inf,
                        np.inf if fixed else self.policy.branch_jump)
@@ -456,9 +459,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             return super().dense_output_many(times)
         t0, h, ctx = self._dense_args[0], self._dense_args[1], self._dense_args[5]
         c = self._compiled
-        if self._c_part is not ctx:
-            c.partition(ctx.iv, ctx.iu)
-            self._c_part = ctx
+        self._hold(ctx)
         status, Q, QD, W, flags = c.dense(t0, h, times[:k])
         self._c_calls += 1
         if status != GP_OK:
@@ -476,8 +477,13 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         c = self._compiled
         if st == GP_NEWTON:
             self._raise_newton_failure(_Residual(self.system.fc._phi.copy()), t)
+        if st == GP_SINGULAR and c.C is not None:
+            raise StageFailure(f"t = {t:.6g} s: singular [Phi_q; C] (the tangent coordinates' "
+                               f"matrix has a zero pivot)")
         if st == GP_SINGULAR:
             raise _singular_u(t)
+        if st == GP_REDUCED:
+            raise StageFailure(f"t = {t:.6g} s: singular reduced mass matrix")
         if st == GP_SOLVE:
             raise solve_error(int(c.out[P_CODE]))
         if st == GP_ALARM:
@@ -627,10 +633,15 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             change = self._pivot < self.policy.tangent  # towards a change point
             limit = self.ratio * max(1.0, cur.s0)
         else:  # max |T| grows as 1 / cos of the tangent's rotation since the partition
-            sens = self._tangent_sensitivity(fac, cur.k)
+            if self._c_end is not None:  # the compiled trial's (the coordinates' measure)
+                sens, self._pivot = self._c_end
+            else:
+                fac, self._jac = self._factored(fac, self._last_calls)
+                self._last = (lt, ly, q, qd, qdd, fac)
+                sens = self._tangent_sensitivity(fac, cur.k)
+                # back to coordinates as soon as their Phi_u is no longer near singular
+                self._pivot = self._pivot_ratio(self._factor(self._jac, cur.iu))
             limit = self.ratio * cur.s0
-            # back to coordinates as soon as their Phi_u is no longer near singular
-            self._pivot = self._pivot_ratio(self._factor(self._jac, cur.iu))
             change = self._pivot >= self.policy.tangent
         if change or sens > limit:
             part = self._partition(t, q)

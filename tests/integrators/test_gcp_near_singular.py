@@ -41,14 +41,12 @@ def prepared(theta_ref):
 
 
 def stage(integ, part, q, qd, seed):
-    """q, qd, qdd of a stage at (v, vd) of the exact state, Newton started 1e-9 off it."""
+    """q, qd, qdd and the power of a stage (the integrator's right-hand side in ``part``) at
+    (v, vd) of the exact state, Newton started 1e-9 off it."""
     integ._pred = q + 1e-9 * np.random.default_rng(seed).standard_normal(q.size)
-    qq, qqd, fac = integ._complete(0.0, part.v(q), part.v(qd), part)
-    if part.C is None:
-        qdd, _, power = integ.system.accelerations(qq, qqd, 0.0, jac=integ._jac)
-    else:
-        qdd, power = integ._tangent_accelerations(0.0, qq, qqd, fac, part)
-    return qq, qqd, qdd, power
+    f = integ._rhs(0.0, np.concatenate([part.v(q), part.v(qd), [0.0]]), part)
+    _, _, qq, qqd, qdd, _ = integ._last
+    return qq, qqd, qdd, float(f[-1])
 
 
 def test_tangent_coordinates_exact_away_from_singular():

@@ -93,16 +93,27 @@ def exact_power(model, qd, qdd, thd, thdd):
     return float(trans + N * I_CRANK * thd * thdd)
 
 
-def setup(shaken=True, sparse=False):
+def setup(shaken=True, sparse=False, compiled=False):
     """The model, its System on the independent rows (chosen at the initial state, as the
-    dynamic analysis does) and a gcp-dop853 integrator started there."""
+    dynamic analysis does) and a gcp-dop853 integrator started there: with its stages in
+    Python (``_complete``, ``_tangent_accelerations``: the equations under test here), or
+    in C (``compiled``: mbsim/fast/partition.c, through ``_rhs``)."""
     model = shaken_fourbar(shaken)
     q0, qd0, _ = exact_state(model, 0.0, THETA0, THETAD0, shaken)
     _, red = rank_and_redundant(model, _jac(model, q0, 0.0))
     assert red.size == 11
     system = make_system(model, np.setdiff1d(np.arange(model.m), red), sparse=sparse)
-    integ = INTEGRATORS["gcp-dop853"](system, 0.0, q0, qd0, 1.0, {"rtol": 1e-10, "atol": 1e-12})
+    integ = INTEGRATORS["gcp-dop853"](system, 0.0, q0, qd0, 1.0,
+                                      {"rtol": 1e-10, "atol": 1e-12, "compiled_step": compiled})
     return model, system, integ
+
+
+def compiled_stage(integ, t, q, qd, part, seed):
+    """(q, qd, qdd, power) of the compiled stage in ``part`` at (v, vd) of (q, qd), Newton
+    started 1e-9 off q."""
+    integ._pred = q + 1e-9 * np.random.default_rng(seed).standard_normal(q.size)
+    f = integ._rhs(t, np.concatenate([part.v(q), part.v(qd), [0.0]]), part)
+    return (*integ._last[2:5], float(f[-1]))
 
 
 def tangent_partition(integ, q, t):
@@ -230,6 +241,43 @@ def test_tangent_accelerations_near_flat_position(delta, power_tol):
     assert abs(float(Q @ qd) - power_ex) >= 0.05 * abs(power_ex)
 
 
+@pytest.mark.parametrize("shaken", [True, False], ids=["rheonomic", "scleronomic"])
+def test_compiled_tangent_stage_regular_states(shaken):
+    """The tangent stage in C (partition.c: tangent_stage) at the regular states above, from
+    (v, vd) with Newton started 1e-9 off: q, qd as ``_complete``'s bounds, qdd and the power
+    within TOL of the exact reduction (the same bounds as the Python stage's)."""
+    model, system, integ = setup(shaken, compiled=True)
+    assert integ._compiled is not None
+    for t, th, thd in STATES:
+        q, qd, qdd_ex = exact_state(model, t, th, thd, shaken)
+        power_ex = exact_power(model, qd, qdd_ex, thd, theta_acc(t, th, shaken))
+        part = tangent_partition(integ, exact_state(model, t, th - 0.3, thd, shaken)[0], t)
+        qq, qqd, qdd, power = compiled_stage(integ, t, q, qd, part, 0)
+        assert np.abs(qq - q).max() < 1e-12
+        assert np.abs(qqd - qd).max() < 1e-11
+        assert np.abs(qdd - qdd_ex).max() <= TOL * np.abs(qdd_ex).max(), (t, th)
+        assert power == pytest.approx(power_ex, rel=TOL, abs=0)
+
+
+@pytest.mark.parametrize("delta,power_tol", [(1e-3, 1e-6), (1e-4, 1e-3)])
+def test_compiled_tangent_stage_near_flat_position(delta, power_tol):
+    """The tangent stage in C delta rad past the flat position, as the Python stage above
+    (4 Newton starts): v'' = C qdd within 1e-6 of |v''| and the power within power_tol of
+    the exact reduction's, whose lam.nu share (51 %) a missing or wrong term would miss."""
+    model, system, integ = setup(compiled=True)
+    t, th, thd = 0.4, np.pi + delta, 20.0
+    q, qd, qdd_ex = exact_state(model, t, th, thd)
+    power_ex = exact_power(model, qd, qdd_ex, thd, theta_acc(t, th))
+    part = tangent_partition(integ, exact_state(model, t, np.pi - 1e-2, thd)[0], t)
+    a_ex = part.v(qdd_ex)
+    worst_v = worst_power = 0.0
+    for seed in range(4):
+        _, _, qdd, power = compiled_stage(integ, t, q, qd, part, seed)
+        worst_v = max(worst_v, np.abs(part.v(qdd) - a_ex).max() / np.abs(a_ex).max())
+        worst_power = max(worst_power, abs(power - power_ex) / abs(power_ex))
+    assert worst_v <= 1e-6 and worst_power <= power_tol, (worst_v, worst_power)
+
+
 MAX_STEPS = 500  # measured 39-68 steps: a broken branch fails here instead of creeping on
 
 
@@ -242,12 +290,14 @@ def reduction(times):
     return sol.y
 
 
+@pytest.mark.parametrize("compiled", [True, False], ids=["C", "Python"])
 @pytest.mark.parametrize("rtol", [1e-8, 1e-9, 1e-10])
-def test_run_through_flat_positions(rtol, monkeypatch):
+def test_run_through_flat_positions(rtol, compiled, monkeypatch):
     """gcp-dop853 over 1 s from the bottom at 20 rad/s on the shaken linkage (5 flat
-    passages): the run completes, the tangent branch runs (spy on _tangent_accelerations:
-    stages near theta = 0 mod pi, i.e. |sin theta| < 0.1, with |nu| >= 0.01 m/s, the driver
-    moving), and
+    passages), its stages in C or in Python: the run completes, the tangent branch runs (a
+    spy on the tangent stages, _tangent_accelerations or the compiled trials in tangent
+    coordinates: stages near theta = 0 mod pi, i.e. |sin theta| < 0.1, with |nu| >= 0.01
+    m/s, the driver moving), and
 
     - position error against the exact reduction <= 10 rtol + 1e-9 m (the bound of
       test_singular_loops.py; measured 2.5e-9, 5.5e-10, 3.2e-11 m at rtol 1e-8, 1e-9, 1e-10;
@@ -267,17 +317,38 @@ def test_run_through_flat_positions(rtol, monkeypatch):
     cls = gcp.GeneralizedCoordinatePartitioning
     original = cls._tangent_accelerations
 
+    from mbsim.fast.partition import CompiledStage
+
+    trial = CompiledStage.trial
+
+    def spy_trial(self, t, h, y, f, q0, qd0, control):
+        st = trial(self, t, h, y, f, q0, qd0, control)
+        if self.C is not None and st == 0:  # the step's end, in tangent coordinates
+            spy(None, t + h, self.buffer("q"), None, None, None)
+        return st
+
     def spy(self, t, q, qd, fac, part):
-        out = original(self, t, q, qd, fac, part)
+        out = original(self, t, q, qd, fac, part) if self is not None else None
         b = 7 * model.body_index("crank0")
         th = 2 * np.arctan2(q[b + 6], q[b + 3])
-        seen.append((t, np.sin(th), np.abs(self.system.nu(q, t)).max()))
+        seen.append((t, np.sin(th), np.abs(system_nu(q, t)).max()))
         return out
 
+    system_nu = None
     monkeypatch.setattr(cls, "_tangent_accelerations", spy)
+    monkeypatch.setattr(CompiledStage, "trial", spy_trial)
+    init = cls.__init__
+
+    def keep_system(self, system, *a, **k):
+        nonlocal system_nu
+        system_nu = system.nu
+        init(self, system, *a, **k)
+
+    monkeypatch.setattr(cls, "__init__", keep_system)
     res = dynamic(model, {"t_end": 1.0, "step": 0.01, "q0": q0, "qd0": qd0,
                           "integrator": "gcp-dop853", "rtol": rtol, "atol": 1e-2 * rtol,
-                          "error_estimate": False, "max_steps": MAX_STEPS})
+                          "error_estimate": False, "max_steps": MAX_STEPS,
+                          "compiled_step": compiled})
     assert res.complete, res.message
     assert res.t[-1] == pytest.approx(1.0)
     th, thd = reduction(res.t)

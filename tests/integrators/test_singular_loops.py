@@ -19,6 +19,7 @@ error_estimate is within a factor 10 of its true error (the honesty asked of the
 here for every method), and the deck and the CLI's --accuracy reproduce the reduction.
 """
 
+import dataclasses
 import signal
 
 import numpy as np
@@ -200,15 +201,36 @@ over starts perturbed by 4 ulps and the OpenBLAS kernels Haswell, SkylakeX and P
 test below guards against left 5.8e-9 m."""
 
 
+PASSAGE_MEDIAN = 1e-10
+"""m: the median over STARTS starts perturbed by 4 ulps of the four cranks' error under
+gcp-dop853 below rtol 1e-10, where the passages' round-off decides which start lands how
+close to the flat positions: measured 1.5e-11 / 1.8e-11 m at rtol 1e-11 / 1e-12 (the
+stages in C; over 30 starts 2.1e-11 m, the stages in Python 4.4e-11 m), while single starts
+reach 1e-9 ... 9.5e-9 m in 3-4 of 30.  The fault below makes the median 3.8e-10 / 6.1e-10 m."""
+STARTS = 7
+
+
 @pytest.mark.parametrize("rtol", [1e-11, 1e-12])
 def test_gcp_below_the_issue_tolerances(rtol):
     """gcp-dop853 past the issue's rtol range, where a fixed switch of 1e-3 let the
-    coordinate accelerations' round-off (eps s^-3, changepoints.Policy) into the steps:
-    5.8e-9 and 4.7e-10 m at rtol 1e-11 and 1e-12.  With the policy's switch (1.3e-2 at
-    1e-10, 6e-2 at 1e-12): 4.6e-10 and 4.2e-11 m here, 1.5e-9 m at 1e-11 with numpy 2.0 and
-    scipy 1.13.  Below rtol 1e-10 the passages' round-off decides, not the tolerance: the
-    bound is 10 rtol + PASSAGE_ROUNDOFF."""
-    res, err = run("gcp-dop853", rtol)
-    assert res.complete, res.message
-    assert err <= 10 * rtol + PASSAGE_ROUNDOFF, f"position error {err:.3g} m"
+    coordinate accelerations' round-off (eps s^-3, changepoints.Policy) into the steps
+    (with it, the median over the starts below is 3.8e-10 and 6.1e-10 m at rtol 1e-11 and
+    1e-12).  Below rtol 1e-10 the passages' round-off decides, not the tolerance, and one
+    start's error is a draw of that lottery (up to 9.5e-9 m in 30 starts, PASSAGE_ROUNDOFF
+    exceeded in 3 of them): the test takes STARTS starts, the first unperturbed, the others
+    q0 perturbed by 4 ulps (random signs), each complete, and bounds their median by
+    10 rtol + PASSAGE_MEDIAN."""
+    pb = M.reference_problem("parallel_fourbar")
+    eps = np.finfo(float).eps
+    errs = []
+    for seed in range(STARTS):
+        start = pb
+        if seed:
+            signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=pb.q0.size)
+            start = dataclasses.replace(pb, q0=pb.q0 * (1 + 4 * eps * signs))
+        res, err = run("gcp-dop853", rtol, start)
+        assert res.complete, res.message
+        errs.append(err)
+    median = float(np.median(errs))
+    assert median <= 10 * rtol + PASSAGE_MEDIAN, f"median position error {median:.3g} m: {errs}"
 
