@@ -155,7 +155,9 @@ def output_path(template: str | None, deck: str | Path, mode: str, parameters: d
     index access (``{mode.__class__}``), conversions (``{mode!r}``) and wide or nested specs
     are UsageErrors (exit 2) before anything runs."""
     stem = Path(deck).stem
-    if not template:
+    if template is not None and not template.strip():
+        raise UsageError("-o: an empty file name (an unset shell variable?); give a file name")
+    if template is None:
         return Path(f"{stem}_{mode}.h5" if not scene else f"{stem}_{scene}_{mode}.h5")
     fields = {k: (int(v) if float(v).is_integer() else v) for k, v in parameters.items()}
     fields.update(mode=mode, scene=scene or "", deck=stem)

@@ -8,6 +8,7 @@ talks to the terminal; the library reports through exceptions, Results and ``log
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import sys
 from pathlib import Path
@@ -62,10 +63,47 @@ def _check_settings(deck, mode: str, spec, opts: dict, names: dict[str, str]):
         _fail(exc, deck)
 
 
-def check_output(path, option: str, figure: bool = False) -> Path:
+def overwrite_problem(path, inputs=(), hdf5: bool = False) -> str | None:
+    """Why writing the output ``path`` would destroy a file the user keeps (None when it
+    would not): ``-`` (a file named so, not standard output), one of the command's
+    ``inputs`` (the deck of ``run -o``, the results file of ``export --csv``, also through a
+    link), and a file of the other kind: an existing non-empty file that is not HDF5 where
+    the command writes HDF5 (``hdf5``: a deck or script typed as ``-o``), an HDF5 file where
+    it writes something else (CSV, HTML, a figure over a results file)."""
+    import h5py
+
+    path = Path(path)
+    if str(path) == "-":
+        return "'-': writing to standard output is not supported; give a file name"
+    if not path.is_file():
+        return None
+    for f in inputs:
+        try:
+            if os.path.samefile(path, f):
+                return (f"output {path} is the input file {f}; writing it would destroy it: "
+                        "give another name")
+        except OSError:  # an input that is not a file (a folder of cases): not this one
+            continue
+    try:
+        is_hdf5 = h5py.is_hdf5(str(path))
+        empty = path.stat().st_size == 0
+    except OSError:
+        return None  # unreadable: the write itself will say so
+    if hdf5 and not is_hdf5 and not empty:
+        return (f"output {path} exists and is not an HDF5 file (not an earlier result to "
+                "replace); delete it or give another name")
+    if not hdf5 and is_hdf5:
+        return (f"output {path} is an HDF5 file (results?); it is not replaced by this "
+                "output: delete it or give another name")
+    return None
+
+
+def check_output(path, option: str, figure: bool = False, inputs=()) -> Path:
     """Before a command's work: ``path`` (given with ``option``) is not a folder, its folder
-    exists and takes a new file, and (``figure``) its suffix is a figure format; otherwise
-    one ``error:`` line naming the option and the path, exit 2."""
+    exists and takes a new file, (``figure``) its suffix is a figure format, and writing it
+    destroys neither one of the command's ``inputs`` nor a results file
+    (:func:`overwrite_problem`); otherwise one ``error:`` line naming the option and the
+    path, exit 2."""
     from mbsim.output.hdf5 import prepare_output
 
     try:
@@ -75,6 +113,9 @@ def check_output(path, option: str, figure: bool = False) -> Path:
             why = figure_suffix_problem(path)
             if why:
                 raise UsageError(why)
+        why = overwrite_problem(path, inputs)
+        if why:
+            raise UsageError(why)
         return prepare_output(path)
     except UsageError as exc:
         _fail(UsageError(f"{option}: {exc}"))
@@ -299,6 +340,9 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         opts = settings_of(locals())
         opts = {k: v for k, v in opts.items() if v is not None}
         opts = _check_settings(deck, mode, spec, opts, SETTING_OPTIONS)
+        why = overwrite_problem(out, inputs=(deck,), hdf5=True)
+        if why:
+            raise UsageError(f"-o: {why}")
         prepare_output(out)  # before the analysis: a bad -o costs nothing
         # SIGTERM as Ctrl-C from before the lock is taken: a kill at any point after it
         # goes through the finally below, never leaving the lock behind
@@ -672,9 +716,9 @@ def plot(args, ys, x, output, labels, title, list_only, units, data_file):
     if bad:
         _fail(UsageError(f"{bad[0]}: {problems[bad[0]]}"))
     if not list_only:  # before reading anything: a bad -o or --data costs nothing
-        check_output(output, "-o", figure=True)
+        check_output(output, "-o", figure=True, inputs=files)
         if data_file:
-            check_output(data_file, "--data")
+            check_output(data_file, "--data", inputs=files)
     try:
         if list_only:
             for f in files:
@@ -834,7 +878,9 @@ def export(file, csv_path, channels, vtk_dir, parquet):
     want_csv = csv_path is not None or (vtk_dir is None and parquet is None)
     target = Path(csv_path or Path(file).with_suffix(".csv"))
     if want_csv and not target.is_dir():  # a folder takes <deck stem>.csv (export_csv)
-        check_output(target, "--csv")
+        check_output(target, "--csv", inputs=(file,))
+    if parquet is not None:
+        check_output(parquet or Path(file).with_suffix(".parquet"), "--parquet", inputs=(file,))
     try:
         if vtk_dir is not None or parquet is not None:  # mbsim/cli_view.py
             from mbsim.cli_view import export_exchange

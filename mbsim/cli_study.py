@@ -172,7 +172,7 @@ def animate_command(file, output, fps, view, every, dpi, size, mode_shape, label
     out = Path(output) if output else Path(file).with_suffix(".gif")
     if every < 1 or fps <= 0:
         _fail(UsageError("--every must be >= 1 and --fps > 0"))
-    check_output(out, "-o")  # before rendering: a bad -o costs nothing
+    check_output(out, "-o", inputs=(file,))  # before rendering: a bad -o costs nothing
     try:
         bar = _frame_progress()
         try:

@@ -1,0 +1,87 @@
+"""Issue 23, command-line hunt: an output path never destroys a file the user keeps.  A
+command whose output is one of its own inputs (the deck of ``run -o``, the results file of
+``export --csv``), a file of the other kind (a deck under ``run -o``, a results file under
+``export --csv``), ``-`` or an empty name is refused before any work: one ``error:`` line
+naming the option, exit 2, and the file is unchanged."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from tests.test_hardening import cli, one_error
+
+ROOT = Path(__file__).resolve().parents[1]
+SLIDER = ROOT / "models" / "slider_crank.yaml"
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    """A kinematic result of the slider-crank, 0.1 s."""
+    folder = tmp_path_factory.mktemp("outputs")
+    out = folder / "slider.h5"
+    res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.1", "-o", out, "-q")
+    assert res.exit_code == 0, res.stderr
+    return out
+
+
+def test_run_output_that_is_the_deck_is_refused_and_the_deck_kept(tmp_path):
+    deck = tmp_path / "deck.yaml"
+    shutil.copy(SLIDER, deck)
+    text = deck.read_bytes()
+    one_error(cli("run", deck, "--mode", "kinematic", "-o", deck), 2, "-o", "is the input file")
+    assert deck.read_bytes() == text
+    link = tmp_path / "link.h5"  # the same file under another name
+    link.symlink_to(deck)
+    one_error(cli("run", deck, "--mode", "kinematic", "-o", link), 2, "is the input file")
+    assert deck.read_bytes() == text
+
+
+def test_run_output_over_a_file_that_is_not_hdf5_is_refused(tmp_path):
+    other = tmp_path / "notes.txt"
+    other.write_text("keep me\n")
+    one_error(cli("run", SLIDER, "--mode", "kinematic", "-o", other), 2, "not an HDF5 file")
+    assert other.read_text() == "keep me\n"
+
+
+@pytest.mark.parametrize("name", ["-", ""])
+def test_run_output_dash_or_empty_is_a_usage_error(tmp_path, monkeypatch, name):
+    monkeypatch.chdir(tmp_path)
+    one_error(cli("run", SLIDER, "--mode", "kinematic", "-o", name), 2, "-o")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_run_output_over_an_earlier_result_or_an_empty_file_is_written(results, tmp_path):
+    out = tmp_path / "again.h5"
+    shutil.copy(results, out)
+    assert cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.1", "-o", out,
+               "-q").exit_code == 0
+    empty = tmp_path / "empty.h5"
+    empty.touch()
+    assert cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.1", "-o", empty,
+               "-q").exit_code == 0
+
+
+@pytest.mark.parametrize("option", ["--csv", "--parquet"])
+def test_export_over_its_own_results_file_is_refused(results, option):
+    before = results.read_bytes()
+    one_error(cli("export", results, option, results), 2, option, "is the input file")
+    assert results.read_bytes() == before
+
+
+def test_export_csv_over_another_results_file_or_dash_is_refused(results, tmp_path):
+    other = tmp_path / "other.h5"
+    shutil.copy(results, other)
+    one_error(cli("export", results, "--csv", other), 2, "--csv", "is an HDF5 file")
+    assert other.read_bytes() == results.read_bytes()
+    one_error(cli("export", results, "--csv", "-"), 2, "--csv", "standard output")
+
+
+def test_plot_data_and_view_over_their_input_are_refused(results):
+    before = results.read_bytes()
+    one_error(cli("plot", results, "bodies.crank.r", "-o", results.with_suffix(".png"),
+                  "--data", results), 2, "--data", "is the input file")
+    one_error(cli("view", results, "-o", results), 2, "-o", "is the input file")
+    assert results.read_bytes() == before
