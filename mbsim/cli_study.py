@@ -12,12 +12,16 @@ from pathlib import Path
 
 import click
 
-from mbsim.cli import EXIT_FAILED, _fail, _warn, check_output
+from mbsim.cli import EXIT_FAILED, _fail, _results_file, _warn, check_output
 from mbsim.cli_options import jobs_option, quiet_option
 from mbsim.errors import MbsimError, UsageError
 from mbsim.progress import Progress, format_duration
 
 VIEWS = ("iso", "xy", "xz", "yz")
+
+
+MAX_FPS = 1000  # frames per second: a GIF stores whole milliseconds per frame
+MIN_PIXELS, MAX_PIXELS = 16, 2160  # a frame's side (dpi x size); drawn 2x larger (render.py)
 
 
 def _table(header: list[str], rows: list[list[str]], indent: str = "  ") -> None:
@@ -169,9 +173,15 @@ def animate_command(file, output, fps, view, every, dpi, size, mode_shape, label
     """
     from mbsim.animate import animate_file
 
+    _results_file(file)  # a file that is not a results file: named, not h5py's words
     out = Path(output) if output else Path(file).with_suffix(".gif")
-    if every < 1 or fps <= 0:
-        _fail(UsageError("--every must be >= 1 and --fps > 0"))
+    if every < 1 or not 0 < fps <= MAX_FPS:
+        _fail(UsageError(f"--every must be >= 1 and --fps > 0 and <= {MAX_FPS}, got "
+                         f"--every {every} --fps {fps:g}"))
+    if not (dpi > 0 and size > 0 and MIN_PIXELS <= dpi * size <= MAX_PIXELS):  # NaN too
+        _fail(UsageError(f"--dpi and --size must be > 0, their product (a frame's pixels a "
+                         f"side) {MIN_PIXELS} to {MAX_PIXELS} (default 80 x 5 = 400), got "
+                         f"--dpi {dpi:g} --size {size:g}"))
     check_output(out, "-o", inputs=(file,))  # before rendering: a bad -o costs nothing
     try:
         bar = _frame_progress()
@@ -183,5 +193,6 @@ def animate_command(file, output, fps, view, every, dpi, size, mode_shape, label
             if bar is not None:
                 bar.close()
     except (MbsimError, KeyError, ValueError, OSError) as exc:
-        _fail(exc if isinstance(exc, MbsimError) else UsageError(str(exc).strip("'\"")))
+        _fail(exc if isinstance(exc, MbsimError)
+              else UsageError(f"{file}: {str(exc).strip(chr(39) + chr(34))}"))
     click.echo(f"animation: {nframes} frames at {fps:g} fps -> {path}")

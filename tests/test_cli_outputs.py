@@ -85,3 +85,23 @@ def test_plot_data_and_view_over_their_input_are_refused(results):
                   "--data", results), 2, "--data", "is the input file")
     one_error(cli("view", results, "-o", results), 2, "-o", "is the input file")
     assert results.read_bytes() == before
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--dpi", "0"], "--dpi and --size"),        # was ZeroDivisionError in render.py
+    (["--size", "0"], "--dpi and --size"),
+    (["--size", "1e6"], "--dpi and --size"),     # was MemoryError drawing an 8e7-pixel frame
+    (["--dpi", "nan"], "--dpi and --size"),
+    (["--fps", "inf"], "--fps"),                 # was a GIF of 0 ms frames
+    (["--fps", "nan"], "--fps"),
+])
+def test_animate_frame_options_out_of_range_are_usage_errors(results, tmp_path, args, needle):
+    out = tmp_path / "a.gif"
+    one_error(cli("animate", results, "-o", out, *args), 2, needle)
+    assert not out.exists()
+
+
+def test_animate_of_a_file_that_is_not_results_names_the_file(tmp_path):
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 100)  # truncated: h5py's words before
+    one_error(cli("animate", bad, "-o", tmp_path / "a.gif"), 2, f"{bad}: not an HDF5 file")
