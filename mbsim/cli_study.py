@@ -20,6 +20,7 @@ from mbsim.progress import Progress, format_duration
 VIEWS = ("iso", "xy", "xz", "yz")
 
 
+MIN_DPI, MAX_DPI = 10, 1200  # study figures (about 6 x 4 in: 1200 dpi is 7200 x 4800 px)
 MAX_FPS = 1000  # frames per second: a GIF stores whole milliseconds per frame
 MIN_PIXELS, MAX_PIXELS = 16, 2160  # a frame's side (dpi x size); drawn 2x larger (render.py)
 
@@ -52,6 +53,9 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
     """
     from mbsim.study import list_studies, open_deck, run_study, study_names
 
+    if not MIN_DPI <= dpi <= MAX_DPI:  # NaN too; before any case runs
+        _fail(UsageError(f"--dpi must be {MIN_DPI} to {MAX_DPI} (dots per inch of the "
+                         f"figures), got {dpi:g}"))
     try:
         parsed = open_deck(deck)  # read and composed once for every case of every study
         spec = parsed.spec()

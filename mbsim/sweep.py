@@ -611,6 +611,7 @@ def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
         tasks = [_SweepTask(c.number, (sweep.deck_text, sweep.deck, sweep.case_overrides(c),
                                        sweep.scene, sweep.mode, sweep.options), c)
                  for c in todo]  # fmt: skip
+        jobs = min(jobs, len(tasks)) if jobs and tasks else jobs  # no idle processes
         run_batch(tasks, run_case, finish, jobs, scheduler, executor, spool_dir=sweep.out_dir)
     except BaseException:  # Ctrl-C, or an error of this process: the index of what finished
         index_now(force=True)

@@ -1,0 +1,66 @@
+"""Issue 23, command-line hunt: option values out of their range are refused before any
+work (exit 2, one ``error:`` line naming the option), or lowered with a ``warning:`` line
+where a smaller value does the same work (``-j``)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from mbsim.cli_options import JOBS_PER_CPU
+from tests.test_hardening import cli, one_error
+
+ROOT = Path(__file__).resolve().parents[1]
+SLIDER = ROOT / "models" / "slider_crank.yaml"
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--steps", "0"], "--steps"),          # was refused only after every adaptive run
+    (["--steps", "nan"], "--steps"),
+    (["--tolerances", ""], "--tolerances"),  # was a table without adaptive rows, exit 0
+    (["--tolerances", "1"], "--tolerances"),
+    (["--t-end", "0"], "--t-end"),          # was named 'analysis setting step'
+    (["--t-end", "nan"], "--t-end"),
+    (["--repeats", "0"], "--repeats"),      # was taken as 1
+])
+def test_bench_ladders_and_times_out_of_range_are_usage_errors(args, needle):
+    one_error(cli("bench", SLIDER, *args), 2, needle)
+
+
+def test_bench_unknown_output_channel_is_named_without_quotes():
+    err = one_error(cli("bench", SLIDER, "--integrators", "rk4", "--steps", "0.01", "--t-end",
+                        "0.05", "--outputs", "nope"), 2)
+    assert err.endswith("no channel 'nope'"), err
+
+
+@pytest.mark.parametrize("dpi", ["0", "-1", "nan", "1e9"])
+def test_study_dpi_out_of_range_is_a_usage_error_before_any_case(tmp_path, dpi):
+    out = tmp_path / "st"
+    one_error(cli("study", SLIDER, "all", "--dpi", dpi, "-o", out), 2, "--dpi")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["study", "sweep"])
+def test_jobs_zero_is_a_usage_error(tmp_path, command):
+    args = ["all"] if command == "study" else ["--mode", "kinematic", "--param", "ell=0.3"]
+    one_error(cli(command, SLIDER, *args, "-j", "0", "-o", tmp_path / "o"), 2, "--jobs")
+
+
+def test_sweep_jobs_beyond_the_machine_is_lowered_not_forked(tmp_path):
+    """-j 100000 on one case forked processes until the run was killed (a hang)."""
+    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3", "--t-end", "0.05",
+              "-j", "100000", "-o", tmp_path / "sw")
+    assert res.exit_code == 0, res.stderr
+    cap = JOBS_PER_CPU * (os.cpu_count() or 1)
+    assert f"warning: --jobs 100000 lowered to {cap}" in res.stderr
+    assert "on up to 1 process(es)" in res.stdout  # never more processes than cases
+
+
+@pytest.mark.parametrize("address", ["nonsense", "tcp://host", "tcp://a b:1"])
+def test_sweep_scheduler_without_a_port_is_refused_at_once(tmp_path, address):
+    """'nonsense' took 40 s and ended in a traceback from Dask's Client.__del__."""
+    one_error(cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3", "--scheduler",
+                  address, "-o", tmp_path / "sw"), 2, "--scheduler", "port")
+    assert not (tmp_path / "sw").exists()
