@@ -357,7 +357,7 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
                 opts = opts.replace(progress=prog)  # progress(t, t_end) per output
             result = None
             try:
-                result = run_model(model, mode, opts)
+                result = run_model(model, mode, opts, keep_start_failure=True)
                 signals.hold()  # from here a signal waits until the file is written
             except KeyboardInterrupt:  # outside the analysis' own handling of it
                 signals.hold()

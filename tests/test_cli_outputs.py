@@ -105,3 +105,24 @@ def test_animate_of_a_file_that_is_not_results_names_the_file(tmp_path):
     bad = tmp_path / "bad.h5"
     bad.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 100)  # truncated: h5py's words before
     one_error(cli("animate", bad, "-o", tmp_path / "a.gif"), 2, f"{bad}: not an HDF5 file")
+
+
+@pytest.mark.parametrize("mode", ["kinematic", "dynamic"])
+def test_run_failing_before_its_first_output_replaces_the_file_marked_incomplete(
+        results, tmp_path, mode):
+    """A driver 1/t at t = 0: exit 1 wrote no file, so an earlier result of that name stayed
+    and looked current.  Now the file is written with no output time, marked incomplete,
+    with the error as its message, and it reads back with `export`."""
+    from mbsim.output import read_result
+
+    deck = tmp_path / "deck.yaml"
+    deck.write_text(SLIDER.read_text().replace("function: pi/2 + omega*t",
+                                               "function: pi/2 + omega*t + 1/t"))
+    out = tmp_path / "out.h5"
+    shutil.copy(results, out)  # the earlier, complete run
+    one_error(cli("run", deck, "--mode", mode, "--t-end", "0.05", "-o", out), 1,
+              "t = 0 s", "overflowed", "marked incomplete")
+    res = read_result(out)
+    assert res.status == "incomplete" and len(res.t) == 0
+    assert "overflowed" in res.message
+    assert cli("export", out, "--csv", tmp_path / "out.csv").exit_code == 0
