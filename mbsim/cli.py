@@ -196,6 +196,24 @@ class _NoErrstate:
         return False
 
 
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _sigterm_as_interrupt():
+    """SIGTERM raises KeyboardInterrupt, as Ctrl-C does, where it still has its default
+    action (main thread only); returns the handler to restore, or None."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    old = signal.getsignal(signal.SIGTERM)
+    if old not in (signal.SIG_DFL, None):
+        return None
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    return old
+
+
 class LazyGroup(click.Group):
     """Commands contributed by other modules, imported only when listed or invoked (keeps
     `mbsim --help` fast and avoids import cycles: those modules import helpers from here).
@@ -233,14 +251,20 @@ class LazyGroup(click.Group):
         # stray lines; both are restored afterwards (the CLI also runs in-process in tests).
         # (numpy is imported here only for a command that runs: `mbsim --help` needs none)
         help_only = cmd is None or any(a in ("-h", "--help", "--version") for a in args[:cut])
-        errstate = _NoErrstate() if help_only else __import__("numpy").errstate(all="ignore")
-        errstate.__enter__()
+        errstate = _NoErrstate()
         logging.captureWarnings(True)
         # the commands set SIGPIPE's action for the process (`main`, `sweep`); an in-process
         # call (a script, the tests) gets its own back, or a later pipe to a gone worker
         # would end that process silently
         sigpipe = signal.getsignal(signal.SIGPIPE) if hasattr(signal, "SIGPIPE") else None
+        # SIGTERM as Ctrl-C from here on (it killed a command silently, exit -15, while it
+        # loaded its modules and the deck): one `error: interrupted` line, exit 1
+        sigterm = _sigterm_as_interrupt()
         try:
+            if not help_only:  # inside the try: Ctrl-C while numpy loads is an interrupt
+                entered = __import__("numpy").errstate(all="ignore")
+                entered.__enter__()
+                errstate = entered  # left in the finally below once entered
             rv = super().main(rest, prog_name, complete_var, False, **extra)
         except _NO_ARGS as exc:  # `mbsim` alone: the help, as click prints it
             click.echo(exc.ctx.get_help())
@@ -250,14 +274,16 @@ class LazyGroup(click.Group):
             click.echo(f"error: {path}: {_one_line(exc.format_message())} "
                        f"(see '{path} --help')", err=True)  # fmt: skip
             sys.exit(EXIT_USAGE)
-        except click.exceptions.Abort:  # Ctrl-C outside an analysis, or EOF at a prompt
-            click.echo("error: interrupted", err=True)
+        except (click.exceptions.Abort, KeyboardInterrupt):  # Ctrl-C outside an analysis
+            click.echo("error: interrupted", err=True)  # (or EOF at a prompt)
             sys.exit(EXIT_FAILED)
         except click.exceptions.ClickException as exc:  # file errors and the like
             click.echo(f"error: {_one_line(exc.format_message())}", err=True)
             sys.exit(exc.exit_code)
         finally:
             sys.stdout, sys.stderr = old_out, old_err
+            if sigterm is not None:
+                signal.signal(signal.SIGTERM, sigterm)
             if sigpipe is not None and signal.getsignal(signal.SIGPIPE) != sigpipe:
                 signal.signal(signal.SIGPIPE, sigpipe)
             logging.captureWarnings(False)
@@ -392,13 +418,23 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         click.echo(_one_line(f"error: {deck}: {result.message} ({kept}, marked incomplete)"),
                    err=True)
         sys.exit(EXIT_FAILED)
+    if signals.caught:  # taken by a part the analysis may skip (the error estimate's
+        # companion) after the run reached t_end: its results are whole, the command was not
+        estimate = result.summary.get("error_estimate")
+        without = (", without an error estimate" if isinstance(estimate, dict)
+                   and estimate.get("position") is None else "")
+        click.echo(_one_line(f"error: {deck}: interrupted (Ctrl-C or SIGTERM) after the run "
+                             f"reached its end; its results are kept in {out}, complete"
+                             f"{without}"), err=True)
+        sys.exit(EXIT_FAILED)
 
 
 class _Interrupts:
     """Ctrl-C and SIGTERM (kill, a CI timeout) while a run holds its output.
 
     During the analysis both raise KeyboardInterrupt: the analyses catch it and return the
-    outputs reached, marked incomplete.  After :meth:`hold` (the analysis has returned)
+    outputs reached, marked incomplete (``caught`` records it: a part that may be skipped,
+    the error estimate's companion, takes it and returns the whole run).  After :meth:`hold` (the analysis has returned)
     a signal only sets ``held``: the results file is written whole, and the caller then
     ends the run.  Only in the main thread (signal handlers cannot be set elsewhere)."""
 
@@ -407,13 +443,14 @@ class _Interrupts:
     def __enter__(self):
         import threading
 
-        self.old, self.raising, self.held = {}, True, False
+        self.old, self.raising, self.held, self.caught = {}, True, False, False
         if threading.current_thread() is threading.main_thread():
             self.old = {sig: signal.signal(sig, self._handle) for sig in self.SIGNALS}
         return self
 
     def _handle(self, signum, frame):
         if self.raising:
+            self.caught = True  # the analysis may catch it and still return whole results
             raise KeyboardInterrupt
         self.held = True
 
