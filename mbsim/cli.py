@@ -858,14 +858,21 @@ def list_(what):
 @click.option("--channels", help="Comma-separated channels to compare (default: all).")
 @click.option("--monitors", is_flag=True,
               help="Also compare monitors.* and error.* (step sizes, violations, estimates).")
-@click.option("-n", "--worst", default=10, show_default=True, help="Rows in the table.")
+@click.option("-n", "--worst", type=click.IntRange(min=0), default=10, show_default=True,
+              help="Rows in the table.")
 def compare(a, b, rtol, atol, channels, monitors, worst):
     """Compare results A against reference B: exit 0 if they agree, 1 if not.
 
     Example: mbsim compare new.h5 golden.h5 --rtol 1e-6 --atol 1e-9
     """
+    import math
+
     from mbsim.output import compare_results, read_result
 
+    for option, tol in (("--rtol", rtol), ("--atol", atol)):
+        if tol is not None and not (tol >= 0 and math.isfinite(tol)):  # NaN: every value
+            # would "differ", exit 1, a false report
+            _fail(UsageError(f"{option}: expected a finite number >= 0, got {tol:g}"))
     _results_file(a)
     _results_file(b)
     try:
@@ -888,6 +895,8 @@ def compare(a, b, rtol, atol, channels, monitors, worst):
     timing = [p for p in problems if p.startswith("time axes differ")]
     if timing and not diffs:  # nothing comparable: say why, not "0 of 0 channels"
         click.echo(f"DIFFER: {timing[0]}; run both with the same t_start, t_end and step")
+    elif not diffs and not problems:  # two files without outputs: agree, on nothing
+        click.echo(f"agree: no channel to compare (no output time in {a} nor {b})")
     else:
         click.echo(f"{'agree' if ok else 'DIFFER'}: {len(bad)} of {len(diffs)} channels outside "
                    f"rtol={rtol:g}, {atol_text}")

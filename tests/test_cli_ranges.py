@@ -64,3 +64,25 @@ def test_sweep_scheduler_without_a_port_is_refused_at_once(tmp_path, address):
     one_error(cli("sweep", SLIDER, "--mode", "kinematic", "--param", "ell=0.3", "--scheduler",
                   address, "-o", tmp_path / "sw"), 2, "--scheduler", "port")
     assert not (tmp_path / "sw").exists()
+
+
+@pytest.fixture(scope="module")
+def slider_result(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ranges") / "slider.h5"
+    res = cli("run", SLIDER, "--mode", "kinematic", "--t-end", "0.05", "-o", out, "-q")
+    assert res.exit_code == 0, res.stderr
+    return out
+
+
+@pytest.mark.parametrize("option, value", [("--rtol", "nan"), ("--atol", "nan"),
+                                           ("--rtol", "inf"), ("--rtol", "-1")])
+def test_compare_tolerance_not_finite_is_a_usage_error_not_differ(slider_result, option,
+                                                                  value):
+    """--rtol nan made every value 'differ': exit 1 and DIFFER on a file against itself."""
+    res = cli("compare", slider_result, slider_result, option, value)
+    one_error(res, 2, option)
+    assert "DIFFER" not in res.stdout
+
+
+def test_compare_worst_below_zero_is_a_usage_error(slider_result):
+    one_error(cli("compare", slider_result, slider_result, "-n", "-3"), 2, "--worst")
