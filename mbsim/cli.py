@@ -664,7 +664,7 @@ def _info_forces(spec, model) -> None:
 @main.command()
 @click.argument("deck", type=click.Path(dir_okay=False))
 @deck_options()
-@click.option("-n", "--worst", default=5, show_default=True, help="How many residuals to print.")
+@click.option("-n", "--worst", type=click.IntRange(min=0), default=5, show_default=True, help="How many residuals to print.")
 def check(deck, sets, scene, worst):
     """Validate DECK, assemble it, and print the worst constraint residuals before and after.
 

@@ -86,3 +86,8 @@ def test_compare_tolerance_not_finite_is_a_usage_error_not_differ(slider_result,
 
 def test_compare_worst_below_zero_is_a_usage_error(slider_result):
     one_error(cli("compare", slider_result, slider_result, "-n", "-3"), 2, "--worst")
+
+
+def test_check_worst_below_zero_is_a_usage_error():
+    """-n -2 printed all residuals but the last two (a Python slice)."""
+    one_error(cli("check", SLIDER, "-n", "-2"), 2, "--worst")
