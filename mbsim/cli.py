@@ -434,9 +434,9 @@ class _Interrupts:
 
     During the analysis both raise KeyboardInterrupt: the analyses catch it and return the
     outputs reached, marked incomplete (``caught`` records it: a part that may be skipped,
-    the error estimate's companion, takes it and returns the whole run).  After :meth:`hold` (the analysis has returned)
-    a signal only sets ``held``: the results file is written whole, and the caller then
-    ends the run.  Only in the main thread (signal handlers cannot be set elsewhere)."""
+    the error estimate's companion, takes it and returns the whole run).  After
+    :meth:`hold` (the analysis has returned) a signal only sets ``held``: the results file
+    is written whole, and the caller then ends the run.  Only in the main thread (signal handlers cannot be set elsewhere)."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -664,7 +664,8 @@ def _info_forces(spec, model) -> None:
 @main.command()
 @click.argument("deck", type=click.Path(dir_okay=False))
 @deck_options()
-@click.option("-n", "--worst", type=click.IntRange(min=0), default=5, show_default=True, help="How many residuals to print.")
+@click.option("-n", "--worst", type=click.IntRange(min=0), default=5, show_default=True,
+              help="How many residuals to print.")
 def check(deck, sets, scene, worst):
     """Validate DECK, assemble it, and print the worst constraint residuals before and after.
 
