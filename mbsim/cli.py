@@ -436,7 +436,8 @@ class _Interrupts:
     outputs reached, marked incomplete (``caught`` records it: a part that may be skipped,
     the error estimate's companion, takes it and returns the whole run).  After
     :meth:`hold` (the analysis has returned) a signal only sets ``held``: the results file
-    is written whole, and the caller then ends the run.  Only in the main thread (signal handlers cannot be set elsewhere)."""
+    is written whole, and the caller then ends the run.  Only in the main thread (signal
+    handlers cannot be set elsewhere)."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
