@@ -91,3 +91,13 @@ def test_compare_worst_below_zero_is_a_usage_error(slider_result):
 def test_check_worst_below_zero_is_a_usage_error():
     """-n -2 printed all residuals but the last two (a Python slice)."""
     one_error(cli("check", SLIDER, "-n", "-2"), 2, "--worst")
+
+
+def test_sweep_product_over_the_case_limit_is_refused_before_it_is_made(tmp_path):
+    """300^4 cases: the product was built in memory until the kernel killed the sweep."""
+    values = ",".join(f"{0.2 + i * 1e-4:.4f}" for i in range(300))
+    res = cli("sweep", SLIDER, "--mode", "kinematic", "--param", f"ell={values}",
+              "--param", f"omega={values}", "--param", f"w0={values}", "--param",
+              f"xC={values}", "-o", tmp_path / "sw")
+    one_error(res, 2, "number of sweep cases", "8100000000 > 100000", "MBSIM_MAX_CASES")
+    assert not (tmp_path / "sw").exists()
