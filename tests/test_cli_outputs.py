@@ -126,3 +126,22 @@ def test_run_failing_before_its_first_output_replaces_the_file_marked_incomplete
     assert res.status == "incomplete" and len(res.t) == 0
     assert "overflowed" in res.message
     assert cli("export", out, "--csv", tmp_path / "out.csv").exit_code == 0
+
+
+def test_view_of_a_folder_skips_files_that_are_not_results_by_name(results, tmp_path):
+    """A folder holding another program's HDF5 file: 'error: DIR: "Unable to synchronously
+    open object (object 'time' doesn't exist)"', naming neither the file nor the problem."""
+    import h5py
+
+    folder = tmp_path / "cases"
+    folder.mkdir()
+    shutil.copy(results, folder / "k=1.h5")
+    with h5py.File(folder / "other.h5", "w") as f:
+        f["x"] = [1.0, 2.0]
+    res = cli("view", folder, "-o", tmp_path / "v.html")
+    assert res.exit_code == 0, res.stderr
+    assert f"warning: skipping {folder / 'other.h5'}: an HDF5 file without mbsim results" \
+        in res.stderr
+    (folder / "k=1.h5").unlink()
+    one_error(cli("view", folder, "-o", tmp_path / "w.html"), 2, "no result files",
+              "other.h5: an HDF5 file without mbsim results")
