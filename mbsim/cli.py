@@ -75,8 +75,11 @@ def overwrite_problem(path, inputs=(), hdf5: bool = False) -> str | None:
     path = Path(path)
     if str(path) == "-":
         return "'-': writing to standard output is not supported; give a file name"
-    if not path.is_file():
-        return None
+    try:
+        if not path.is_file():
+            return None
+    except OSError as exc:  # a name longer than the file system takes (ENAMETOOLONG)
+        return f"output {path}: {exc.strerror or exc}"
     for f in inputs:
         try:
             if os.path.samefile(path, f):
@@ -96,6 +99,14 @@ def overwrite_problem(path, inputs=(), hdf5: bool = False) -> str | None:
         return (f"output {path} is an HDF5 file (results?); it is not replaced by this "
                 "output: delete it or give another name")
     return None
+
+
+def _is_folder(path: Path) -> bool:
+    """``path.is_dir()``, False where the name cannot be looked up (too long)."""
+    try:
+        return path.is_dir()
+    except OSError:
+        return False
 
 
 def check_output(path, option: str, figure: bool = False, inputs=()) -> Path:
@@ -925,7 +936,7 @@ def export(file, csv_path, channels, vtk_dir, parquet):
     lines = []
     want_csv = csv_path is not None or (vtk_dir is None and parquet is None)
     target = Path(csv_path or Path(file).with_suffix(".csv"))
-    if want_csv and not target.is_dir():  # a folder takes <deck stem>.csv (export_csv)
+    if want_csv and not _is_folder(target):  # a folder takes <deck stem>.csv (export_csv)
         check_output(target, "--csv", inputs=(file,))
     if parquet is not None:
         check_output(parquet or Path(file).with_suffix(".parquet"), "--parquet", inputs=(file,))
@@ -940,7 +951,8 @@ def export(file, csv_path, channels, vtk_dir, parquet):
             paths = export_csv(res, target, channels=chans)
             lines += [f"csv -> {p}" for p in paths]
     except (MbsimError, KeyError, IndexError, ValueError, OSError) as exc:
-        _fail(exc if isinstance(exc, MbsimError) else UsageError(_key_message(exc)))
+        _fail(exc if isinstance(exc, MbsimError) else UsageError(
+            _key_message(exc) if isinstance(exc, KeyError) else str(exc)))
     for line in lines:
         click.echo(line)
 

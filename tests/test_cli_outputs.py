@@ -145,3 +145,17 @@ def test_view_of_a_folder_skips_files_that_are_not_results_by_name(results, tmp_
     (folder / "k=1.h5").unlink()
     one_error(cli("view", folder, "-o", tmp_path / "w.html"), 2, "no result files",
               "other.h5: an HDF5 file without mbsim results")
+
+
+@pytest.mark.parametrize("command", [
+    ["run", SLIDER, "--mode", "kinematic", "--t-end", "0.05", "-o", "{name}.h5"],
+    ["export", "{results}", "--csv", "{name}.csv"],
+    ["plot", "{results}", "bodies.crank.r", "-o", "{name}.png"],
+    ["animate", "{results}", "-o", "{name}.gif"],
+])
+def test_output_name_longer_than_the_file_system_takes_is_a_usage_error(results, tmp_path,
+                                                                        command):
+    """A 300-character file name: OSError ENAMETOOLONG traceback from pathlib's is_file."""
+    name = str(tmp_path / ("a" * 300))
+    args = [str(a).format(name=name, results=results) for a in command]
+    one_error(cli(*args), 2, "File name too long")

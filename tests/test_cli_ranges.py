@@ -101,3 +101,13 @@ def test_sweep_product_over_the_case_limit_is_refused_before_it_is_made(tmp_path
               f"xC={values}", "-o", tmp_path / "sw")
     one_error(res, 2, "number of sweep cases", "8100000000 > 100000", "MBSIM_MAX_CASES")
     assert not (tmp_path / "sw").exists()
+
+
+@pytest.mark.parametrize("digits", [400, 5000])
+def test_deck_integer_past_float_range_is_not_finite_not_a_traceback(tmp_path, digits):
+    """mass: 999...9 (400 digits): OverflowError traceback converting it to float; 5000
+    digits: ValueError past Python's 4300-digit limit."""
+    deck = tmp_path / "deck.yaml"
+    deck.write_text(SLIDER.read_text().replace("    mass: 0.12", f"    mass: {'9' * digits}"))
+    one_error(cli("check", deck), 2, "deck.yaml:37: bodies.crank.mass",
+              "expected a finite number")
