@@ -21,7 +21,8 @@ VIEWS = ("iso", "xy", "xz", "yz")
 
 
 MIN_DPI, MAX_DPI = 10, 1200  # study figures (about 6 x 4 in: 1200 dpi is 7200 x 4800 px)
-MAX_FPS = 1000  # frames per second: a GIF stores whole milliseconds per frame
+MIN_FPS, MAX_FPS = 0.01, 1000  # frames per second: a GIF stores a frame's duration in
+# hundredths of a second as a 16-bit number (at most 655 s: --fps 0.001 overflowed PIL)
 MIN_PIXELS, MAX_PIXELS = 16, 2160  # a frame's side (dpi x size); drawn 2x larger (render.py)
 
 
@@ -179,8 +180,8 @@ def animate_command(file, output, fps, view, every, dpi, size, mode_shape, label
 
     _results_file(file)  # a file that is not a results file: named, not h5py's words
     out = Path(output) if output else Path(file).with_suffix(".gif")
-    if every < 1 or not 0 < fps <= MAX_FPS:
-        _fail(UsageError(f"--every must be >= 1 and --fps > 0 and <= {MAX_FPS}, got "
+    if every < 1 or not MIN_FPS <= fps <= MAX_FPS:
+        _fail(UsageError(f"--every must be >= 1 and --fps {MIN_FPS:g} to {MAX_FPS}, got "
                          f"--every {every} --fps {fps:g}"))
     if not (dpi > 0 and size > 0 and MIN_PIXELS <= dpi * size <= MAX_PIXELS):  # NaN too
         _fail(UsageError(f"--dpi and --size must be > 0, their product (a frame's pixels a "

@@ -159,3 +159,34 @@ def test_output_name_longer_than_the_file_system_takes_is_a_usage_error(results,
     name = str(tmp_path / ("a" * 300))
     args = [str(a).format(name=name, results=results) for a in command]
     one_error(cli(*args), 2, "File name too long")
+
+
+@pytest.mark.parametrize("fps", ["0.001", "1e-300"])
+def test_animate_fps_below_a_gif_frame_duration_is_a_usage_error(results, tmp_path, fps):
+    """--fps 0.001: a frame of 1000 s overflowed the GIF's 16-bit duration (PIL traceback)."""
+    one_error(cli("animate", results, "-o", tmp_path / "a.gif", "--fps", fps), 2, "--fps")
+
+
+def test_mp4_writer_reports_an_ffmpeg_that_stops_instead_of_dying_of_sigpipe(tmp_path):
+    """With SIGPIPE's default action (the command's) a write to an ffmpeg that had exited
+    ended mbsim silently, exit -13; now an OSError with ffmpeg's message."""
+    import subprocess
+    import sys
+
+    from mbsim.view.render import mp4_encoder
+
+    if mp4_encoder() is None:
+        pytest.skip("no MP4 encoder (imageio-ffmpeg or ffmpeg)")
+    code = (
+        "import signal; signal.signal(signal.SIGPIPE, signal.SIG_DFL)\n"
+        "from pathlib import Path; from PIL import Image\n"
+        "from mbsim.view.render import _write_mp4\n"
+        "images = (Image.new('RGB', (64, 64)) for _ in range(200))\n"
+        "try:\n"
+        f"    _write_mp4(images, Path({str(tmp_path / 'no' / 'x.mp4')!r}), 20.0)\n"
+        "except OSError as exc:\n"
+        "    print('OSError', exc)\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=120, cwd=ROOT)
+    assert p.returncode == 0, (p.returncode, p.stderr)
+    assert p.stdout.startswith("OSError ffmpeg failed"), p.stdout
