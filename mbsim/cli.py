@@ -780,19 +780,25 @@ def plot(args, ys, x, output, labels, title, list_only, units, data_file):
             raise click.UsageError("name at least one channel with -y (see --list)")
         from mbsim.output.plots import case_label, export_plot_data
 
+        import matplotlib
+
         shown = [u.strip() for item in units for u in item.split(",") if u.strip()] or None
         results = [read_result(f) for f in files]
-        if len(results) == 1:
-            fig = plot_channels(results[0], list(ys), x=x, title=title, units=shown)
-        else:
-            labs = list(labels) or [case_label(r, Path(f).stem) for f, r in zip(files, results)]
-            cases = list(zip(labs, results))
-            if not labels:  # `DIR/*.h5` comes in string order (k=10, k=200, k=50): by value
-                from mbsim.view.page import natural_key
+        # titles, labels and the deck's names are plain text: a body named 'r$\frac$d' or a
+        # --title '$x^$' ended the plot in matplotlib's math-text parser
+        with matplotlib.rc_context({"text.parse_math": False}):
+            if len(results) == 1:
+                fig = plot_channels(results[0], list(ys), x=x, title=title, units=shown)
+            else:
+                labs = list(labels) or [case_label(r, Path(f).stem)
+                                        for f, r in zip(files, results)]
+                cases = list(zip(labs, results))
+                if not labels:  # `DIR/*.h5` come in string order (k=10, k=200, k=50)
+                    from mbsim.view.page import natural_key
 
-                cases.sort(key=lambda case: natural_key(case[0]))
-            fig = plot_results(cases, ys[0], x=x, title=title, units=shown)
-        save_figure(fig, output)
+                    cases.sort(key=lambda case: natural_key(case[0]))
+                fig = plot_results(cases, ys[0], x=x, title=title, units=shown)
+            save_figure(fig, output)
         if data_file:
             export_plot_data(fig, data_file)
             click.echo(f"data -> {data_file}")

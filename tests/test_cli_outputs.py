@@ -190,3 +190,14 @@ def test_mp4_writer_reports_an_ffmpeg_that_stops_instead_of_dying_of_sigpipe(tmp
                        timeout=120, cwd=ROOT)
     assert p.returncode == 0, (p.returncode, p.stderr)
     assert p.stdout.startswith("OSError ffmpeg failed"), p.stdout
+
+
+@pytest.mark.parametrize("extra", [["--title", "$x^$"], ["--title", r"$\undefined$"],
+                                   ["--label", r"$\frac$"]])
+def test_plot_titles_and_labels_are_plain_text(results, tmp_path, extra):
+    """'$x^$' ended the plot in matplotlib's math-text parser (exit 2 with a pyparsing
+    message); a deck name with '$' did the same."""
+    out = tmp_path / "p.png"
+    res = cli("plot", results, "bodies.crank.r", "-o", out, *extra)
+    assert res.exit_code == 0, res.stderr
+    assert out.is_file()
