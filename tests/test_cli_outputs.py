@@ -201,3 +201,20 @@ def test_plot_titles_and_labels_are_plain_text(results, tmp_path, extra):
     res = cli("plot", results, "bodies.crank.r", "-o", out, *extra)
     assert res.exit_code == 0, res.stderr
     assert out.is_file()
+
+
+@pytest.mark.parametrize("command", [["export", "{f}", "--csv", "{d}/x.csv"],
+                                     ["plot", "{f}", "--list"], ["compare", "{f}", "{f}"],
+                                     ["view", "{f}", "-o", "{d}/x.html"],
+                                     ["animate", "{f}", "-o", "{d}/x.gif"]])
+def test_an_hdf5_file_whose_time_is_a_group_is_not_a_results_file(tmp_path, command):
+    """Another program's file with a /time group and a mode attribute: h5py's TypeError
+    traceback in every reader."""
+    import h5py
+
+    f = tmp_path / "other.h5"
+    with h5py.File(f, "w") as h:
+        h.attrs["mode"] = "kinematic"
+        h.create_group("time")
+    args = [a.format(f=f, d=tmp_path) for a in command]
+    one_error(cli(*args), 2, f"{f}: an HDF5 file without mbsim results")

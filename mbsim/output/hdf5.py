@@ -811,11 +811,11 @@ def result_file_problem(path: str | Path) -> str | None:
         return "no such file"
     try:
         with h5py.File(path, "r") as f:
-            if "time" in f and "mode" in f.attrs:
+            if isinstance(f.get("time"), h5py.Dataset) and "mode" in f.attrs:
                 return None
             if path.name == "index.h5" or "cases" in f or "sweep" in f.attrs:
                 return "a sweep index, not a results file"
-            return "an HDF5 file without mbsim results (no /time or mode attribute)"
+            return "an HDF5 file without mbsim results (no /time dataset or mode attribute)"
     except (OSError, RuntimeError, ValueError):
         return "not an HDF5 file"
 
