@@ -218,3 +218,14 @@ def test_an_hdf5_file_whose_time_is_a_group_is_not_a_results_file(tmp_path, comm
         h.create_group("time")
     args = [a.format(f=f, d=tmp_path) for a in command]
     one_error(cli(*args), 2, f"{f}: an HDF5 file without mbsim results")
+
+
+def test_a_file_of_a_newer_layout_is_refused_not_misread(results, tmp_path):
+    import h5py
+
+    newer = tmp_path / "newer.h5"
+    shutil.copy(results, newer)
+    with h5py.File(newer, "a") as f:
+        f.attrs["layout_version"] = 99
+    one_error(cli("export", newer, "--csv", tmp_path / "x.csv"), 2, "layout 99",
+              "update mbsim")
