@@ -109,6 +109,21 @@ def _is_folder(path: Path) -> bool:
         return False
 
 
+SETTLE_ONLY = ("t_end", "step", "integrator", "rtol", "atol")  # settings of equilibrium's
+# settling run: without it (--method minimum, steady) they would be ignored without a word
+
+
+def _settle_only(mode: str, opts) -> None:
+    """A command-line setting of the settling run given to an equilibrium by another method
+    is a UsageError (exit 2)."""
+    if mode != "equilibrium" or opts.get("method") == "settle":
+        return
+    given = [SETTING_OPTIONS[k] for k in SETTLE_ONLY if k in opts.given]
+    if given:
+        raise UsageError(f"{given[0]} applies to --mode equilibrium only with --method settle "
+                         f"(the method here is {opts.get('method')})")
+
+
 def check_output(path, option: str, figure: bool = False, inputs=()) -> Path:
     """Before a command's work: ``path`` (given with ``option``) is not a folder, its folder
     exists and takes a new file, (``figure``) its suffix is a figure format, and writing it
@@ -377,6 +392,7 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         opts = settings_of(locals())
         opts = {k: v for k, v in opts.items() if v is not None}
         opts = _check_settings(deck, mode, spec, opts, SETTING_OPTIONS)
+        _settle_only(mode, opts)
         why = overwrite_problem(out, inputs=(deck,), hdf5=True)
         if why:
             raise UsageError(f"-o: {why}")

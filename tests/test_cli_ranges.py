@@ -111,3 +111,15 @@ def test_deck_integer_past_float_range_is_not_finite_not_a_traceback(tmp_path, d
     deck.write_text(SLIDER.read_text().replace("    mass: 0.12", f"    mass: {'9' * digits}"))
     one_error(cli("check", deck), 2, "deck.yaml:37: bodies.crank.mass",
               "expected a finite number")
+
+
+@pytest.mark.parametrize("option, value", [("--t-end", "2"), ("--step", "0.1"),
+                                           ("--integrator", "rk4"), ("--rtol", "1e-5")])
+def test_settling_run_settings_without_method_settle_are_usage_errors(tmp_path, option, value):
+    """--mode equilibrium (method steady on the governor) took --integrator rk4 and ran
+    without it, exit 0: only the settling run (--method settle) uses them."""
+    governor = ROOT / "models" / "governor.yaml"
+    out = tmp_path / "e.h5"
+    one_error(cli("run", governor, "--mode", "equilibrium", option, value, "-o", out), 2,
+              option, "only with --method settle")
+    assert not out.exists()
