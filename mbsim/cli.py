@@ -114,14 +114,24 @@ SETTLE_ONLY = ("t_end", "step", "integrator", "rtol", "atol")  # settings of equ
 
 
 def _settle_only(mode: str, opts) -> None:
-    """A command-line setting of the settling run given to an equilibrium by another method
-    is a UsageError (exit 2)."""
+    """A command-line setting of the settling run given to an equilibrium by another method,
+    or --accuracy with a tolerance, is a UsageError (exit 2)."""
+    check_accuracy_alone(opts.given)
     if mode != "equilibrium" or opts.get("method") == "settle":
         return
     given = [SETTING_OPTIONS[k] for k in SETTLE_ONLY if k in opts.given]
     if given:
         raise UsageError(f"{given[0]} applies to --mode equilibrium only with --method settle "
                          f"(the method here is {opts.get('method')})")
+
+
+def check_accuracy_alone(given) -> None:
+    """--accuracy chooses the tolerances: with --rtol or --atol on the same command line
+    (which it overrode without a word) a UsageError."""
+    both = [SETTING_OPTIONS[k] for k in ("rtol", "atol") if k in given]
+    if "accuracy" in given and both:
+        raise UsageError(f"--accuracy and {both[0]}: give one (--accuracy chooses the "
+                         "tolerances itself)")
 
 
 def check_output(path, option: str, figure: bool = False, inputs=()) -> Path:
@@ -794,9 +804,9 @@ def plot(args, ys, x, output, labels, title, list_only, units, data_file):
             return
         if not ys:
             raise click.UsageError("name at least one channel with -y (see --list)")
-        from mbsim.output.plots import case_label, export_plot_data
-
         import matplotlib
+
+        from mbsim.output.plots import case_label, export_plot_data
 
         shown = [u.strip() for item in units for u in item.split(",") if u.strip()] or None
         results = [read_result(f) for f in files]

@@ -71,7 +71,7 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
     --param k=1000,2000,3000 -j 2 --summary bodies.spindle.omega.y:final
     --summary bodies.spindle.omega.y:settle:from=0.1 -o gov_k
     """
-    from mbsim.cli import _fail, _parse_sets, _warn
+    from mbsim.cli import _fail, _parse_sets, _warn, check_accuracy_alone
     from mbsim.errors import MbsimError, UsageError
 
     if hasattr(signal, "SIGPIPE"):
@@ -97,6 +97,7 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
     given = {k: v for k, v in options.items() if v is not None and k in (*OPEN_UNIT, "step")
              and k in ANALYSIS_SETTINGS.get(mode, ())}
     try:  # the values only: the deck and its cases are merged in each case's run_model
+        check_accuracy_alone({k for k, v in options.items() if v is not None})
         resolve_options(mode, None, given, defaults={}, internal=False)
     except MbsimError as exc:
         _fail(exc, deck)

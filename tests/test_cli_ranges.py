@@ -123,3 +123,15 @@ def test_settling_run_settings_without_method_settle_are_usage_errors(tmp_path, 
     one_error(cli("run", governor, "--mode", "equilibrium", option, value, "-o", out), 2,
               option, "only with --method settle")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["run", "sweep"])
+@pytest.mark.parametrize("tolerance", ["--rtol", "--atol"])
+def test_accuracy_with_a_tolerance_is_a_usage_error(tmp_path, command, tolerance):
+    """--accuracy 1e-6 --rtol 1e-3 ran at rtol 3e-9 (the accuracy's choice), --rtol
+    dropped without a word."""
+    sweep = ["--param", "ell=0.3"] if command == "sweep" else []
+    one_error(cli(command, SLIDER, "--scene", "free", "--mode", "dynamic", *sweep,
+                  "--accuracy", "1e-6", tolerance, "1e-3", "-o", tmp_path / "o"), 2,
+              f"--accuracy and {tolerance}")
+    assert not (tmp_path / "o").exists()
