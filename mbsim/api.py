@@ -20,7 +20,7 @@ import string
 import time
 from pathlib import Path
 
-from mbsim.errors import MbsimError, UsageError, quote
+from mbsim.errors import AnalysisError, MbsimError, UsageError, quote
 from mbsim.result import STATUS_INCOMPLETE, Result
 
 log = logging.getLogger(__name__)  # "mbsim.api": shown with -v
@@ -63,9 +63,13 @@ def analysis_defaults(mode: str) -> dict:
     return dict(getattr(importlib.import_module(ANALYSES[mode][0]), "DEFAULTS", {}))
 
 
-def run_model(model, mode: str, options=None, deck=None) -> Result:
-    """Run one analysis. An MbsimError during the run becomes an incomplete Result only if the
-    analysis itself did not already return one (analyses keep partial data themselves).
+def run_model(model, mode: str, options=None, deck=None, keep_start_failure: bool = False
+              ) -> Result:
+    """Run one analysis.  The analyses return their partial data themselves, marked
+    incomplete; an AnalysisError raised before the first output (the assembly fails, the
+    deck's formulas are not finite at the start) is raised, or with ``keep_start_failure``
+    becomes an incomplete Result with no output time and its message (what ``mbsim run``
+    writes, so that a failed run never leaves an earlier file of that name looking current).
 
     options: a dict of settings (None: none) or a :class:`~mbsim.options.RunOptions`
     (resolved already where the run was requested, the CLI: taken as they are, with their
@@ -87,11 +91,18 @@ def run_model(model, mode: str, options=None, deck=None) -> Result:
     log.info("%s analysis of %s: %d bodies, %d constraint equations", mode,
              getattr(model, "title", "") or "the model", model.nb, model.m)
     try:
-        result = fn(model, options)
-    except (ValueError, FloatingPointError, ArithmeticError) as exc:
-        _overflow(mode, exc)
+        try:
+            result = fn(model, options)
+        except (ValueError, FloatingPointError, ArithmeticError) as exc:
+            _overflow(mode, exc)
     except KeyboardInterrupt:  # before the analysis' own output loop, which keeps its outputs
         result = interrupted_result(mode)
+    except AnalysisError as exc:
+        if not keep_start_failure:
+            raise
+        import numpy as np
+
+        result = Result(mode, np.empty(0), status=STATUS_INCOMPLETE, message=str(exc))
     context = options.context
     _apply_only(result, context.only)
     result.deck_text = context.text
@@ -155,7 +166,9 @@ def output_path(template: str | None, deck: str | Path, mode: str, parameters: d
     index access (``{mode.__class__}``), conversions (``{mode!r}``) and wide or nested specs
     are UsageErrors (exit 2) before anything runs."""
     stem = Path(deck).stem
-    if not template:
+    if template is not None and not template.strip():
+        raise UsageError("-o: an empty file name (an unset shell variable?); give a file name")
+    if template is None:
         return Path(f"{stem}_{mode}.h5" if not scene else f"{stem}_{scene}_{mode}.h5")
     fields = {k: (int(v) if float(v).is_integer() else v) for k, v in parameters.items()}
     fields.update(mode=mode, scene=scene or "", deck=stem)

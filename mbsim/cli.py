@@ -8,6 +8,7 @@ talks to the terminal; the library reports through exceptions, Results and ``log
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import sys
 from pathlib import Path
@@ -62,10 +63,83 @@ def _check_settings(deck, mode: str, spec, opts: dict, names: dict[str, str]):
         _fail(exc, deck)
 
 
-def check_output(path, option: str, figure: bool = False) -> Path:
+def overwrite_problem(path, inputs=(), hdf5: bool = False) -> str | None:
+    """Why writing the output ``path`` would destroy a file the user keeps (None when it
+    would not): ``-`` (a file named so, not standard output), one of the command's
+    ``inputs`` (the deck of ``run -o``, the results file of ``export --csv``, also through a
+    link), and a file of the other kind: an existing non-empty file that is not HDF5 where
+    the command writes HDF5 (``hdf5``: a deck or script typed as ``-o``), an HDF5 file where
+    it writes something else (CSV, HTML, a figure over a results file)."""
+    import h5py
+
+    path = Path(path)
+    if str(path) == "-":
+        return "'-': writing to standard output is not supported; give a file name"
+    try:
+        if not path.is_file():
+            return None
+    except OSError as exc:  # a name longer than the file system takes (ENAMETOOLONG)
+        return f"output {path}: {exc.strerror or exc}"
+    for f in inputs:
+        try:
+            if os.path.samefile(path, f):
+                return (f"output {path} is the input file {f}; writing it would destroy it: "
+                        "give another name")
+        except OSError:  # an input that is not a file (a folder of cases): not this one
+            continue
+    try:
+        is_hdf5 = h5py.is_hdf5(str(path))
+        empty = path.stat().st_size == 0
+    except OSError:
+        return None  # unreadable: the write itself will say so
+    if hdf5 and not is_hdf5 and not empty:
+        return (f"output {path} exists and is not an HDF5 file (not an earlier result to "
+                "replace); delete it or give another name")
+    if not hdf5 and is_hdf5:
+        return (f"output {path} is an HDF5 file (results?); it is not replaced by this "
+                "output: delete it or give another name")
+    return None
+
+
+def _is_folder(path: Path) -> bool:
+    """``path.is_dir()``, False where the name cannot be looked up (too long)."""
+    try:
+        return path.is_dir()
+    except OSError:
+        return False
+
+
+SETTLE_ONLY = ("t_end", "step", "integrator", "rtol", "atol")  # settings of equilibrium's
+# settling run: without it (--method minimum, steady) they would be ignored without a word
+
+
+def _settle_only(mode: str, opts) -> None:
+    """A command-line setting of the settling run given to an equilibrium by another method,
+    or --accuracy with a tolerance, is a UsageError (exit 2)."""
+    check_accuracy_alone(opts.given)
+    if mode != "equilibrium" or opts.get("method") == "settle":
+        return
+    given = [SETTING_OPTIONS[k] for k in SETTLE_ONLY if k in opts.given]
+    if given:
+        raise UsageError(f"{given[0]} applies to --mode equilibrium only with --method settle "
+                         f"(the method here is {opts.get('method')})")
+
+
+def check_accuracy_alone(given) -> None:
+    """--accuracy chooses the tolerances: with --rtol or --atol on the same command line
+    (which it overrode without a word) a UsageError."""
+    both = [SETTING_OPTIONS[k] for k in ("rtol", "atol") if k in given]
+    if "accuracy" in given and both:
+        raise UsageError(f"--accuracy and {both[0]}: give one (--accuracy chooses the "
+                         "tolerances itself)")
+
+
+def check_output(path, option: str, figure: bool = False, inputs=()) -> Path:
     """Before a command's work: ``path`` (given with ``option``) is not a folder, its folder
-    exists and takes a new file, and (``figure``) its suffix is a figure format; otherwise
-    one ``error:`` line naming the option and the path, exit 2."""
+    exists and takes a new file, (``figure``) its suffix is a figure format, and writing it
+    destroys neither one of the command's ``inputs`` nor a results file
+    (:func:`overwrite_problem`); otherwise one ``error:`` line naming the option and the
+    path, exit 2."""
     from mbsim.output.hdf5 import prepare_output
 
     try:
@@ -75,6 +149,9 @@ def check_output(path, option: str, figure: bool = False) -> Path:
             why = figure_suffix_problem(path)
             if why:
                 raise UsageError(why)
+        why = overwrite_problem(path, inputs)
+        if why:
+            raise UsageError(why)
         return prepare_output(path)
     except UsageError as exc:
         _fail(UsageError(f"{option}: {exc}"))
@@ -155,6 +232,24 @@ class _NoErrstate:
         return False
 
 
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _sigterm_as_interrupt():
+    """SIGTERM raises KeyboardInterrupt, as Ctrl-C does, where it still has its default
+    action (main thread only); returns the handler to restore, or None."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    old = signal.getsignal(signal.SIGTERM)
+    if old not in (signal.SIG_DFL, None):
+        return None
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    return old
+
+
 class LazyGroup(click.Group):
     """Commands contributed by other modules, imported only when listed or invoked (keeps
     `mbsim --help` fast and avoids import cycles: those modules import helpers from here).
@@ -192,14 +287,20 @@ class LazyGroup(click.Group):
         # stray lines; both are restored afterwards (the CLI also runs in-process in tests).
         # (numpy is imported here only for a command that runs: `mbsim --help` needs none)
         help_only = cmd is None or any(a in ("-h", "--help", "--version") for a in args[:cut])
-        errstate = _NoErrstate() if help_only else __import__("numpy").errstate(all="ignore")
-        errstate.__enter__()
+        errstate = _NoErrstate()
         logging.captureWarnings(True)
         # the commands set SIGPIPE's action for the process (`main`, `sweep`); an in-process
         # call (a script, the tests) gets its own back, or a later pipe to a gone worker
         # would end that process silently
         sigpipe = signal.getsignal(signal.SIGPIPE) if hasattr(signal, "SIGPIPE") else None
+        # SIGTERM as Ctrl-C from here on (it killed a command silently, exit -15, while it
+        # loaded its modules and the deck): one `error: interrupted` line, exit 1
+        sigterm = _sigterm_as_interrupt()
         try:
+            if not help_only:  # inside the try: Ctrl-C while numpy loads is an interrupt
+                entered = __import__("numpy").errstate(all="ignore")
+                entered.__enter__()
+                errstate = entered  # left in the finally below once entered
             rv = super().main(rest, prog_name, complete_var, False, **extra)
         except _NO_ARGS as exc:  # `mbsim` alone: the help, as click prints it
             click.echo(exc.ctx.get_help())
@@ -209,14 +310,16 @@ class LazyGroup(click.Group):
             click.echo(f"error: {path}: {_one_line(exc.format_message())} "
                        f"(see '{path} --help')", err=True)  # fmt: skip
             sys.exit(EXIT_USAGE)
-        except click.exceptions.Abort:  # Ctrl-C outside an analysis, or EOF at a prompt
-            click.echo("error: interrupted", err=True)
+        except (click.exceptions.Abort, KeyboardInterrupt):  # Ctrl-C outside an analysis
+            click.echo("error: interrupted", err=True)  # (or EOF at a prompt)
             sys.exit(EXIT_FAILED)
         except click.exceptions.ClickException as exc:  # file errors and the like
             click.echo(f"error: {_one_line(exc.format_message())}", err=True)
             sys.exit(exc.exit_code)
         finally:
             sys.stdout, sys.stderr = old_out, old_err
+            if sigterm is not None:
+                signal.signal(signal.SIGTERM, sigterm)
             if sigpipe is not None and signal.getsignal(signal.SIGPIPE) != sigpipe:
                 signal.signal(signal.SIGPIPE, sigpipe)
             logging.captureWarnings(False)
@@ -299,6 +402,10 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         opts = settings_of(locals())
         opts = {k: v for k, v in opts.items() if v is not None}
         opts = _check_settings(deck, mode, spec, opts, SETTING_OPTIONS)
+        _settle_only(mode, opts)
+        why = overwrite_problem(out, inputs=(deck,), hdf5=True)
+        if why:
+            raise UsageError(f"-o: {why}")
         prepare_output(out)  # before the analysis: a bad -o costs nothing
         # SIGTERM as Ctrl-C from before the lock is taken: a kill at any point after it
         # goes through the finally below, never leaving the lock behind
@@ -313,7 +420,7 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
                 opts = opts.replace(progress=prog)  # progress(t, t_end) per output
             result = None
             try:
-                result = run_model(model, mode, opts)
+                result = run_model(model, mode, opts, keep_start_failure=True)
                 signals.hold()  # from here a signal waits until the file is written
             except KeyboardInterrupt:  # outside the analysis' own handling of it
                 signals.hold()
@@ -348,28 +455,40 @@ def run(deck, mode, output, sets, scene, t_end, step, integrator, rtol, atol, ac
         click.echo(_one_line(f"error: {deck}: {result.message} ({kept}, marked incomplete)"),
                    err=True)
         sys.exit(EXIT_FAILED)
+    if signals.caught:  # taken by a part the analysis may skip (the error estimate's
+        # companion) after the run reached t_end: its results are whole, the command was not
+        estimate = result.summary.get("error_estimate")
+        without = (", without an error estimate" if isinstance(estimate, dict)
+                   and estimate.get("position") is None else "")
+        click.echo(_one_line(f"error: {deck}: interrupted (Ctrl-C or SIGTERM) after the run "
+                             f"reached its end; its results are kept in {out}, complete"
+                             f"{without}"), err=True)
+        sys.exit(EXIT_FAILED)
 
 
 class _Interrupts:
     """Ctrl-C and SIGTERM (kill, a CI timeout) while a run holds its output.
 
     During the analysis both raise KeyboardInterrupt: the analyses catch it and return the
-    outputs reached, marked incomplete.  After :meth:`hold` (the analysis has returned)
-    a signal only sets ``held``: the results file is written whole, and the caller then
-    ends the run.  Only in the main thread (signal handlers cannot be set elsewhere)."""
+    outputs reached, marked incomplete (``caught`` records it: a part that may be skipped,
+    the error estimate's companion, takes it and returns the whole run).  After
+    :meth:`hold` (the analysis has returned) a signal only sets ``held``: the results file
+    is written whole, and the caller then ends the run.  Only in the main thread (signal
+    handlers cannot be set elsewhere)."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
     def __enter__(self):
         import threading
 
-        self.old, self.raising, self.held = {}, True, False
+        self.old, self.raising, self.held, self.caught = {}, True, False, False
         if threading.current_thread() is threading.main_thread():
             self.old = {sig: signal.signal(sig, self._handle) for sig in self.SIGNALS}
         return self
 
     def _handle(self, signum, frame):
         if self.raising:
+            self.caught = True  # the analysis may catch it and still return whole results
             raise KeyboardInterrupt
         self.held = True
 
@@ -583,7 +702,8 @@ def _info_forces(spec, model) -> None:
 @main.command()
 @click.argument("deck", type=click.Path(dir_okay=False))
 @deck_options()
-@click.option("-n", "--worst", default=5, show_default=True, help="How many residuals to print.")
+@click.option("-n", "--worst", type=click.IntRange(min=0), default=5, show_default=True,
+              help="How many residuals to print.")
 def check(deck, sets, scene, worst):
     """Validate DECK, assemble it, and print the worst constraint residuals before and after.
 
@@ -672,9 +792,9 @@ def plot(args, ys, x, output, labels, title, list_only, units, data_file):
     if bad:
         _fail(UsageError(f"{bad[0]}: {problems[bad[0]]}"))
     if not list_only:  # before reading anything: a bad -o or --data costs nothing
-        check_output(output, "-o", figure=True)
+        check_output(output, "-o", figure=True, inputs=files)
         if data_file:
-            check_output(data_file, "--data")
+            check_output(data_file, "--data", inputs=files)
     try:
         if list_only:
             for f in files:
@@ -684,21 +804,27 @@ def plot(args, ys, x, output, labels, title, list_only, units, data_file):
             return
         if not ys:
             raise click.UsageError("name at least one channel with -y (see --list)")
+        import matplotlib
+
         from mbsim.output.plots import case_label, export_plot_data
 
         shown = [u.strip() for item in units for u in item.split(",") if u.strip()] or None
         results = [read_result(f) for f in files]
-        if len(results) == 1:
-            fig = plot_channels(results[0], list(ys), x=x, title=title, units=shown)
-        else:
-            labs = list(labels) or [case_label(r, Path(f).stem) for f, r in zip(files, results)]
-            cases = list(zip(labs, results))
-            if not labels:  # `DIR/*.h5` comes in string order (k=10, k=200, k=50): by value
-                from mbsim.view.page import natural_key
+        # titles, labels and the deck's names are plain text: a body named 'r$\frac$d' or a
+        # --title '$x^$' ended the plot in matplotlib's math-text parser
+        with matplotlib.rc_context({"text.parse_math": False}):
+            if len(results) == 1:
+                fig = plot_channels(results[0], list(ys), x=x, title=title, units=shown)
+            else:
+                labs = list(labels) or [case_label(r, Path(f).stem)
+                                        for f, r in zip(files, results)]
+                cases = list(zip(labs, results))
+                if not labels:  # `DIR/*.h5` come in string order (k=10, k=200, k=50)
+                    from mbsim.view.page import natural_key
 
-                cases.sort(key=lambda case: natural_key(case[0]))
-            fig = plot_results(cases, ys[0], x=x, title=title, units=shown)
-        save_figure(fig, output)
+                    cases.sort(key=lambda case: natural_key(case[0]))
+                fig = plot_results(cases, ys[0], x=x, title=title, units=shown)
+            save_figure(fig, output)
         if data_file:
             export_plot_data(fig, data_file)
             click.echo(f"data -> {data_file}")
@@ -777,14 +903,21 @@ def list_(what):
 @click.option("--channels", help="Comma-separated channels to compare (default: all).")
 @click.option("--monitors", is_flag=True,
               help="Also compare monitors.* and error.* (step sizes, violations, estimates).")
-@click.option("-n", "--worst", default=10, show_default=True, help="Rows in the table.")
+@click.option("-n", "--worst", type=click.IntRange(min=0), default=10, show_default=True,
+              help="Rows in the table.")
 def compare(a, b, rtol, atol, channels, monitors, worst):
     """Compare results A against reference B: exit 0 if they agree, 1 if not.
 
     Example: mbsim compare new.h5 golden.h5 --rtol 1e-6 --atol 1e-9
     """
+    import math
+
     from mbsim.output import compare_results, read_result
 
+    for option, tol in (("--rtol", rtol), ("--atol", atol)):
+        if tol is not None and not (tol >= 0 and math.isfinite(tol)):  # NaN: every value
+            # would "differ", exit 1, a false report
+            _fail(UsageError(f"{option}: expected a finite number >= 0, got {tol:g}"))
     _results_file(a)
     _results_file(b)
     try:
@@ -807,6 +940,8 @@ def compare(a, b, rtol, atol, channels, monitors, worst):
     timing = [p for p in problems if p.startswith("time axes differ")]
     if timing and not diffs:  # nothing comparable: say why, not "0 of 0 channels"
         click.echo(f"DIFFER: {timing[0]}; run both with the same t_start, t_end and step")
+    elif not diffs and not problems:  # two files without outputs: agree, on nothing
+        click.echo(f"agree: no channel to compare (no output time in {a} nor {b})")
     else:
         click.echo(f"{'agree' if ok else 'DIFFER'}: {len(bad)} of {len(diffs)} channels outside "
                    f"rtol={rtol:g}, {atol_text}")
@@ -833,8 +968,10 @@ def export(file, csv_path, channels, vtk_dir, parquet):
     lines = []
     want_csv = csv_path is not None or (vtk_dir is None and parquet is None)
     target = Path(csv_path or Path(file).with_suffix(".csv"))
-    if want_csv and not target.is_dir():  # a folder takes <deck stem>.csv (export_csv)
-        check_output(target, "--csv")
+    if want_csv and not _is_folder(target):  # a folder takes <deck stem>.csv (export_csv)
+        check_output(target, "--csv", inputs=(file,))
+    if parquet is not None:
+        check_output(parquet or Path(file).with_suffix(".parquet"), "--parquet", inputs=(file,))
     try:
         if vtk_dir is not None or parquet is not None:  # mbsim/cli_view.py
             from mbsim.cli_view import export_exchange
@@ -846,7 +983,8 @@ def export(file, csv_path, channels, vtk_dir, parquet):
             paths = export_csv(res, target, channels=chans)
             lines += [f"csv -> {p}" for p in paths]
     except (MbsimError, KeyError, IndexError, ValueError, OSError) as exc:
-        _fail(exc if isinstance(exc, MbsimError) else UsageError(_key_message(exc)))
+        _fail(exc if isinstance(exc, MbsimError) else UsageError(
+            _key_message(exc) if isinstance(exc, KeyError) else str(exc)))
     for line in lines:
         click.echo(line)
 

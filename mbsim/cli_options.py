@@ -81,9 +81,24 @@ def quiet_option(help: str = "Print nothing but errors.") -> Callable:  # noqa: 
     return click.option("-q", "--quiet", is_flag=True, help=help)
 
 
-def jobs_option(help: str, default: int | None = None,  # noqa: A002
-                minimum: int | None = None) -> Callable:
-    """``-j/--jobs``: processes that run cases at once."""
-    kind = click.IntRange(min=minimum) if minimum is not None else int
-    return click.option("-j", "--jobs", type=kind, default=default,
-                        show_default=default is not None, help=help)
+JOBS_PER_CPU = 4  # most processes -j starts per CPU: each imports numpy (~50 MB), and cases
+# are CPU-bound, so more only share the CPUs (`-j 100000` forked until the machine hung)
+
+
+def _cap_jobs(ctx, param, value):
+    """-j above JOBS_PER_CPU x the CPUs is lowered to that, with a warning line."""
+    import os
+
+    cap = JOBS_PER_CPU * (os.cpu_count() or 1)
+    if value is not None and value > cap:
+        click.echo(f"warning: --jobs {value} lowered to {cap} ({JOBS_PER_CPU} x the "
+                   f"{os.cpu_count() or 1} CPUs of this machine)", err=True)
+        return cap
+    return value
+
+
+def jobs_option(help: str, default: int | None = None) -> Callable:  # noqa: A002
+    """``-j/--jobs``: processes that run cases at once: at least 1, at most JOBS_PER_CPU x
+    the CPUs (more is lowered to that, with a warning)."""
+    return click.option("-j", "--jobs", type=click.IntRange(min=1), default=default,
+                        callback=_cap_jobs, show_default=default is not None, help=help)

@@ -12,12 +12,18 @@ from pathlib import Path
 
 import click
 
-from mbsim.cli import EXIT_FAILED, _fail, _warn, check_output
+from mbsim.cli import EXIT_FAILED, _fail, _results_file, _warn, check_output
 from mbsim.cli_options import jobs_option, quiet_option
 from mbsim.errors import MbsimError, UsageError
 from mbsim.progress import Progress, format_duration
 
 VIEWS = ("iso", "xy", "xz", "yz")
+
+
+MIN_DPI, MAX_DPI = 10, 1200  # study figures (about 6 x 4 in: 1200 dpi is 7200 x 4800 px)
+MIN_FPS, MAX_FPS = 0.01, 1000  # frames per second: a GIF stores a frame's duration in
+# hundredths of a second as a 16-bit number (at most 655 s: --fps 0.001 overflowed PIL)
+MIN_PIXELS, MAX_PIXELS = 16, 2160  # a frame's side (dpi x size); drawn 2x larger (render.py)
 
 
 def _table(header: list[str], rows: list[list[str]], indent: str = "  ") -> None:
@@ -48,6 +54,9 @@ def study_command(deck, name, out_dir, jobs, list_only, dpi, quiet):
     """
     from mbsim.study import list_studies, open_deck, run_study, study_names
 
+    if not MIN_DPI <= dpi <= MAX_DPI:  # NaN too; before any case runs
+        _fail(UsageError(f"--dpi must be {MIN_DPI} to {MAX_DPI} (dots per inch of the "
+                         f"figures), got {dpi:g}"))
     try:
         parsed = open_deck(deck)  # read and composed once for every case of every study
         spec = parsed.spec()
@@ -169,10 +178,16 @@ def animate_command(file, output, fps, view, every, dpi, size, mode_shape, label
     """
     from mbsim.animate import animate_file
 
+    _results_file(file)  # a file that is not a results file: named, not h5py's words
     out = Path(output) if output else Path(file).with_suffix(".gif")
-    if every < 1 or fps <= 0:
-        _fail(UsageError("--every must be >= 1 and --fps > 0"))
-    check_output(out, "-o")  # before rendering: a bad -o costs nothing
+    if every < 1 or not MIN_FPS <= fps <= MAX_FPS:
+        _fail(UsageError(f"--every must be >= 1 and --fps {MIN_FPS:g} to {MAX_FPS}, got "
+                         f"--every {every} --fps {fps:g}"))
+    if not (dpi > 0 and size > 0 and MIN_PIXELS <= dpi * size <= MAX_PIXELS):  # NaN too
+        _fail(UsageError(f"--dpi and --size must be > 0, their product (a frame's pixels a "
+                         f"side) {MIN_PIXELS} to {MAX_PIXELS} (default 80 x 5 = 400), got "
+                         f"--dpi {dpi:g} --size {size:g}"))
+    check_output(out, "-o", inputs=(file,))  # before rendering: a bad -o costs nothing
     try:
         bar = _frame_progress()
         try:
@@ -183,5 +198,6 @@ def animate_command(file, output, fps, view, every, dpi, size, mode_shape, label
             if bar is not None:
                 bar.close()
     except (MbsimError, KeyError, ValueError, OSError) as exc:
-        _fail(exc if isinstance(exc, MbsimError) else UsageError(str(exc).strip("'\"")))
+        _fail(exc if isinstance(exc, MbsimError)
+              else UsageError(f"{file}: {str(exc).strip(chr(39) + chr(34))}"))
     click.echo(f"animation: {nframes} frames at {fps:g} fps -> {path}")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import signal
 import sys
 
@@ -20,6 +21,9 @@ from mbsim.cli_options import (
     quiet_option,
     settings_of,
 )
+
+# a Dask scheduler's address: [protocol://]host:port, the host a name, IPv4 or [IPv6]
+SCHEDULER_ADDRESS = re.compile(r"(?:[a-z][a-z0-9+.-]*://)?(?:\[[0-9A-Fa-f:.]+\]|[^\s:/\[\]]+):\d{1,5}")
 
 
 def _echo(line: str, err: bool = False) -> None:
@@ -42,8 +46,7 @@ def _echo(line: str, err: bool = False) -> None:
 @click.option("--zip", "zip_", is_flag=True,
               help="Take the --param lists element by element (equal lengths), not the product.")
 @mode_option(help="Analysis to run for every case.")
-@jobs_option(minimum=1,
-             help="Parallel processes (default: min(CPUs, cases)); ignored with --scheduler.")
+@jobs_option(help="Parallel processes (default: min(CPUs, cases)); ignored with --scheduler.")
 @click.option("-o", "--output", "out_dir",
               help="Folder for the case files and the index (default <deck>_<mode>_sweep).")
 @click.option("--summary", "summaries", multiple=True, metavar="CHANNEL:NAME[:from=T]",
@@ -68,8 +71,8 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
     --param k=1000,2000,3000 -j 2 --summary bodies.spindle.omega.y:final
     --summary bodies.spindle.omega.y:settle:from=0.1 -o gov_k
     """
-    from mbsim.cli import _fail, _parse_sets, _warn
-    from mbsim.errors import MbsimError
+    from mbsim.cli import _fail, _parse_sets, _warn, check_accuracy_alone
+    from mbsim.errors import MbsimError, UsageError
 
     if hasattr(signal, "SIGPIPE"):
         # Python's own setting again (mbsim's main sets the default action, for `| head`):
@@ -79,6 +82,11 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
         signal.signal(signal.SIGPIPE, signal.SIG_IGN)
     from mbsim.sweep import default_out_dir, parse_param, parse_summary, plan_sweep
 
+    if scheduler is not None and not SCHEDULER_ADDRESS.fullmatch(scheduler):
+        # Dask takes any text and fails 20-60 s later, with a traceback from its client's
+        # __del__ ('nonsense'): the form is checked first
+        _fail(UsageError(f"--scheduler {scheduler!r}: expected an address with a port, e.g. "
+                         "tcp://10.0.0.5:8786"), deck)
     options = settings_of(locals())
     # the command line's tolerances and step are the same for every case: a bad one is a
     # usage error now (exit 2), not one failed case after another
@@ -89,6 +97,7 @@ def sweep_command(deck, params, zip_, mode, jobs, out_dir, summaries, sets, scen
     given = {k: v for k, v in options.items() if v is not None and k in (*OPEN_UNIT, "step")
              and k in ANALYSIS_SETTINGS.get(mode, ())}
     try:  # the values only: the deck and its cases are merged in each case's run_model
+        check_accuracy_alone({k for k, v in options.items() if v is not None})
         resolve_options(mode, None, given, defaults={}, internal=False)
     except MbsimError as exc:
         _fail(exc, deck)
@@ -142,7 +151,7 @@ def _run_and_report(plan, deck, mode, params, jobs, scheduler, quiet) -> None:
 
     if not quiet:
         where = f"Dask scheduler {scheduler}" if scheduler else \
-            f"up to {jobs or min(os.cpu_count() or 1, ncases)} process(es)"
+            f"up to {min(jobs or os.cpu_count() or 1, ncases)} process(es)"
         _echo(f"sweep: {ncases} case(s) of {mode} on {where} -> {plan.out_dir}")
     try:
         outcome = run_sweep(plan, on_case=on_case, jobs=jobs, scheduler=scheduler)

@@ -24,7 +24,7 @@ def view_command(files, output, title):
 
     Example: mbsim view gov.h5 -o gov.html   (then open gov.html#t=1.5 at t = 1.5 s)
     """
-    from mbsim.cli import _fail
+    from mbsim.cli import _fail, _warn, overwrite_problem
     from mbsim.errors import MbsimError, UsageError
     from mbsim.output.hdf5 import prepare_output
     from mbsim.view.page import write_page
@@ -33,10 +33,15 @@ def view_command(files, output, title):
     out = Path(output) if output else (first / "view.html" if first.is_dir()
                                        else first.with_suffix(".html"))  # fmt: skip
     try:
+        why = overwrite_problem(out, inputs=files)
+        if why:
+            raise UsageError(f"-o: {why}")
         prepare_output(out)  # before reading anything: a bad -o fails at once
-        path = write_page(list(files), out, title)
+        skipped: list[str] = []  # a folder's *.h5 that are not results files
+        path = write_page(list(files), out, title, skipped)
     except (MbsimError, OSError, KeyError, ValueError) as exc:
         _fail(exc if isinstance(exc, MbsimError) else UsageError(f"{files[0]}: {exc}"))
+    _warn(f"skipping {s}" for s in skipped)
     click.echo(f"view -> {path} ({path.stat().st_size / 1e6:.2f} MB)")
 
 

@@ -82,6 +82,7 @@ from pathlib import Path
 import numpy as np
 
 from mbsim.batch import WorkerLost, open_executor, run_batch
+from mbsim.deck.limits import CASES
 from mbsim.errors import AnalysisError, DeckError, MbsimError, Where
 from mbsim.output.stats import RATIO_STATS, STATS, TIME_STATS
 from mbsim.result import STATUS_COMPLETE, STATUS_INCOMPLETE, Result
@@ -288,6 +289,9 @@ def make_cases(params: Sequence[Param], zip_: bool = False) -> list[Case]:
             raise SweepError(f"--zip needs lists of equal length, got {listed}")
         combos = list(zip(*(p.values for p in params)))
     else:
+        count = math.prod(len(p.values) for p in params)
+        if count > CASES.value:  # before the product: 300^4 cases took every byte of memory
+            raise SweepError(CASES.exceeded(count))
         combos = list(itertools.product(*(p.values for p in params)))
     labels = [p.label for p in params]
     cases, seen = [], {}
@@ -611,6 +615,7 @@ def run_sweep(sweep: Sweep, on_case: Callable[[CaseRecord], None] | None = None,
         tasks = [_SweepTask(c.number, (sweep.deck_text, sweep.deck, sweep.case_overrides(c),
                                        sweep.scene, sweep.mode, sweep.options), c)
                  for c in todo]  # fmt: skip
+        jobs = min(jobs, len(tasks)) if jobs and tasks else jobs  # no idle processes
         run_batch(tasks, run_case, finish, jobs, scheduler, executor, spool_dir=sweep.out_dir)
     except BaseException:  # Ctrl-C, or an error of this process: the index of what finished
         index_now(force=True)

@@ -320,7 +320,9 @@ def test_disk_full_keeps_the_earlier_file(tmp_path):
     # 64 KB tmpfs.  Simulated with a file-size limit (RLIMIT_FSIZE, SIGXFSZ ignored: a write
     # past it fails with EFBIG) in a subprocess; the earlier file must stay as it was.
     old = tmp_path / "x.h5"
-    old.write_bytes(b"earlier results")
+    with h5py.File(old, "w") as f:  # an earlier HDF5 file (run -o refuses any other kind)
+        f.attrs["note"] = "earlier results"
+    earlier = old.read_bytes()
     code = textwrap.dedent(f"""
         import resource, signal, sys
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
@@ -335,7 +337,7 @@ def test_disk_full_keeps_the_earlier_file(tmp_path):
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: "), p.stderr
     assert "cannot write the results" in lines[0] and "File too large" in lines[0]
-    assert old.read_bytes() == b"earlier results"
+    assert old.read_bytes() == earlier
     assert sorted(f.name for f in tmp_path.iterdir()) == ["x.h5"]  # no temporary left
 
 

@@ -9,7 +9,8 @@ The defaults are far above the seed's decks (largest: 25 kB, nesting 7, lists of
 Where each is checked: DECK_BYTES on the file's size before it is read (and on deck text
 given otherwise); DEPTH, ITEMS and NODES on YAML's parser events as they come, before
 anything is composed (mbsim.deck.tree._over_limit); NAME_CHARS, TABLE_POINTS,
-POLYNOMIAL_TERMS and PARAMETERS on the composed tree; OUTPUTS with the analysis settings.
+POLYNOMIAL_TERMS and PARAMETERS on the composed tree; OUTPUTS with the analysis settings;
+CASES on a sweep's --param lists before the cases are made (mbsim.sweep.make_cases).
 """
 
 from __future__ import annotations
@@ -58,6 +59,8 @@ TABLE_POINTS = Limit("TABLE_POINTS", 100_000, "number of points of a table or po
 POLYNOMIAL_TERMS = Limit("POLYNOMIAL_TERMS", 1000, "number of polynomial coefficients")
 PARAMETERS = Limit("PARAMETERS", 10_000, "number of parameters")
 OUTPUTS = Limit("OUTPUTS", 1_000_000, "number of output times (t_end - t_start)/step")
+CASES = Limit("CASES", 100_000, "number of sweep cases (the product of the --param lists' "
+              "lengths)")  # each case is a process's run and a file: 10^5 is days of work
 FORMULA_CHARS = 10_000  # mbsim.expr.MAX_LENGTH: fixed, a formula is one line
 
 ALL = (DECK_BYTES, DEPTH, ITEMS, NODES, NAME_CHARS, TABLE_POINTS, POLYNOMIAL_TERMS,

@@ -316,6 +316,7 @@ _STR_TAG, _INT_TAG, _FLOAT_TAG = ("tag:yaml.org,2002:str", "tag:yaml.org,2002:in
                                   "tag:yaml.org,2002:float")
 # numbers that int()/float() read exactly as YAML 1.1 does (no 0x, 0o17, 1_000, 1:30, .inf)
 _PLAIN_INT = re.compile(r"-?(?:0|[1-9][0-9]*)")
+MAX_INT_DIGITS = 300  # digits of a deck integer kept exact: any count or index, and below 1e308
 _PLAIN_FLOAT = re.compile(r"-?(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+][0-9]+)?")
 
 
@@ -344,7 +345,10 @@ class _Converter:
         if tag == _STR_TAG:
             value = text
         elif tag == _INT_TAG and _PLAIN_INT.fullmatch(text):
-            value = int(text)
+            # an integer past float's range (~309 digits) is read as the float it overflows
+            # to, inf, which the field's check refuses like 1e400 (int() raised OverflowError
+            # where a float was needed, ValueError past 4300 digits)
+            value = int(text) if len(text) <= MAX_INT_DIGITS else float(text)
         elif tag == _FLOAT_TAG and _PLAIN_FLOAT.fullmatch(text):
             value = float(text)
         else:

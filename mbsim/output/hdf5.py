@@ -811,11 +811,19 @@ def result_file_problem(path: str | Path) -> str | None:
         return "no such file"
     try:
         with h5py.File(path, "r") as f:
-            if "time" in f and "mode" in f.attrs:
+            if isinstance(f.get("time"), h5py.Dataset) and "mode" in f.attrs:
+                try:
+                    version = layout_version(f)
+                except (TypeError, ValueError):
+                    return f"layout_version {f.attrs['layout_version']!r} is not a number"
+                if version > LAYOUT_VERSION:  # read as ours, it could be read wrong
+                    return (f"written in layout {version} by a newer mbsim "
+                            f"({_attr_str(f.attrs, 'mbsim_version', '?')}); this one reads "
+                            f"layouts 1 to {LAYOUT_VERSION}: update mbsim")
                 return None
             if path.name == "index.h5" or "cases" in f or "sweep" in f.attrs:
                 return "a sweep index, not a results file"
-            return "an HDF5 file without mbsim results (no /time or mode attribute)"
+            return "an HDF5 file without mbsim results (no /time dataset or mode attribute)"
     except (OSError, RuntimeError, ValueError):
         return "not an HDF5 file"
 

@@ -47,9 +47,11 @@ def natural_key(text: str):
     return [float(s) if s[0].isdigit() else s for s in re.findall(r"\d+\.?\d*|\D+", text)]
 
 
-def result_files(paths: list[str | Path]) -> list[Path]:
+def result_files(paths: list[str | Path], skipped: list[str] | None = None) -> list[Path]:
     """The result files among ``paths``: a folder or a sweep's ``index.h5`` stands for the
-    ``*.h5`` files in it (sorted by the numbers in their names)."""
+    ``*.h5`` files in it (sorted by the numbers in their names); those of them that are not
+    results files are left out, each appended to ``skipped`` as 'FILE: why'.  A file named
+    itself must be a results file (UsageError otherwise)."""
     from mbsim.output.hdf5 import result_file_problem
 
     files: list[Path] = []
@@ -58,8 +60,14 @@ def result_files(paths: list[str | Path]) -> list[Path]:
         if folder is not None:
             found = sorted((f for f in folder.glob("*.h5") if f.name != "index.h5"),
                            key=lambda f: natural_key(f.stem))  # fmt: skip
+            problems = {f: result_file_problem(f) for f in found}
+            bad = [f"{f}: {why}" for f, why in problems.items() if why]
+            found = [f for f in found if not problems[f]]
             if not found:
-                raise UsageError(f"{p}: no result files (*.h5) in {folder}")
+                among = f" (only {'; '.join(bad[:3])})" if bad else ""
+                raise UsageError(f"{p}: no result files (*.h5) in {folder}{among}")
+            if skipped is not None:
+                skipped += bad
             files += found
             continue
         problem = result_file_problem(p)
@@ -134,12 +142,13 @@ def case_data(case: Case) -> dict:
     }
 
 
-def build_page(paths: list[str | Path], title: str | None = None) -> str:
+def build_page(paths: list[str | Path], title: str | None = None,
+               skipped: list[str] | None = None) -> str:
     """The viewer page (HTML text) for the result files ``paths``."""
     from mbsim.output import read_result
 
     cases: list[Case] = []
-    for path in result_files(paths):
+    for path in result_files(paths, skipped):
         cases += cases_of(path, read_result(path))
     data = {"title": title or ", ".join(Path(p).name for p in paths), "cases":
             [case_data(c) for c in cases]}  # fmt: skip
@@ -159,12 +168,14 @@ def _escape(text: str) -> str:
     return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
 
 
-def write_page(paths: list[str | Path], out: str | Path, title: str | None = None) -> Path:
-    """Build the page and write it to ``out`` atomically (a temporary file, then a rename)."""
+def write_page(paths: list[str | Path], out: str | Path, title: str | None = None,
+               skipped: list[str] | None = None) -> Path:
+    """Build the page and write it to ``out`` atomically (a temporary file, then a rename);
+    ``skipped``: as for :func:`result_files`."""
     import os
 
     out = Path(out)
-    html = build_page(paths, title)
+    html = build_page(paths, title, skipped)
     tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
     try:
         tmp.write_text(html, encoding="utf-8")

@@ -326,23 +326,41 @@ def write_animation(images, path: str | Path, fps: float) -> int:
 
 
 def _write_mp4(images, path: Path, fps: float) -> int:
+    """The frames piped to ffmpeg.  An ffmpeg that stops early is an OSError with the end of
+    its message: SIGPIPE is ignored meanwhile (the command's default action for `| head`
+    ended mbsim silently, exit -13, when ffmpeg refused its input)."""
+    import signal
     import subprocess
+    import threading
 
     exe = mp4_encoder()
     proc = None
     n = 0
-    for im in images:
-        if proc is None:
-            w, h = im.size
-            proc = subprocess.Popen([exe, "-y", "-loglevel", "error", "-f", "rawvideo",
-                                     "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", f"{fps:g}",
-                                     "-i", "-", "-pix_fmt", "yuv420p", "-vf",
-                                     "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-f", "mp4", str(path)],
-                                    stdin=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
-        proc.stdin.write(im.tobytes())
-        n += 1
-    if proc is not None:
-        _, err = proc.communicate()
-        if proc.returncode:
-            raise OSError(f"ffmpeg failed: {err.decode(errors='replace').strip()[-200:]}")
+    main = threading.current_thread() is threading.main_thread() and hasattr(signal, "SIGPIPE")
+    old = signal.signal(signal.SIGPIPE, signal.SIG_IGN) if main else None
+    try:
+        for im in images:
+            if proc is None:
+                w, h = im.size
+                proc = subprocess.Popen([exe, "-y", "-loglevel", "error", "-f", "rawvideo",
+                                         "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", f"{fps:g}",
+                                         "-i", "-", "-pix_fmt", "yuv420p", "-vf",
+                                         "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-f", "mp4", str(path)],
+                                        stdin=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+            try:
+                proc.stdin.write(im.tobytes())
+            except BrokenPipeError:
+                break  # ffmpeg has gone: its message below
+            n += 1
+        if proc is not None:
+            try:
+                _, err = proc.communicate()
+            except BrokenPipeError:  # closing its input after it went
+                err = proc.stderr.read() if proc.stderr else b""
+                proc.wait()
+            if proc.returncode:
+                raise OSError(f"ffmpeg failed: {err.decode(errors='replace').strip()[-200:]}")
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGPIPE, old)
     return n
