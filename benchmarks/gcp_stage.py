@@ -1,21 +1,23 @@
-"""The stage of coordinate partitioning in C (mbsim/fast/partition.c) against the Python
-stage, both paths side by side in one run: CPU per simulated second of gcp-dop853 and
+"""The step of coordinate partitioning in C (mbsim/fast/partition.c) against the Python
+stages, both paths side by side in one run: CPU per simulated second of gcp-dop853 and
 gcp-rk45 runs, and their ratio.
 
-    python benchmarks/gcp_stage.py [--repeats 5] [--decks governor,compressor,andrews]
+    python benchmarks/gcp_stage.py [--repeats 5]
+        [--decks governor,compressor,andrews,parallel_fourbar] [--integrators a,b]
 
 Per deck and integrator: the deck's dynamic run with that integrator, its outputs, no error
 estimate (the estimate's companion is another integrator's run), rtol 1e-8, atol 1e-10 (the
-compressor's own rtol 1e-6, atol 1e-8; Andrews' mechanism its deck's settings), as
+compressor and Andrews' mechanism at their decks' settings; the four parallel cranks of
+models/parallel_fourbar.yaml pass their flat positions in tangent coordinates), as
 ``run_model`` runs it after one untimed warm-up run; the two paths by the deck option
-``compiled_step`` (true: each stage in coordinates in one C call; false: the same equations
-through Python), alternated repeat by repeat so that both see the same load.  Under a
-checkout without the compiled stage (``before_after.py --scripts gcp_stage`` with an older
-"before") both paths are its Python stage.  Printed:
-process CPU per simulated second, median [min-max] over the repeats, for each path; the
-figure ``gcp stage: compiled / Python`` is the median of the repeats' ratios; and the
-counters of both runs, which agree up to round-off (each stage agrees to round-off:
-tests/integrators/test_gcp_compiled.py; a Newton iteration more or less can follow).
+``compiled_step`` (true: each trial step and each step's outputs in one C call; false: the
+same equations through Python), alternated repeat by repeat so that both see the same load.
+Under a checkout without the compiled step (``before_after.py --scripts gcp_stage`` with an
+older "before") both paths are its Python stages.  Printed: process CPU per simulated
+second, median [min-max] over the repeats, for each path; the figure ``gcp stage: compiled
+/ Python`` is the median of the repeats' ratios; and the counters of both runs, which agree
+up to round-off (tests/integrators/test_gcp_compiled.py; a Newton iteration more or less
+can follow).
 """
 
 from __future__ import annotations
@@ -76,7 +78,7 @@ def measure(deck, integrator, repeats):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--decks", default="governor,compressor,andrews")
+    ap.add_argument("--decks", default="governor,compressor,andrews,parallel_fourbar")
     ap.add_argument("--integrators", default="gcp-dop853,gcp-rk45")
     a = ap.parse_args(argv)
     for deck in a.decks.split(","):
