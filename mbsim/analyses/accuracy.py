@@ -83,8 +83,15 @@ def accuracy_run(model, opt, progress, explicit, context=NO_DECK):
         opt["rtol"] = opt["atol"] = ACCURACY_START * tol
     tr = main_trajectory(model, prep, opt, progress)
     history, cpu, est, companion = [], prep.cpu, None, None
+    interrupted = False  # a Ctrl-C after a run that is kept whole
     while len(tr) >= 2 and not tr.interrupted:
-        est = estimate(model, prep, opt, tr, companion)
+        try:
+            est = estimate(model, prep, opt, tr, companion)
+        except KeyboardInterrupt:  # outside the companion's own handling: the run is kept
+            est = {"method": "not computed: the error estimate was interrupted",
+                   "position": None, "_copt": None, "_companion": None,
+                   "reason": "the error estimate was interrupted (Ctrl-C or SIGTERM)"}
+            interrupted = True
         e = (math.nan if est.get("position") is None
              else max(est["position"], est["orientation"]))
         cpu += tr.cpu + est.get("cpu", 0.0)
@@ -112,8 +119,13 @@ def accuracy_run(model, opt, progress, explicit, context=NO_DECK):
         if promote:
             opt, tr, companion = dict(copt, h0=opt.get("h0")), comp, None
         else:
+            kept = (opt, tr)
             opt, companion = new, None
             tr = main_trajectory(model, prep, opt, progress)
+            if tr.interrupted:  # the refinement stopped: the run before it is kept, whole
+                cpu += tr.cpu
+                (opt, tr), interrupted = kept, True
+                break
     if est is not None:
         est = {k: v for k, v in est.items() if not k.startswith("_")}
     span = motion_span(model, tr)
@@ -127,7 +139,7 @@ def accuracy_run(model, opt, progress, explicit, context=NO_DECK):
         "requested": tol, "integrator": cls.name, "rtol": float(opt["rtol"]),
         "atol": float(opt["atol"]), "h": opt.get("h"), "runs": len(history),
         "estimate": e, "met": met, "cpu": cpu, "history": history,
-        "interrupted": bool(tr.interrupted)}
+        "interrupted": bool(tr.interrupted) or interrupted}
     if not math.isfinite(e):
         why = (est or {}).get("reason") or (est or {}).get("method") or "no run to compare"
         res.summary["accuracy"]["reason"] = str(why)

@@ -77,9 +77,17 @@ def _single_run(model, opt, progress=None, context=NO_DECK):
         est = {"method": "not computed: the run was interrupted", "position": None,
                "reason": "the run was interrupted (Ctrl-C or SIGTERM) before t_end"}
     elif opt.get("error_estimate", True) and len(tr) >= 2:
-        est = estimate(model, prep, opt, tr)
+        try:
+            est = estimate(model, prep, opt, tr)
+        except KeyboardInterrupt:  # outside the companion's own handling: the run is kept
+            est = {"method": "not computed: the error estimate was interrupted",
+                   "position": None,
+                   "reason": "the error estimate was interrupted (Ctrl-C or SIGTERM)"}
     span = motion_span(model, tr)
-    res = build_result(model, prep, opt, tr, span)
+    try:
+        res = build_result(model, prep, opt, tr, span)
+    except KeyboardInterrupt:  # after the integration: its outputs are built again, whole
+        res = build_result(model, prep, opt, tr, span)
     if est is not None:
         attach_estimate(model, res, est, len(prep.times), span)
     return res

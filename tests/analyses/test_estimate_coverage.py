@@ -81,6 +81,41 @@ def test_interrupted_companion_never_says_met(governor, governor_deck, monkeypat
     assert "interrupted" in acc["reason"]
 
 
+def test_interrupted_refinement_keeps_the_complete_run(governor, governor_deck, monkeypatch):
+    """--accuracy whose first run misses (its tolerance started 1e7 x looser than the rule,
+    ACCURACY_START) and whose refining run is interrupted (Ctrl-C at its first step): the
+    first run, complete to t_end with its estimate, is kept (not the interrupted one), and
+    the summary says interrupted and not met."""
+    from mbsim.analyses import accuracy
+
+    monkeypatch.setattr(accuracy, "ACCURACY_START", 3e4)
+    runs, step = [], trajectory.Stepper.step
+
+    def second_run_interrupted(self):
+        if not isinstance(self, est_mod.CoarseStepper) and "test_companion" not in self.opt:
+            if self not in runs:
+                runs.append(self)
+            if len(runs) == 2:
+                raise KeyboardInterrupt
+        return step(self)
+
+    options = est_mod.companion_options
+
+    def marked(cls, opt):
+        copt, factor, method = options(cls, opt)
+        return dict(copt, test_companion=True), factor, method
+
+    monkeypatch.setattr(est_mod, "companion_options", marked)
+    monkeypatch.setattr(trajectory.Stepper, "step", second_run_interrupted)
+    res = run_model(governor, "dynamic", dict(OPTIONS, accuracy=1e-9), deck=governor_deck[0])
+    acc = res.summary["accuracy"]
+    assert len(runs) == 2  # the refinement was started
+    assert res.complete and res.t[-1] == pytest.approx(OPTIONS["t_end"])
+    assert acc["interrupted"] and acc["met"] is False
+    assert acc["runs"] == 1 and math.isfinite(acc["estimate"]) and acc["estimate"] > 1e-9
+    assert acc["rtol"] == pytest.approx(3e4 * 1e-9)
+
+
 @pytest.fixture(scope="module")
 def governor_reference(governor, governor_deck):
     """The governor over OPTIONS' span at rtol 1e-12 (the run's error is 1.1e-11 m at
