@@ -335,7 +335,14 @@ def require_finite(model, t, **arrays) -> None:
                                 "value too large, e.g. 1e308, or a force law that diverges)",
                                 time=t, items=tuple(names))  # fmt: skip
         names = list(model.items_of_rows(bad))
+        drivers = [n for n in names if model.item(n).kind == "driver"]
+        if drivers:  # a driver's function of t: its value or rates are not finite at t
+            items = ", ".join(drivers[:5]) + (", ..." if len(drivers) > 5 else "")
+            raise AnalysisError(f"the function of driver {items} is not finite here ({key}: a "
+                                f"division by zero, a pole or a log of zero at this time, or "
+                                f"a deck value too large)", time=t,
+                                items=tuple(drivers))  # fmt: skip
         items = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
-        raise AnalysisError(f"the constraint equations ({key}) of {items} overflowed to inf/NaN "
-                            "(a deck value too large, e.g. a point at 1e308)", time=t,
+        raise AnalysisError(f"the constraint equations ({key}) of {items} overflowed to "
+                            "inf/NaN (a deck value too large, e.g. a point at 1e308)", time=t,
                             items=tuple(names))  # fmt: skip

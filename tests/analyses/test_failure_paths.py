@@ -309,3 +309,19 @@ def test_generalized_alpha_starts_at_a_tolerance_below_the_assembly_tolerance(tm
     assert_clean(r, (0,))
     with h5py.File(tmp_path / "circle.h5") as f:
         assert f.attrs["status"] == "complete"
+
+
+@pytest.mark.parametrize("mode", ["kinematic", "dynamic"])
+def test_a_driver_function_with_a_pole_names_the_driver(tmp_path, mode):
+    """A driver whose function is not finite at the start (1/t at t = 0): exit 1, the file
+    written and marked incomplete, and the one error line blames the driver's function (the
+    deck also has a body of the driver's name), not a deck value that overflowed."""
+    out = tmp_path / "d.h5"
+    r = cli("run", MODELS / "slider_crank.yaml", "--mode", mode, "--set",
+            "drivers.crank.function=1/t", "-o", out)
+    assert_clean(r, (1,))
+    line = error_lines(r.output)[0]
+    assert "the function of driver crank is not finite" in line, line
+    assert "1e308" not in line
+    with h5py.File(out) as f:
+        assert f.attrs["status"] == "incomplete"
