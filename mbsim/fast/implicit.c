@@ -91,6 +91,9 @@ static int residual(const mb_model *M, mb_ga *G, double t, const double *q, cons
     idx n = G->nq, nb = M->nb;
     memcpy(M->q, q, (size_t)n * sizeof(double));
     memcpy(M->qd, qd, (size_t)n * sizeof(double));
+    /* the iterate's multipliers where the loads read them (joint friction's normal load:
+     * stepper.load_callback), so that the residual's friction is the iterate's own */
+    memcpy(M->lam, lam, (size_t)G->ma * sizeof(double));
     if (G->load && G->load(t, 1)) {
         G->out[O_T] = t;
         return GA_CALLBACK;

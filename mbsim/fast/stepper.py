@@ -305,7 +305,9 @@ def solve_error(code):
 def load_callback(system, pending):
     """The per-stage Python part (time targets, Python force elements) as a C callback, or
     None when the model has neither.  It reads q, qd where C loaded them (the system's own
-    input buffers); an exception returns 1 and the caller raises it in Python again (a
+    input buffers), and, for loads of the multipliers (System.reaction_loop: joint
+    friction), the multipliers there too (the implicit integrators' Newton iterate, which
+    implicit.c leaves in the model's lam); an exception returns 1 and the caller raises it in Python again (a
     compiled step is taken again in Python; the implicit integrators' Newton iteration,
     :mod:`mbsim.fast.implicit`, calls the loads again at the state C left), where it is
     handled.  A KeyboardInterrupt or SystemExit
@@ -315,12 +317,14 @@ def load_callback(system, pending):
     fc, py = system.fc, system.py_forces
     if not fc.funcs and not py:
         return None
-    loads, model = system._loads, system.model
+    loads, model, reactions = system._loads, system.model, system.reaction_loop
 
     def load(t, forces):
         try:
             if fc.funcs:
                 fc.targets(t)
+            if forces and reactions:  # loads of the multipliers C left in the model
+                system._lam_known = system.full_lam(system._lam.copy())
             if forces and py:
                 system.apply_python(core.State(model, fc._q, fc._qd), t, loads)
         except Exception:  # noqa: BLE001 - re-raised by the Python path (docstring)
