@@ -307,13 +307,13 @@ def load_callback(system, pending):
     None when the model has neither.  It reads q, qd where C loaded them (the system's own
     input buffers), and, for loads of the multipliers (System.reaction_loop: joint
     friction), the multipliers there too (the implicit integrators' Newton iterate, which
-    implicit.c leaves in the model's lam); an exception returns 1 and the caller raises it in Python again (a
-    compiled step is taken again in Python; the implicit integrators' Newton iteration,
-    :mod:`mbsim.fast.implicit`, calls the loads again at the state C left), where it is
-    handled.  A KeyboardInterrupt or SystemExit
-    (Ctrl-C arrives in the callback: the only Python code running during the C call)
-    returns 1 too and is kept in ``pending``, to be raised once the C call is back
-    (:meth:`CompiledStep._counted`); ctypes would print and drop it."""
+    implicit.c leaves in the model's lam).  An exception returns 1 and the caller raises it
+    in Python again (a compiled step is taken again in Python; the implicit integrators'
+    Newton iteration, :mod:`mbsim.fast.implicit`, calls the loads again at the state C
+    left), where it is handled.  A KeyboardInterrupt or SystemExit (Ctrl-C arrives in the
+    callback: the only Python code running during the C call) returns 1 too and is kept in
+    ``pending``, to be raised once the C call is back (:meth:`CompiledStep._counted`);
+    ctypes would print and drop it."""
     fc, py = system.fc, system.py_forces
     if not fc.funcs and not py:
         return None
