@@ -30,8 +30,9 @@ eigenvalue relative to the largest |lambda|).  An eigenvalue that changes by mor
 :data:`FD_RESOLVED` of the largest is not a derivative at all (a force law that switches or
 has a kink at the reference: the compressor's valve law at rest gave -1.8e10 1/s, 0.75
 changed): the result is kept, marked incomplete, with the eigenvalues named.  A small
-eigenvalue that changes by half its size is noise about a double zero (below).  No analytic Jacobian of the force laws
-exists yet (expression laws, tires), hence finite differences everywhere.
+eigenvalue that changes by half its size is noise about a double zero (below).  No analytic
+Jacobian of the force laws exists yet (expression laws, tires), hence finite differences
+everywhere.
 
 Steady spin (``steady``).  The state is expressed in the frame turning with the spin
 Omega = omega * axis about the point c: r = c + R(Omega t) (r~ - c), p = s(t) * p~ (Hamilton
