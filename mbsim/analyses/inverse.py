@@ -227,16 +227,16 @@ def inverse(model, options=None) -> Result:
             c = res.channel("constraints/condition").data
             summary["condition_max"] = float(np.max(c))
             summary["condition_max_time"] = float(res.t[int(np.argmax(c))])
+    if asm.redundant_items:  # one line: the rows removed, and what that means for lam
+        summary["warnings"] = [
+            "; ".join(asm.warnings) + "; their reactions are not unique (their rows carry "
+            "lam = 0, the others carry the load)"]
     stuck = sorted({el.name for mk in modes for el in friction if "stick" in
                     ([mk[el.name]] if isinstance(mk[el.name], str) else mk[el.name])})
     if stuck:
         summary.setdefault("warnings", []).append(
             f"friction {', '.join(stuck)} at rest at some outputs: the force of a stick is "
             "not determined by the prescribed motion (the drivers hold it), taken 0 there")
-    if asm.redundant_items:  # one line: the rows removed, and what that means for lam
-        summary.setdefault("warnings", []).extend([
-            "; ".join(asm.warnings) + "; their reactions are not unique (their rows carry "
-            "lam = 0, the others carry the load)"])
     res.summary = summary
     res.status, res.message = status, message
     res.settings = {k: (float(v) if isinstance(v, (int, float)) else v) for k, v in opt.items()}
