@@ -329,14 +329,22 @@ class Recorder:
     def _force_channels(self, res, needed) -> None:
         """forces/<name>/<quantity> from each element's ``channels_many(states, t)`` (length,
         force...; array code where the element has it, else its scalar ``channels`` output by
-        output), only for the elements with a channel that is needed."""
+        output), only for the elements with a channel that is needed.  A joint friction
+        outside a run with modes (kinematic, equilibrium, linear) has none: its force is a
+        mode of the dynamic run with the joint's reaction as normal load, which these
+        analyses do not have (it once showed 0 N and a NaN mode that failed the run as an
+        "overflow"); inverse dynamics derives its modes and adds its channels itself."""
         model = self.model
         if not model.forces:
             return
+        from mbsim.forces.friction import JointFriction
+
         states, ts = self.states(), self.t
         for el in model.forces:
             if getattr(el, "hybrid", False):  # in each output's mode (mbsim.events)
                 modes, lam = self.extra.get("modes"), self.extra.get("lam_all")
+                if modes is None and isinstance(el, JointFriction):
+                    continue  # its loads need the modes and reactions (inverse: its own)
                 rows = [el.channels_in(None if modes is None else modes[k].get(el.name),
                                        states[k], ts[k], None if lam is None else lam[k],
                                        None if modes is None else modes[k])

@@ -15,6 +15,14 @@ is *solved* (LU, the factors of the kinematic Jacobian; not least squares).  Fro
 - each joint's reaction force and torque at its joint point, on body i and on body j, global
   and in the joint frame (:func:`mbsim.analyses.reactions.reactions`);
 - ``constraints/lam`` (all rows) and ``constraints/condition`` (cond Phi_q, from kinematics).
+
+Joint friction (:mod:`mbsim.forces.friction`) is a mode of the dynamic run, and outside one
+its loads are zero; here the prescribed motion fixes its modes: each axis slips in the
+direction of its rate (:func:`friction_mode`), so its load -mu(v) N r sign(v) joins Q, with
+the normal load N from the joint's reaction in lam: the loop loads <-> lam is iterated to a
+fixed point as in the dynamic run (:func:`mbsim.fast.dynamics.System._reaction_loop`).  An
+axis at rest (|v| <= REST_VELOCITY) sticks; the stick's force is then not determined (the
+drivers hold the motion whatever it is) and is taken 0, which the summary's warnings say.
 """
 
 from __future__ import annotations
@@ -31,6 +39,8 @@ from mbsim.analyses.kinematic import DEFAULTS as KIN_DEFAULTS
 from mbsim.analyses.kinematic import kinematic
 from mbsim.analyses.reactions import add_reaction_channels
 from mbsim.errors import SingularJacobianError
+from mbsim.fast.dynamics import REACTION_ITERATIONS
+from mbsim.forces.friction import REST_VELOCITY, JointFriction
 from mbsim.options import analysis_options
 from mbsim.result import STATUS_INCOMPLETE, Result
 from mbsim.rotations import G as rot_G
@@ -63,11 +73,14 @@ def states_from_result(model, res: Result):
     return q.reshape(nt, -1), qd.reshape(nt, -1), qdd.reshape(nt, -1)
 
 
-def multipliers(model, q, qd, qdd, t, rows):
-    """lam (m,) from Phi_q^T lam = Q - M qdd on the active rows (square, DOF = 0)."""
+def multipliers(model, q, qd, qdd, t, rows, Q_extra=None):
+    """lam (m,) from Phi_q^T lam = Q - M qdd on the active rows (square, DOF = 0);
+    ``Q_extra`` (nq,): generalized forces added to Q (the friction's, :func:`friction_forces`)."""
     data = core.make_data(model, rows)
     J = core.phi_q(model, data, q, t)
     Q = core.generalized_forces(model, data, q, qd, t)
+    if Q_extra is not None:
+        Q = Q + Q_extra
     Mb = core.mass_blocks(model, data, q)
     rhs = Q - np.einsum("bij,bj->bi", Mb, qdd.reshape(model.nb, 7)).reshape(-1)
     lu = la.lu_factor(J, check_finite=False)
@@ -80,6 +93,72 @@ def multipliers(model, q, qd, qdd, t, rows):
     lam = np.zeros(model.m)
     lam[rows] = la.lu_solve(lu, rhs, trans=1, check_finite=False)
     return lam
+
+
+def friction_mode(el, st):
+    """The mode of the friction element ``el`` in the prescribed motion at the State ``st``:
+    each axis slips in the direction of its rate ('+' / '-'; a ball joint ('slip', w / |w|)),
+    an axis slower than REST_VELOCITY sticks ('stick'): the modes of
+    :mod:`mbsim.forces.friction`."""
+    if el.ball:
+        w = el.spin(st)
+        n = float(np.sqrt(w @ w))
+        return ("slip", *(float(x) for x in w / n)) if n > REST_VELOCITY else "stick"
+    modes = ["+" if v > REST_VELOCITY else "-" if v < -REST_VELOCITY else "stick"
+             for _, v, _, _ in el.travels(st)]
+    return modes[0] if len(modes) == 1 else tuple(modes)
+
+
+def friction_forces(model, elements, modes, st, t, lam):
+    """Q (nq,) of the friction ``elements`` in ``modes`` (name -> mode) at the State ``st``
+    with the multipliers ``lam`` (m,) for their normal loads: [F, 2 G^T n'] per body."""
+    F, n_local = np.zeros((model.nb, 3)), np.zeros((model.nb, 3))
+    for el in elements:
+        el.apply_in(modes[el.name], st, t, lam, F, n_local)
+    Qp = 2.0 * np.einsum("bji,bj->bi", rot_G(st.p), n_local)
+    return np.concatenate([F, Qp], axis=1).reshape(-1)
+
+
+def multipliers_with_friction(model, q, qd, qdd, t, rows, elements):
+    """(lam (m,), modes): :func:`multipliers` with the friction ``elements`` in the modes of
+    the motion, their normal loads from lam: the fixed point of lam -> loads -> lam (loads
+    repeating to 1e-14 relative, as the dynamic run's reaction loop)."""
+    lam = multipliers(model, q, qd, qdd, t, rows)
+    if not elements:
+        return lam, {}
+    st = core.State(model, q, qd)
+    modes = {el.name: friction_mode(el, st) for el in elements}
+    prev = None
+    for _ in range(REACTION_ITERATIONS):
+        Qf = friction_forces(model, elements, modes, st, t, lam)
+        if prev is not None and np.abs(Qf - prev).max() <= 1e-14 * np.abs(Qf).max(initial=0):
+            return lam, modes
+        prev = Qf
+        lam = multipliers(model, q, qd, qdd, t, rows, Qf)
+    raise SingularJacobianError(
+        f"the friction loads and the joint reactions did not settle in {REACTION_ITERATIONS} "
+        f"iterations at t = {t:.6g} s", time=t,
+        items=tuple(el.name for el in elements))
+
+
+def friction_channels(res, model, elements, q, qd, lam, modes):
+    """Add the channels of the friction ``elements`` (which the kinematic analysis, without
+    modes, leaves out) in each output's ``modes`` with the multipliers ``lam`` (nt, m); the
+    held rows of a stick carry 0 (module doc)."""
+    hybrid = [f for f in model.forces if getattr(f, "hybrid", False)]
+    rows = {el.name: [] for el in elements}
+    for k in range(len(modes)):
+        st = core.State(model, q[k], qd[k])
+        held = sum(f.hold_count(modes[k].get(f.name)) for f in hybrid)
+        lam_all = np.concatenate([lam[k], np.zeros(held)])
+        for el in elements:
+            rows[el.name].append(el.channels_in(modes[k][el.name], st, res.t[k], lam_all,
+                                                modes[k]))
+    for el in elements:
+        for key, (_, unit) in rows[el.name][0].items():
+            data = np.array([np.asarray(r[key][0], float) for r in rows[el.name]])
+            res.add(f"forces/{el.name}/{key}", data, unit, f"force element {el.name}: {key}",
+                    ("x", "y", "z") if data.ndim == 2 and data.shape[1] == 3 else ())
 
 
 def inverse(model, options=None) -> Result:
@@ -106,10 +185,14 @@ def inverse(model, options=None) -> Result:
     nt = len(res.t)
     lam = np.zeros((nt, model.m))
     rows = asm.active_rows
+    friction = [el for el in model.forces if isinstance(el, JointFriction)]
+    modes = []
     for k in range(nt):
         try:
-            lam[k] = multipliers(model, q[k], qd[k], qdd[k], res.t[k], rows)
-        except SingularJacobianError as exc:  # pragma: no cover - kinematics stops first
+            lam[k], mk = multipliers_with_friction(model, q[k], qd[k], qdd[k], res.t[k], rows,
+                                                   friction)
+            modes.append(mk)
+        except SingularJacobianError as exc:  # kinematics stops first at a singular Phi_q
             status, message, nt = STATUS_INCOMPLETE, str(exc), k
             break
         except KeyboardInterrupt:  # Ctrl-C: the outputs with their multipliers are kept
@@ -126,6 +209,8 @@ def inverse(model, options=None) -> Result:
     if nt:
         res.add("constraints/lam", lam, "", "Lagrange multipliers (rows as in the model)",
                 model.row_label)
+        if friction:
+            friction_channels(res, model, friction, q, qd, lam, modes)
         add_reaction_channels(res, model, q, lam)
         for it in model.items:
             if it.kind != "driver":
@@ -146,6 +231,12 @@ def inverse(model, options=None) -> Result:
         summary["warnings"] = [
             "; ".join(asm.warnings) + "; their reactions are not unique (their rows carry "
             "lam = 0, the others carry the load)"]
+    stuck = sorted({el.name for mk in modes for el in friction if "stick" in
+                    ([mk[el.name]] if isinstance(mk[el.name], str) else mk[el.name])})
+    if stuck:
+        summary.setdefault("warnings", []).append(
+            f"friction {', '.join(stuck)} at rest at some outputs: the force of a stick is "
+            "not determined by the prescribed motion (the drivers hold it), taken 0 there")
     res.summary = summary
     res.status, res.message = status, message
     res.settings = {k: (float(v) if isinstance(v, (int, float)) else v) for k, v in opt.items()}

@@ -26,8 +26,13 @@ z = (v, vd) obeys zd = F(z) = (vd, N^T qdd(q, qd)) with qdd from the reference K
 is formed by central differences of F with the stated steps ``fd_step`` (positions, m or
 unit Euler parameter) and ``fd_step * max(1, |vd0|)`` (velocities); the result is checked
 by repeating with steps 4 times larger (summary ``fd_check``: the largest change of an
-eigenvalue relative to the largest |lambda|).  No analytic Jacobian of the force laws
-exists yet (expression laws, tires), hence finite differences everywhere.
+eigenvalue relative to the largest |lambda|).  An eigenvalue that changes by more than
+:data:`FD_RESOLVED` of the largest is not a derivative at all (a force law that switches or
+has a kink at the reference: the compressor's valve law at rest gave -1.8e10 1/s, 0.75
+changed): the result is kept, marked incomplete, with the eigenvalues named.  A small
+eigenvalue that changes by half its size is noise about a double zero (below).  No analytic
+Jacobian of the force laws exists yet (expression laws, tires), hence finite differences
+everywhere.
 
 Steady spin (``steady``).  The state is expressed in the frame turning with the spin
 Omega = omega * axis about the point c: r = c + R(Omega t) (r~ - c), p = s(t) * p~ (Hamilton
@@ -42,7 +47,13 @@ the spin speed a state, so feedback through the speed (the governor's T_s = C dl
 
 Verdict.  Eigenvalues with |lambda| <= ``zero_tol`` * max(1, max |lambda|) are *neutral*
 modes (rigid-body motions, free spins, cyclic coordinates); each is named by the bodies and
-directions it moves.  Free spins are also recognised from the model's structure
+directions it moves.  A coordinate with neither stiffness nor damping (a crank that gravity
+does not load) is a double zero with one eigenvector, the block [[0, 1], [0, 0]]: a
+perturbation delta of A moves it to +-sqrt(delta), so its noise is the square root of a
+simple zero's; an eigenvalue below sqrt(``zero_tol``) * max(1, max |lambda|) that changes by
+at least half its size with the 4 x steps is that noise, neutral too (the three-body
+slider-crank: +-8e-5 at h = 1e-6, +-8e-4 real at 1e-5, otherwise `stable` or `unstable`
+depending on the step).  Free spins are also recognised from the model's structure
 (:func:`free_spins`: a body's turn about a principal axis that the constraints allow and no
 load depends on) and their eigenvalues set to exactly 0, whatever the finite differences'
 noise divided by a slender body's axial inertia would make of them.  ``unstable``: some
@@ -66,7 +77,7 @@ from mbsim.analyses.assembly import assemble
 from mbsim.analyses.common import Recorder
 from mbsim.errors import ConvergenceError, DeckError
 from mbsim.options import analysis_options
-from mbsim.result import Result
+from mbsim.result import STATUS_INCOMPLETE, Result
 from mbsim.rotations import G as rot_G
 
 log = logging.getLogger(__name__)
@@ -80,6 +91,15 @@ DEFAULTS = {
     "re_tol": 1e-6,  # Re lambda above this (relative) is growth
     "phi_tol": 1e-13,
 }
+
+FD_RESOLVED = 1e-3
+"""An eigenvalue is resolved by the central differences when it changes by less than this x
+max(1, max |lambda|) with the steps made 4 times larger (summary ``fd_check``).  On smooth
+equations the change is the truncation error O(h^2) plus the round-off O(eps / h): 4e-13
+(pendulum, sleeping top) to 3e-6 (the vehicle's 188 rad/s mode) at h = 1e-6, docs/deck.md;
+a force that switches or has a kink within 4 h of the reference makes a derivative of size
+1/h, which changes by O(1) (the compressor's valve law at rest: 0.75).  1e-3 lies between
+with 2.5 decades of margin on each side."""
 
 COORD = ("x", "y", "z", "e0", "e1", "e2", "e3")
 BODY_COORD = ("x", "y", "z", "theta_x'", "theta_y'", "theta_z'")
@@ -408,17 +428,51 @@ def _fmt(a, keep_sign=False) -> str:
     return "(" + ", ".join(f"{x:.3g}" for x in np.where(np.abs(a) < 1e-6, 0.0, a) + 0.0) + ")"
 
 
-def classify(lam, zero_tol=1e-5, re_tol=1e-6, structural=None):
+def classify(lam, zero_tol=1e-5, re_tol=1e-6, structural=None, change=None):
     """(verdict, neutral mask, growing mask): see the module doc.  ``structural``: a mask
-    of eigenvalues known neutral from the model's structure (free spins)."""
+    of eigenvalues known neutral from the model's structure (free spins); ``change``: each
+    eigenvalue's change with the difference steps made 4 times larger (:func:`fd_change`):
+    an eigenvalue below sqrt(zero_tol) max(1, max |lambda|) that changes by half its own
+    size is the differences' noise about a double zero (module doc), neutral."""
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)))
-    neutral = np.abs(lam) <= zero_tol * scale
+    mag = np.abs(lam)
+    neutral = mag <= zero_tol * scale
+    if change is not None:
+        neutral |= (mag <= np.sqrt(zero_tol) * scale) & (change >= 0.5 * mag)
     if structural is not None:
         neutral |= structural
     growing = (lam.real > re_tol * scale) & ~neutral
     if growing.any():
         return "unstable", neutral, growing
     return ("neutral" if neutral.any() else "stable"), neutral, growing
+
+
+def fd_change(lam, lam4):
+    """(n,) |lambda_k - its twin| between the eigenvalues ``lam`` of the state matrix at the
+    difference step h and ``lam4`` at 4 h, each paired with its nearest twin (an assignment,
+    so that a pair of close eigenvalues is not matched twice)."""
+    from scipy.optimize import linear_sum_assignment
+
+    dist = np.abs(lam[:, None] - lam4[None, :])
+    rows_, cols_ = linear_sum_assignment(dist)
+    change = np.zeros(lam.size)
+    change[rows_] = dist[rows_, cols_]
+    return change
+
+
+def unresolved_message(model, lam, change, unresolved, scale):
+    """The message of a linear analysis whose differences do not converge: the eigenvalues
+    that change with the step and what makes a state matrix step-dependent."""
+    shown = ", ".join(f"{lam[k].real:.4g}{lam[k].imag:+.4g}j (changes by {change[k]:.2g})"
+                      for k in np.flatnonzero(unresolved)[:4])
+    hybrid = [el.name for el in model.forces if getattr(el, "hybrid", False)]
+    cause = (f"a force law that switches or has a kink at the reference state ("
+             f"{', '.join(hybrid)}: a switching, contact or friction element)" if hybrid else
+             "a force law that switches or has a kink at the reference state")
+    return (f"the eigenvalues depend on the finite-difference step: with steps 4 times larger "
+            f"{shown} (more than {FD_RESOLVED:g} x max |lambda| = {FD_RESOLVED * scale:.3g}); "
+            f"the equations of motion are not differentiable there, {cause}: the modes and "
+            f"the verdict are not those of a linearisation")
 
 
 def modal_quantities(lam):
@@ -523,13 +577,11 @@ def linear(model, options=None) -> Result:
     structural = np.zeros(lam.size, bool)
     structural[np.argsort(np.abs(lam))[: 2 * D.shape[1]]] = True
     scale = max(1.0, float(np.abs(lam).max(initial=0.0)))
-    from scipy.optimize import linear_sum_assignment  # pair each eigenvalue with its twin
-
-    dist = np.abs(lam[:, None] - lam4[None, :])
-    rows_, cols_ = linear_sum_assignment(dist)
-    fd_check = float(dist[rows_, cols_].max(initial=0.0)) / scale
+    change = fd_change(lam, lam4)
+    fd_check = float(change.max(initial=0.0)) / scale
     verdict, neutral, growing = classify(lam, float(opt["zero_tol"]), float(opt["re_tol"]),
-                                         structural)
+                                         structural, change)
+    unresolved = (change > FD_RESOLVED * scale) & ~neutral
     wn, fhz, wd, zeta = modal_quantities(lam)
     wn[neutral], fhz[neutral], wd[neutral], zeta[neutral] = 0.0, 0.0, 0.0, 0.0
     # mode shapes: position part of each eigenvector, in q and in body coordinates, scaled
@@ -595,5 +647,8 @@ def linear(model, options=None) -> Result:
     if residual is not None:
         res.summary["residual"] = residual
     res.settings = {k: v for k, v in opt.items() if v is not None}
+    if unresolved.any():  # results kept, marked incomplete: the CLI exits 1
+        res.status = STATUS_INCOMPLETE
+        res.message = unresolved_message(model, lam, change, unresolved, scale)
     res.wall_time = _time.perf_counter() - wall0
     return res

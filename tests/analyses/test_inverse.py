@@ -236,3 +236,62 @@ def test_ctrl_c_while_the_reactions_are_computed_keeps_the_outputs_before(monkey
     assert res.status == "incomplete" and "interrupted (Ctrl-C)" in res.message
     assert len(res.t) == 5
     assert all(c.data.shape[0] == 5 for c in res.channels.values())
+
+
+SLIDER_DECK = __import__("pathlib").Path(__file__).resolve().parents[2] / "models" / \
+    "slider_crank.yaml"
+
+
+def test_joint_friction_in_inverse_dynamics_matches_the_driven_dynamic_run():
+    """The driven slider-crank (models/slider_crank.yaml) with Coulomb friction in the slider's
+    guide (mu_k 0.01, normal load the guide's reaction force and moment): the inverse dynamics
+    takes the friction's slip direction from the prescribed motion and its normal load from
+    lam, as the dynamic run of the same driven deck (DOF 0: the motion is the drivers', the
+    friction comes from that run's own modes, events and reaction loop).  Once the friction
+    was left out (0 N, the driver's torque that of the frictionless guide) and its NaN mode
+    failed the run as an "overflow".  Agreement: the dynamic run at rtol 1e-9 (error
+    estimate ~1e-14 m), so the two differ by the kinematic Newton tolerance (1e-10) and the
+    reaction loops' 1e-14: measured 1.3e-9 of max |lam| 36; bound 1e-7 of it.  Energy: the
+    driver's and the friction's work add up to the change of T + V (Simpson on the 5 ms
+    outputs, measured 1e-9 J of the driver's 0.16 J)."""
+    from scipy.integrate import simpson
+
+    from mbsim.api import load_model, run_model
+    from tests.reference.equations import kinetic_energy, potential_energy
+
+    sets = {"forces.slider_friction.active": "true"}
+    spec_, model = load_model(SLIDER_DECK, overrides=sets)
+    inv = run_model(model, "inverse", {}, deck=spec_)
+    dyn = run_model(model, "dynamic", {"t_end": 1.0, "step": 0.005, "rtol": 1e-9,
+                                       "atol": 1e-11}, deck=spec_)
+    assert inv.complete and dyn.complete, (inv.message, dyn.message)
+    fr = inv.channel("forces/slider_friction/friction").data
+    N = inv.channel("forces/slider_friction/normal_load").data
+    v = inv.channel("forces/slider_friction/slip_velocity").data
+    assert np.all(np.abs(v) > 1e-4)  # slips at every output: |F| = mu_k N against v
+    np.testing.assert_allclose(np.abs(fr), 0.01 * N, rtol=1e-12)
+    assert np.all(fr * v < 0)
+    lam_i, lam_d = inv.channel("constraints/lam").data, dyn.channel("constraints/lam").data
+    scale = np.abs(lam_i).max()
+    assert np.abs(lam_i - lam_d[:, :lam_i.shape[1]]).max() < 1e-7 * scale
+    np.testing.assert_allclose(fr, dyn.channel("forces/slider_friction/friction").data,
+                               atol=1e-7 * np.abs(fr).max())
+    q, qd, _ = states_from_result(model, inv)
+    E = [kinetic_energy(model, q[k], qd[k]) + potential_energy(model, q[k])
+         for k in range(len(inv.t))]
+    P = inv.channel("drivers/crank/power").data + inv.channel("forces/slider_friction/power").data
+    half = len(inv.t) // 2 + 1
+    assert abs(simpson(P[:half], x=inv.t[:half]) - (E[half - 1] - E[0])) < 1e-6
+
+
+@pytest.mark.parametrize("mode", ["kinematic", "equilibrium"])
+def test_analyses_without_modes_complete_on_a_deck_with_joint_friction(mode):
+    """Kinematic and equilibrium analyses have neither the modes nor the reactions a joint
+    friction's force needs: they write no channels of it (once 0 N and a NaN mode that
+    ended the run, exit 1, as an "overflow") and complete."""
+    from mbsim.api import load_model, run_model
+
+    spec_, model = load_model(SLIDER_DECK, overrides={"forces.slider_friction.active": "true"})
+    res = run_model(model, mode, {}, deck=spec_)
+    assert res.complete, res.message
+    assert not [k for k in res.channels if "slider_friction" in k]

@@ -418,3 +418,35 @@ def test_growing_label_only_above_the_threshold(tmp_path):
     assert verdict == "unstable"
     assert growing.tolist() == [False, False, False, False, False, True, True]
     assert neutral.tolist() == [False, False, False, False, True, False, False]
+
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+
+
+@pytest.mark.parametrize("fd_step", [1e-7, 1e-6, 1e-5])
+def test_a_coordinate_without_stiffness_is_neutral_whatever_the_step(fd_step):
+    """The three-body slider-crank without driver: no load depends on the crank angle (its
+    potential is constant, `--mode equilibrium` says neutral), so the linearisation is the
+    double zero [[0, 1], [0, 0]].  The differences' noise moves it to +-sqrt(noise): +-8e-5
+    1/s imaginary at h = 1e-6 (once reported `stable` with a 1.3e-5 Hz mode), +-8e-4 real at
+    1e-5 (`unstable`).  Whatever the step it is neutral, and the run complete."""
+    spec, model = load_model(MODELS / "slider_crank.yaml", scene="three_body_free")
+    res = linear(model, run_options("linear", spec, {"fd_step": fd_step}))
+    assert res.complete, res.message
+    assert res.summary["stability"] == "neutral"
+    assert res.arrays["linear/neutral"][0].all()
+    assert not any(res.summary["frequencies_hz"])
+
+
+def test_a_switching_force_at_the_reference_leaves_the_linearisation_incomplete():
+    """The compressor at rest: each air force switches on the sign of its piston's velocity,
+    so the central difference in velocity straddles a jump and gives a "derivative" of size
+    1/h (an eigenvalue -1.8e10 1/s at h = 1e-6, -4.5e9 at 4 h: fd_check 0.75, where a smooth
+    law changes by 1e-12 ... 3e-6).  That is no linearisation: the result is kept, marked
+    incomplete, the message naming the step dependence and the switching elements."""
+    spec, model = load_model(MODELS / "compressor.yaml")
+    res = linear(model, run_options("linear", spec, {}))
+    assert not res.complete
+    assert res.summary["fd_check"] > 0.1
+    assert "depend on the finite-difference step" in res.message
+    assert "air1" in res.message
