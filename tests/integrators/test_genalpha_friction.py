@@ -1,5 +1,6 @@
-"""Joint friction under the implicit integrators (issue 23's hunt).  Known fault, written
-down as a strict xfail so that its fix shows."""
+"""Joint friction under the implicit integrators: the Newton iteration's friction loads take
+their normal load from the iterate's own multipliers (mbsim/fast/implicit.c leaves them in
+the model, mbsim/fast/stepper.py's load_callback hands them to the friction elements)."""
 
 from functools import lru_cache
 from pathlib import Path
@@ -32,19 +33,14 @@ def friction_scene():
 
 
 @pytest.mark.parametrize("integrator", ["genalpha", "hht"])
-@pytest.mark.xfail(strict=True, reason=(
-    "the Newton iteration's friction loads take their normal load from System._lam_known, "
-    "which only System.accelerations' reaction loop updates (at outputs and events), not "
-    "from the iteration's own lam (mbsim/fast/stepper.py load_callback -> "
-    "System.apply_python): the law lags, an error that does not shrink with rtol (1.8e-2 m "
-    "over 2 s at rtol 1e-6 and at 1e-9) and that the estimate's companion shares"))
 def test_friction_normal_load_follows_the_newton_iterate(integrator):
     """The slider-crank's `friction` scene (Coulomb friction in the guide with the guide's
     reaction as normal load, end stops) over 0.1 s (before the first event) at rtol 1e-6:
-    the implicit integrators should agree with Dormand-Prince 8 at rtol 1e-10 within 10x
-    their own error estimate and the friction's normal load within 1e-3 of its size (~200 N;
-    gcp-rk45 at rtol 1e-6: 9e-3 N, 7e-8 m).  Measured: 6.6e-4 m against an estimate of
-    2.4e-6 m, normal load off by 11 N."""
+    the implicit integrators agree with Dormand-Prince 8 at rtol 1e-10 within 10x their own
+    error estimate and the friction's normal load within 1e-3 of its size (527 N; gcp-rk45
+    at rtol 1e-6: 9e-3 N, 7e-8 m).  Measured: genalpha 3.1e-6 m against an estimate of
+    2.4e-6 m, normal load 0.18 N off (with the last reaction loop's multipliers instead of
+    the iterate's: 6.6e-4 m, 11 N)."""
     spec, model, ref = friction_scene()
     res = run_model(model, "dynamic", {"t_end": 0.1, "rtol": 1e-6, "atol": 1e-8,
                                        "integrator": integrator}, deck=spec)
