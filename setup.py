@@ -1,5 +1,5 @@
-"""Build step of mbsim: the C kernels (mbsim/fast/kernels.c, step.c, outputs.c, implicit.c, partition.c) as
-one plain shared library.
+"""Build step of mbsim: the C kernels (mbsim/fast/kernels.c, step.c, outputs.c, implicit.c,
+partition.c) as one plain shared library.
 
 Everything else is declared in pyproject.toml.  The library is not a Python extension
 module (no Python.h, no PyInit_): mbsim.fast._lib loads it with ctypes.  A failed compile

@@ -125,6 +125,39 @@ typedef struct {
 
 int64_t mb_gcp_size(void) { return (int64_t)sizeof(mb_gcp); }
 
+/* max |x_i| (NaN if any x_i is NaN). */
+static double max_abs(const double *x, idx n)
+{
+    double r = 0.0;
+    for (idx i = 0; i < n; i++) {
+        double a = fabs(x[i]);
+        r = a > r || a != a ? a : r;
+    }
+    return r;
+}
+
+/* The completed (q, qd) at t into the model with the Python part (time targets, Python
+ * force elements); nonzero: that raised. */
+static int load_state(const mb_model *M, mb_gcp *G, double t, const double *q,
+                      const double *qd)
+{
+    memcpy(M->q, q, (size_t)G->nq * sizeof(double));
+    memcpy(M->qd, qd, (size_t)G->nq * sizeof(double));
+    return G->load && G->load(t, 1);
+}
+
+/* Phi, Phi_q (dense rows) and nu of a Newton iterate q at t into the model; nonzero: the
+ * Python part (time targets) raised. */
+static int newton_terms(const mb_model *M, mb_gcp *G, double t, const double *q)
+{
+    memcpy(M->q, q, (size_t)G->nq * sizeof(double));
+    if (G->load && G->load(t, 0))
+        return 1;
+    G->count[GP_CE]++;
+    mb_terms(M, 1, 0, 1);
+    return 0;
+}
+
 /* LU of Phi_u = J[:, iu] (the dense rows of the last mb_terms) into G->LU. */
 static int factor_u(const mb_model *M, mb_gcp *G)
 {
@@ -189,11 +222,8 @@ static int tangent_stage(const mb_model *M, mb_gcp *G, double t, const double *v
     int ni = (int)n, one = 1, info = 0, converged = 0;
     char no = 'N', tr = 'T';
     for (int it = 0; it < G->max_iter && !converged; it++) {
-        memcpy(M->q, q, (size_t)n * sizeof(double));
-        if (G->load && G->load(t, 0))
+        if (newton_terms(M, G, t, q))
             return GP_CALLBACK;
-        G->count[GP_CE]++;
-        mb_terms(M, 1, 0, 1);
         for (idx c = 0; c < n; c++) {
             double *col = G->At + c * n;
             for (idx r = 0; r < m; r++)
@@ -213,33 +243,20 @@ static int tangent_stage(const mb_model *M, mb_gcp *G, double t, const double *v
             G->w[m + i] = s - v[i];
         }
         G->getrs(&no, &ni, &one, G->At, &ni, G->pivA, G->w, &ni, &info);
-        double step = 0.0;
-        for (idx i = 0; i < n; i++) {
+        for (idx i = 0; i < n; i++)
             q[i] -= G->w[i];
-            double a = fabs(G->w[i]);
-            step = a > step || a != a ? a : step;
-        }
         G->count[GP_NEWTON_IT]++;
-        converged = step <= G->newton_tol;
+        converged = max_abs(G->w, n) <= G->newton_tol; /* NaN: not */
     }
-    if (!converged) {
-        double res = 0.0;
-        for (idx r = 0; r < m; r++) {
-            double a = fabs(M->phi_a[r]);
-            res = a > res || a != a ? a : res;
-        }
-        if (!(res <= G->newton_tol))
-            return GP_NEWTON;
-    }
+    if (!converged && !(max_abs(M->phi_a, m) <= G->newton_tol))
+        return GP_NEWTON;
     for (idx r = 0; r < m; r++)
         qd[r] = G->rheonomic ? M->nu_a[r] : 0.0;
     memcpy(qd + m, vd, (size_t)k * sizeof(double));
     G->getrs(&no, &ni, &one, G->At, &ni, G->pivA, qd, &ni, &info);
     if (!accelerations)
         return GP_OK;
-    memcpy(M->q, q, (size_t)n * sizeof(double));
-    memcpy(M->qd, qd, (size_t)n * sizeof(double));
-    if (G->load && G->load(t, 1))
+    if (load_state(M, G, t, q, qd))
         return GP_CALLBACK;
     G->count[GP_CE]++;
     mb_terms(M, 0, 1, 0); /* gamma, nu at (q, qd) */
@@ -251,12 +268,7 @@ static int tangent_stage(const mb_model *M, mb_gcp *G, double t, const double *v
         G->T[i * n + m + i] = 1.0;
     int ki = (int)k;
     G->getrs(&no, &ni, &ki, G->At, &ni, G->pivA, G->T, &ni, &info);
-    double sens = 0.0;
-    for (idx i = 0; i < n * k; i++) {
-        double a = fabs(G->T[i]);
-        sens = a > sens || a != a ? a : sens;
-    }
-    G->out[P_SENS] = sens;
+    G->out[P_SENS] = max_abs(G->T, n * k);
     memcpy(G->p, M->gamma_a, (size_t)m * sizeof(double));
     memset(G->p + m, 0, (size_t)k * sizeof(double));
     G->getrs(&no, &ni, &one, G->At, &ni, G->pivA, G->p, &ni, &info);
@@ -315,35 +327,21 @@ int mb_gcp_stage(const mb_model *M, mb_gcp *G, double t, const double *v, const 
     idx n = G->nq, m = G->ma, k = G->k;
     for (idx c = 0; c < k; c++)
         q[G->iv[c]] = v[c];
-    int converged = 0, it = 0, st;
-    for (; it < G->max_iter && !converged; it++) {
-        memcpy(M->q, q, (size_t)n * sizeof(double));
-        if (G->load && G->load(t, 0))
+    int converged = 0, st;
+    for (int it = 0; it < G->max_iter && !converged; it++) {
+        if (newton_terms(M, G, t, q))
             return GP_CALLBACK;
-        G->count[GP_CE]++;
-        mb_terms(M, 1, 0, 1);
         if ((st = factor_u(M, G)))
             return st;
         memcpy(G->x, M->phi_a, (size_t)m * sizeof(double));
         solve_u(G, G->x);
-        double step = 0.0;
-        for (idx c = 0; c < m; c++) {
+        for (idx c = 0; c < m; c++)
             q[G->iu[c]] -= G->x[c];
-            double a = fabs(G->x[c]);
-            step = a > step || a != a ? a : step;
-        }
         G->count[GP_NEWTON_IT]++;
-        converged = step <= G->newton_tol; /* NaN: not */
+        converged = max_abs(G->x, m) <= G->newton_tol; /* NaN: not */
     }
-    if (!converged) {
-        double res = 0.0;
-        for (idx r = 0; r < m; r++) {
-            double a = fabs(M->phi_a[r]);
-            res = a > res || a != a ? a : res;
-        }
-        if (!(res <= G->newton_tol))
-            return GP_NEWTON;
-    }
+    if (!converged && !(max_abs(M->phi_a, m) <= G->newton_tol))
+        return GP_NEWTON;
     /* ud = Phi_u^-1 (nu - Phi_v vd) on the last factor */
     for (idx r = 0; r < m; r++) {
         const double *Jr = M->J + r * n;
@@ -360,9 +358,7 @@ int mb_gcp_stage(const mb_model *M, mb_gcp *G, double t, const double *v, const 
     G->out[P_RATIO] = pivot_ratio(G);
     if (!accelerations)
         return GP_OK;
-    memcpy(M->q, q, (size_t)n * sizeof(double));
-    memcpy(M->qd, qd, (size_t)n * sizeof(double));
-    if (G->load && G->load(t, 1))
+    if (load_state(M, G, t, q, qd))
         return GP_CALLBACK;
     M->par[2] = 0.0; /* no Baumgarte terms */
     mb_gather_dense(M, M->J, M->Jg);
@@ -406,12 +402,7 @@ static double sensitivity(const mb_model *M, mb_gcp *G)
     int mi = (int)m, ki = (int)k, info = 0;
     char no = 'N';
     G->getrs(&no, &mi, &ki, G->LU, &mi, G->piv, G->Z, &mi, &info);
-    double s = 0.0;
-    for (idx i = 0; i < m * k; i++) {
-        double a = fabs(G->Z[i]);
-        s = a > s || a != a ? a : s;
-    }
-    return s;
+    return max_abs(G->Z, m * k);
 }
 
 /* One stage of the trial at t from the state ys, its Newton start the RK combination of

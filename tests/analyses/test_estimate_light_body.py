@@ -3,22 +3,12 @@
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from mbsim.api import load_model, run_model
+from tests.helpers import position_error
 
 DECK = Path(__file__).resolve().parents[2] / "models" / "slider_crank.yaml"
-
-
-def position_error(res, ref):
-    """max over outputs, bodies and output points of |r - r_ref| (m)."""
-    err = 0.0
-    for name, ch in res.channels.items():
-        if (name.startswith("bodies/") and name.endswith("/r")) or \
-                (name.startswith("points/") and name.endswith("/position")):
-            err = max(err, float(np.linalg.norm(ch.data - ref.channel(name).data, axis=1).max()))
-    return err
 
 
 @pytest.mark.xfail(strict=True, reason=(
