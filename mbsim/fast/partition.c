@@ -13,15 +13,17 @@
  *    of that iterate, as the Python stage passes it (System.accelerations' jac);
  *
  * and beside them the change-point measure of the last factor (smallest / largest |U_ii|,
- * changepoints.measure_from_lu).  One call takes a whole trial step of the RK tableau from
- * such stages, its change-point alarm, branch test and error norms (mb_gcp_trial); one
- * call all outputs of the last accepted step (mb_gcp_dense).  The step-size control, the
- * sensitivity's re-partitioning, the tangent coordinates near a change point and every
- * fallback stay in Python, visited once per trial.  The tableau's arithmetic (stage
- * combinations, error norms, interpolants) is step.c's, shared.
+ * changepoints.measure_from_lu).  Near a change point the stage is taken in the tangent
+ * coordinates v = C q instead (tangent_stage: changepoints.complete and .accelerations).
+ * One call takes a whole trial step of the RK tableau from such stages, its change-point
+ * alarm, branch test and error norms (mb_gcp_trial); one call all outputs of the last
+ * accepted step (mb_gcp_dense).  The step-size control, re-partitioning and every fallback
+ * stay in Python, visited once per trial.  The tableau's arithmetic (stage combinations,
+ * error norms, interpolants) is step.c's, shared.
  *
- * The last stage's factor stays in LU, piv (column-major, LAPACK's 1-based pivots) until
- * the next call: the caller copies it out where it needs it.  Nothing here allocates.
+ * The last stage's factor stays in LU, piv (in tangent coordinates At, pivA; column-major,
+ * LAPACK's 1-based pivots) until the next call: the caller copies it out where it needs it.
+ * Nothing here allocates.
  */
 #include <math.h>
 #include <stdint.h>

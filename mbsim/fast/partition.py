@@ -1,13 +1,15 @@
 """CompiledStage: the step of the coordinate-partitioning integrators in C.
 
-mbsim/fast/partition.c takes, for :mod:`mbsim.integrators.gcp` in coordinates (not in
-tangent coordinates), one stage in one call (:meth:`CompiledStage.stage`: the Newton
-iteration of the dependent coordinates u on Phi(u, v, t) = 0, the dependent velocities,
-the equations of motion, and the change-point measure of the last factor of Phi_u), a
-whole trial step of the RK tableau in one call (:meth:`CompiledStage.trial`: the stages,
-the alarm, the branch test, the error norms, and at an accepted end its sensitivity), and
-all outputs of the last accepted step in one call (:meth:`CompiledStage.dense`).  The
-step-size control, re-partitioning and every fallback stay in Python.
+mbsim/fast/partition.c takes, for :mod:`mbsim.integrators.gcp` on a dense Jacobian, one
+stage in one call (:meth:`CompiledStage.stage`: in coordinates the Newton iteration of the
+dependent coordinates u on Phi(u, v, t) = 0, the dependent velocities, the equations of
+motion and the change-point measure of the last factor of Phi_u; in the tangent coordinates
+of a change point, v = C q, Newton on [Phi; C q - v] and the reduced equations), a whole
+trial step of the RK tableau in one call (:meth:`CompiledStage.trial`: the stages, the
+alarm, the branch test, the error norms, and at an accepted end its sensitivity and
+measure), and all outputs of the last accepted step in one call
+(:meth:`CompiledStage.dense`).  The step-size control, re-partitioning and every fallback
+stay in Python.
 
 What still runs in Python inside a call: the time targets of driven rows and the force
 elements that are not compiled, through the callback of :mod:`mbsim.fast.stepper`.  Phi_u

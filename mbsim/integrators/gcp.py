@@ -46,13 +46,14 @@ position-like tangent coordinates than in the Euler parameters the null-space ch
 A motion that approaches the change point slowly is given a step across it that keeps its
 stages clear of it (:class:`changepoints.Approach`; counter ``straddle_steps``).
 
-Where it runs.  In coordinates on a dense Jacobian, each trial step (its stages, the
-change-point alarm, the branch test and both error norms) and each step's outputs are one
-C call (mbsim/fast/partition.c, :mod:`mbsim.fast.partition`), as are the stages of the
-dense output's Python fallback; Python is visited per trial for the step-size control,
-``_accept`` (the sensitivity and re-partitioning) and the fallbacks.  Tangent coordinates,
-sparse Jacobians (splu) and loads that depend on the multipliers take the stages here in
-Python; so does every stage with option ``compiled_step: false``.
+Where it runs.  On a dense Jacobian, in coordinates and in tangent coordinates alike, each
+trial step (its stages, the change-point alarm, the branch test and both error norms, and
+at an accepted end its sensitivity and measure) and each step's outputs are one C call
+(mbsim/fast/partition.c, :mod:`mbsim.fast.partition`), as are the stages of the dense
+output's Python fallback; Python is visited per trial for the step-size control,
+``_accept``'s re-partitioning and the fallbacks.  Sparse Jacobians (splu) and loads that
+depend on the multipliers take the stages here in Python; so does every stage with option
+``compiled_step: false``.
 """
 
 from __future__ import annotations
@@ -174,7 +175,7 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         self._start()
 
     def _compiled_stage(self):
-        """The stages in coordinates in C (:mod:`mbsim.fast.partition`), unless option
+        """The stages, trials and outputs in C (:mod:`mbsim.fast.partition`), unless option
         ``compiled_step`` is false (the Python path, the same equations;
         tests/integrators/test_gcp_compiled.py compares the two), the Jacobian is sparse
         (Phi_u factored by splu) or loads depend on the multipliers (System.reaction_loop:
@@ -309,10 +310,10 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         return q0 + tau * qd0 + (0.5 * tau * tau) * qdd0
 
     def _compiled_call(self, t, v, vd, q, part, accelerations):
-        """(q, qd, qdd, power) of a stage in coordinates from the compiled stage (qdd, power
-        None without accelerations), or None where the Python loads raised inside it (the
-        caller takes the stage in Python, where the loads raise again to be seen).  Raises
-        what the Python stage would."""
+        """(q, qd, qdd, power) of a stage in ``part`` (coordinates or tangent coordinates)
+        from the compiled stage (qdd, power None without accelerations), or None where the
+        Python loads raised inside it (the caller takes the stage in Python, where the loads
+        raise again to be seen).  Raises what the Python stage would."""
         c = self._compiled
         self._hold(part)
         st, q, qd, qdd, power, ratio = c.stage(t, v, vd, q, accelerations)
@@ -341,7 +342,10 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
             return self._compiled.factor(), self._compiled.jacobian()
         t, q = self._last[0], self._last[2]
         jac = self.system.terms(q, t, phi=False).jac
-        return self._factor(jac, self.part.iu), jac
+        part = self.part
+        if part.C is not None:
+            return self._factor_tangent(jac, part.C), jac
+        return self._factor(jac, part.iu), jac
 
     def _tangent_accelerations(self, t, q, qd, fac, part):
         """(qdd, power) in tangent coordinates from the reduced equations (module doc;
@@ -404,11 +408,11 @@ class GeneralizedCoordinatePartitioning(RungeKuttaIntegrator):
         return y_new, f_new
 
     def _attempt(self, h):
-        """The trial step and its error test in one C call when the partition is in
-        coordinates (mbsim/fast/partition.c: mb_gcp_trial, the arithmetic of ``_trial``,
-        ``_check_singular``, ``_check_branch`` and the error norms), then ``_accept``;
-        in tangent coordinates, or where a Python load raised inside the call (taken again
-        here, where it raises to be seen), the stages in Python (rk's ``_attempt``)."""
+        """The trial step and its error test in one C call (mbsim/fast/partition.c:
+        mb_gcp_trial, the arithmetic of ``_trial``, ``_check_singular``, ``_check_branch``
+        and the error norms), then ``_accept``; without the compiled stage, or where a
+        Python load raised inside the call (taken again here, where it raises to be seen),
+        rk's ``_attempt`` (the stages one by one)."""
         c, part = self._compiled, self.part
         self._c_last = False
         if c is None:
