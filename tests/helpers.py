@@ -1,5 +1,5 @@
 """Build DeckSpec objects directly (no YAML) for unit tests of the core; compare two
-results' positions."""
+results' positions; make the Python force elements raise."""
 
 from __future__ import annotations
 
@@ -110,3 +110,19 @@ def position_error(res, ref):
                 (name.startswith("points/") and name.endswith("/position")):
             err = max(err, float(np.linalg.norm(ch.data - ref.channel(name).data, axis=1).max()))
     return err
+
+
+def python_loads_raise(monkeypatch, exc, after=0.01):
+    """Every Python force element's load evaluation after time ``after`` raises ``exc`` (an
+    exception instance or class), as a failing law would, wherever it is called from (the
+    compiled steps' load callback included)."""
+    from mbsim.fast.dynamics import System
+
+    apply = System.apply_python
+
+    def failing(self, st, t, loads):
+        if t > after:
+            raise exc
+        return apply(self, st, t, loads)
+
+    monkeypatch.setattr(System, "apply_python", failing)

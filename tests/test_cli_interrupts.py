@@ -62,21 +62,27 @@ def test_interrupt_during_the_error_estimate_exits_1_keeping_the_complete_run(
     assert res.complete and res.t[-1] == pytest.approx(0.05, abs=1e-12)
 
 
-def test_interrupt_after_the_integration_keeps_its_outputs(tmp_path, monkeypatch):
-    """A Ctrl-C in the error estimate outside its companion's own handling (or in building
-    the result) after the run reached t_end: the run's outputs are kept, complete, without
-    an estimate, and the command says so (exit 1)."""
+@pytest.mark.parametrize("part, said", [
+    ("estimate", "complete, without an error estimate"),
+    ("build_result", "complete"),
+])
+def test_interrupt_after_the_integration_keeps_its_outputs(tmp_path, monkeypatch, part, said):
+    """A Ctrl-C after the run reached t_end, in the error estimate outside its companion's
+    own handling or in building the result (its first attempt): the run's outputs are kept,
+    complete (without an estimate where the estimate was interrupted), and the command says
+    so (exit 1)."""
     import mbsim.analyses.dynamic as dyn
 
-    estimate = dyn.estimate
+    original, calls = getattr(dyn, part), []
 
-    def interrupted_estimate(*args, **kwargs):
-        os.kill(os.getpid(), signal.SIGINT)  # lands outside the companion's own try
-        return estimate(*args, **kwargs)
+    def interrupted(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            os.kill(os.getpid(), signal.SIGINT)  # lands outside the analysis' own tries
+        return original(*args, **kwargs)
 
-    monkeypatch.setattr(dyn, "estimate", interrupted_estimate)
+    monkeypatch.setattr(dyn, part, interrupted)
     out = tmp_path / "x.h5"
-    one_error(cli(*FREE, "-o", out), 1, "interrupted", "after the run reached its end",
-              "complete, without an error estimate")
+    one_error(cli(*FREE, "-o", out), 1, "interrupted", "after the run reached its end", said)
     res = read_result(out)
     assert res.complete and res.t[-1] == pytest.approx(0.05, abs=1e-12)

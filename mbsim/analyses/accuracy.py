@@ -89,7 +89,7 @@ def accuracy_run(model, opt, progress, explicit, context=NO_DECK):
             est = estimate(model, prep, opt, tr, companion)
         except KeyboardInterrupt:  # outside the companion's own handling: the run is kept
             est = {"method": "not computed: the error estimate was interrupted",
-                   "position": None, "_copt": None, "_companion": None,
+                   "position": None,
                    "reason": "the error estimate was interrupted (Ctrl-C or SIGTERM)"}
             interrupted = True
         e = (math.nan if est.get("position") is None

@@ -11,9 +11,9 @@ import pytest
 import scipy.linalg as la
 
 from mbsim.api import load_model, run_model
-from mbsim.fast.dynamics import System
 from mbsim.integrators.base import Integrator
 from mbsim.integrators.gcp import GeneralizedCoordinatePartitioning as Gcp
+from tests.helpers import python_loads_raise
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 DECKS = [("governor", None), ("slider_crank", None), ("slider_crank", "free"),
@@ -261,25 +261,13 @@ def test_a_python_load_that_raises_inside_the_stage_is_raised(monkeypatch):
     ZeroDivisionError is numerical: the step shrinks to h_min and the run ends incomplete
     naming it), with the Python stage's message; a KeyboardInterrupt there (Ctrl-C)
     leaves the C call, is raised after it and ends the run as an interruption."""
-    apply = System.apply_python
-
-    def failing(self, st, t, loads):
-        if t > 0.01:
-            raise ZeroDivisionError("the element's law divided by zero")
-        return apply(self, st, t, loads)
-
-    monkeypatch.setattr(System, "apply_python", failing)
+    python_loads_raise(monkeypatch, ZeroDivisionError("the element's law divided by zero"))
     res, py = (run("compressor", "gcp-rk45", c, t_end=0.05) for c in (True, False))
     assert res.status == "incomplete"
     assert "the element's law divided by zero" in res.message
     assert res.message == py.message
     assert 0.0 < res.t[-1] <= 0.01 + 1e-12
 
-    def interrupted(self, st, t, loads):
-        if t > 0.01:
-            raise KeyboardInterrupt
-        return apply(self, st, t, loads)
-
-    monkeypatch.setattr(System, "apply_python", interrupted)
+    python_loads_raise(monkeypatch, KeyboardInterrupt)
     res = run("compressor", "gcp-rk45", True, t_end=0.05)
     assert res.status == "incomplete" and "interrupted (Ctrl-C)" in res.message

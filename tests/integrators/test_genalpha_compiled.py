@@ -10,9 +10,9 @@ import pytest
 
 from mbsim.analyses.dynamic import dynamic
 from mbsim.api import load_model, run_model
-from mbsim.fast.dynamics import System
 from mbsim.integrators.base import rms_norm
 from mbsim.integrators.genalpha import GeneralizedAlpha
+from tests.helpers import python_loads_raise
 from tests.integrators import models as M
 from tests.reference import genalpha_newton as ref
 
@@ -136,17 +136,7 @@ def test_a_python_load_that_raises_inside_the_step_is_raised(monkeypatch):
     and names it, as from a Python step; and a KeyboardInterrupt there (Ctrl-C) leaves the
     C call, is raised after it and ends the run as an interruption."""
     spec, model = load_model(MODELS / "compressor.yaml")
-    system_cls = System
-    calls = {"n": 0}
-    apply = system_cls.apply_python
-
-    def failing(self, st, t, loads):
-        calls["n"] += 1
-        if t > 0.01:
-            raise ZeroDivisionError("the element's law divided by zero")
-        return apply(self, st, t, loads)
-
-    monkeypatch.setattr(system_cls, "apply_python", failing)
+    python_loads_raise(monkeypatch, ZeroDivisionError("the element's law divided by zero"))
     opts = dict(spec.analysis.get("dynamic", {}), integrator="genalpha", error_estimate=False,
                 t_end=0.05)
     res = run_model(model, "dynamic", opts)
@@ -154,11 +144,6 @@ def test_a_python_load_that_raises_inside_the_step_is_raised(monkeypatch):
     assert "ZeroDivisionError: the element's law divided by zero" in res.message
     assert 0.0 < res.t[-1] <= 0.01 + 1e-12
 
-    def interrupted(self, st, t, loads):
-        if t > 0.01:
-            raise KeyboardInterrupt
-        return apply(self, st, t, loads)
-
-    monkeypatch.setattr(system_cls, "apply_python", interrupted)
+    python_loads_raise(monkeypatch, KeyboardInterrupt)
     res = run_model(model, "dynamic", opts)
     assert res.status == "incomplete" and "interrupted (Ctrl-C)" in res.message
